@@ -1,0 +1,59 @@
+/* The bias network: 2 hidden layers x 50 ReLU -> 1 linear output, float32, const weights (flash). */
+#ifndef UWB_BIAS_NN_H
+#define UWB_BIAS_NN_H
+
+#include <stdint.h>
+
+#define BIAS_NN_HIDDEN 50
+#define BIAS_NN_MAX_IN 9
+
+/* Input layouts (protocol enum `layout`). dp = anchor - tag position, world frame [m]. */
+enum {
+    BIAS_LAYOUT_NONE = 0,
+    BIAS_LAYOUT_TWR_POSE = 1,  /* [dp(3), roll, pitch, yaw] */
+    BIAS_LAYOUT_TDOA_POSE = 2, /* [dp_A(3), dp_B(3), roll, pitch, yaw] */
+    BIAS_LAYOUT_TWR_POS = 3,   /* [dp(3)] */
+    BIAS_LAYOUT_TDOA_POS = 4   /* [dp_A(3), dp_B(3)] */
+};
+
+/* One network. Weight storage order is documented in bias_nn.c and written by
+ * harness/biasnet/export.py; all pointers refer to const tables. */
+typedef struct {
+    uint8_t layout;
+    uint8_t n_in;
+    const float *w1;     /* n_in x 50 */
+    const float *b1;     /* 50 */
+    const float *w2;     /* 50 x 50 */
+    const float *b2;     /* 50 */
+    const float *w3;     /* 50 */
+    float b3;
+    const float *in_min; /* n_in */
+    const float *in_max; /* n_in */
+    float out_min;
+    float out_max;
+} bias_nn_t;
+
+/* The compiled-in model: one network per measurement kind (either may be NULL). */
+typedef struct {
+    const bias_nn_t *twr;
+    const bias_nn_t *tdoa;
+    uint64_t hash;       /* harness/biasnet/model.py: first 8 bytes of SHA-256, little-endian */
+} bias_model_t;
+
+/* Number of inputs of a layout (0 for unknown). */
+uint8_t bias_nn_layout_inputs(uint8_t layout);
+
+/* Build the feature vector for `layout` from the estimated tag position, Euler angles
+ * (roll, pitch, yaw [rad]) and the anchor positions (anchor_b unused for TWR layouts).
+ * Returns the number of features written (0 for an unknown layout). */
+uint8_t bias_nn_features(uint8_t layout, const float tag[3], const float rpy[3],
+                         const float anchor_a[3], const float anchor_b[3], float out[BIAS_NN_MAX_IN]);
+
+/* Scale, run, de-scale and clamp: the bias in metres (measured - true). */
+float bias_nn_predict(const bias_nn_t *net, const float *features);
+
+/* The model the firmware is built with (firmware_sim/models/bias_model_default.h, or the
+ * header named by -DBIAS_MODEL_HEADER). Defined in bias_nn.c. */
+extern const bias_model_t bias_model_compiled;
+
+#endif

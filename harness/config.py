@@ -1,0 +1,76 @@
+"""Estimator configuration shared by the firmware (CONFIG message) and the numpy twin."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+
+# Mirrors protocol enums (kept literal here so this module has no protocol import).
+MODE_IMU = 0
+MODE_UWB_ONLY = 1
+STAGE_BIAS_NN = 1
+STAGE_KINEMATIC_GATE = 2
+STAGE_CHI2_GATE = 4
+STAGES_ALL = STAGE_BIAS_NN | STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
+STAGES_OUTLIER = STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
+
+#: The three configurations of the paper's experiments.
+PRESETS: dict[str, int] = {
+    "none": 0,
+    "outlier": STAGES_OUTLIER,
+    "outlier+nn": STAGES_ALL,
+}
+
+
+class ConfigError(ValueError):
+    """An estimator configuration value is out of range."""
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """What CONFIG carries. Defaults are the firmware's power-up values (firmware_sim/core/estimator.c)."""
+
+    mode: int = MODE_IMU
+    stages: int = STAGES_ALL
+    std_twr: float = 0.25
+    std_tdoa: float = 0.15
+    # Kinematic gate: d_max = |v| dt + a_max dt^2 / 2 with dt >= gate_dt_min. Like the paper's on-board
+    # code (a_max = 4 T_max g), a_max is a tuned bound, not a physical acceleration.
+    a_max_twr: float = 5000.0
+    a_max_tdoa: float = 5000.0
+    gate_dt_min: float = 0.01
+    chi2_twr: float = 3.841
+    chi2_tdoa: float = 3.841
+    proc_acc_xy: float = 0.5
+    proc_acc_z: float = 1.0
+    proc_cv_acc: float = 2.0
+    init_x: float = 0.0
+    init_y: float = 0.0
+    init_z: float = 0.0
+    init_std_xy: float = 1.0
+    init_std_z: float = 1.0
+    nn_min_z: float = 0.5
+
+    def validate(self) -> None:
+        """Raise ConfigError naming the first invalid field (the firmware refuses the same values)."""
+        if self.mode not in (MODE_IMU, MODE_UWB_ONLY):
+            raise ConfigError(f"mode must be {MODE_IMU} (IMU) or {MODE_UWB_ONLY} (UWB-only), got {self.mode}")
+        if self.stages & ~STAGES_ALL:
+            raise ConfigError(f"stages has unknown bits: {self.stages:#x}")
+        for name, value in asdict(self).items():
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ConfigError(f"{name} must be finite, got {value}")
+        positive = ("std_twr", "std_tdoa", "a_max_twr", "a_max_tdoa", "gate_dt_min", "chi2_twr",
+                    "chi2_tdoa", "proc_cv_acc", "init_std_xy", "init_std_z")
+        for name in positive:
+            if getattr(self, name) <= 0.0:
+                raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in ("proc_acc_xy", "proc_acc_z"):
+            if getattr(self, name) < 0.0:
+                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)}")
+
+    def with_stages(self, stages: int) -> "EstimatorConfig":
+        return replace(self, stages=stages)
+
+    def with_init(self, x: float, y: float, z: float) -> "EstimatorConfig":
+        return replace(self, init_x=float(x), init_y=float(y), init_z=float(z))

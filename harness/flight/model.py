@@ -1,0 +1,134 @@
+"""The flight data model shared by the simulator, the recorded-data loaders, the twin and the streamer.
+
+Times are integer microseconds (numpy int64) so replays are exact; everything else is SI float64.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+
+KIND_TWR = 1   # same values as protocol enum meas_kind
+KIND_TDOA = 2
+
+
+class FlightError(ValueError):
+    """A flight is inconsistent (shapes, ordering, unknown anchors)."""
+
+
+@dataclass(frozen=True)
+class Anchors:
+    """Anchor constellation: integer ids and positions [m]; optional orientations (w, x, y, z)."""
+
+    ids: np.ndarray                      # (N,) int
+    positions: np.ndarray                # (N, 3)
+    orientations: np.ndarray | None = None  # (N, 4) body->world quaternions of the anchor antennas
+
+    def __post_init__(self) -> None:
+        if self.positions.shape != (len(self.ids), 3):
+            raise FlightError(f"anchor positions must be ({len(self.ids)}, 3), got {self.positions.shape}")
+        if len(set(int(i) for i in self.ids)) != len(self.ids):
+            raise FlightError("anchor ids must be unique")
+
+    def position(self, anchor_id: int) -> np.ndarray:
+        idx = np.nonzero(self.ids == anchor_id)[0]
+        if idx.size == 0:
+            raise FlightError(f"unknown anchor id {anchor_id}")
+        return self.positions[int(idx[0])]
+
+    def as_dict(self) -> dict[int, np.ndarray]:
+        return {int(i): self.positions[k] for k, i in enumerate(self.ids)}
+
+
+@dataclass(frozen=True)
+class ImuStream:
+    t_us: np.ndarray    # (N,) int64, non-decreasing
+    acc: np.ndarray     # (N, 3) specific force, body frame [m/s^2]
+    gyro: np.ndarray    # (N, 3) body rates [rad/s]
+
+    def __len__(self) -> int:
+        return int(self.t_us.shape[0])
+
+
+@dataclass(frozen=True)
+class UwbStream:
+    """TWR: anchor_a = anchor, anchor_b = -1, value = range. TDoA: value = d(tag, B) - d(tag, A)."""
+
+    kind: int           # KIND_TWR or KIND_TDOA
+    t_us: np.ndarray    # (M,) int64, non-decreasing
+    anchor_a: np.ndarray  # (M,) int
+    anchor_b: np.ndarray  # (M,) int (-1 for TWR)
+    value: np.ndarray   # (M,) [m]
+    true_value: np.ndarray | None = None  # (M,) noiseless value, when known (simulation)
+
+    def __len__(self) -> int:
+        return int(self.t_us.shape[0])
+
+
+@dataclass(frozen=True)
+class Truth:
+    t_us: np.ndarray            # (K,) int64, increasing
+    pos: np.ndarray             # (K, 3) position of the UWB tag [m]
+    quat: np.ndarray | None = None  # (K, 4) (w, x, y, z) body->world
+    vel: np.ndarray | None = None   # (K, 3) world velocity
+
+    def position_at(self, t_us: np.ndarray) -> np.ndarray:
+        """Linear interpolation of the true position at the given times (clamped at the ends)."""
+        t = np.asarray(t_us, dtype=np.float64)
+        tt = self.t_us.astype(np.float64)
+        return np.stack([np.interp(t, tt, self.pos[:, k]) for k in range(3)], axis=-1)
+
+
+@dataclass
+class Flight:
+    name: str
+    anchors: Anchors
+    uwb: UwbStream
+    truth: Truth
+    imu: ImuStream | None = None
+    meta: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def has_imu(self) -> bool:
+        return self.imu is not None and len(self.imu) > 0
+
+    @property
+    def duration_s(self) -> float:
+        t0 = int(self.uwb.t_us[0]) if len(self.uwb) else 0
+        t1 = int(self.uwb.t_us[-1]) if len(self.uwb) else 0
+        return (t1 - t0) * 1e-6
+
+    def validate(self) -> None:
+        """Check shapes, time ordering and that every measurement names a known anchor."""
+        u = self.uwb
+        m = len(u)
+        for name in ("anchor_a", "anchor_b", "value"):
+            if getattr(u, name).shape != (m,):
+                raise FlightError(f"{self.name}: uwb.{name} must have shape ({m},)")
+        if m and np.any(np.diff(u.t_us) < 0):
+            raise FlightError(f"{self.name}: UWB timestamps go backwards")
+        known = set(int(i) for i in self.anchors.ids)
+        used = set(int(i) for i in np.unique(u.anchor_a))
+        if u.kind == KIND_TDOA:
+            used |= set(int(i) for i in np.unique(u.anchor_b))
+        missing = used - known
+        if missing:
+            raise FlightError(f"{self.name}: measurements name unknown anchors {sorted(missing)}")
+        if self.imu is not None and len(self.imu) and np.any(np.diff(self.imu.t_us) < 0):
+            raise FlightError(f"{self.name}: IMU timestamps go backwards")
+
+    def events(self) -> Iterator[tuple[int, int, int]]:
+        """Time-ordered merge of IMU and UWB: yields (t_us, source, index), source 0 = IMU, 1 = UWB.
+
+        At equal timestamps IMU comes first, so a measurement sees every IMU sample up to its time.
+        """
+        imu_t = self.imu.t_us if self.has_imu else np.zeros(0, dtype=np.int64)
+        uwb_t = self.uwb.t_us
+        t = np.concatenate([imu_t, uwb_t])
+        src = np.concatenate([np.zeros(len(imu_t), dtype=np.int8), np.ones(len(uwb_t), dtype=np.int8)])
+        idx = np.concatenate([np.arange(len(imu_t)), np.arange(len(uwb_t))])
+        order = np.lexsort((src, t))
+        for k in order:
+            yield int(t[k]), int(src[k]), int(idx[k])
