@@ -1,0 +1,347 @@
+#include <string.h>
+
+#include "bias_nn.h"
+#include "cobs.h"
+#include "firmware.h"
+#include "platform.h"
+
+#ifndef UWB_BUILD_ID
+#define UWB_BUILD_ID "dev"
+#endif
+
+/* The core's codes are defined to equal the protocol's; fail the build if they drift apart. */
+typedef char check_status_accepted[(EST_ACCEPTED == UWB_STATUS_ACCEPTED) ? 1 : -1];
+typedef char check_status_kin[(EST_REJECTED_KINEMATIC == UWB_STATUS_REJECTED_KINEMATIC) ? 1 : -1];
+typedef char check_status_chi2[(EST_REJECTED_CHI2 == UWB_STATUS_REJECTED_CHI2) ? 1 : -1];
+typedef char check_status_geom[(EST_REJECTED_GEOMETRY == UWB_STATUS_REJECTED_GEOMETRY) ? 1 : -1];
+typedef char check_err_anchor[(EST_ERR_UNKNOWN_ANCHOR == UWB_ERROR_CODE_UNKNOWN_ANCHOR) ? 1 : -1];
+typedef char check_err_time[(EST_ERR_TIME_BACKWARDS == UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
+typedef char check_err_id[(EST_ERR_BAD_ANCHOR_ID == UWB_ERROR_CODE_BAD_ANCHOR_ID) ? 1 : -1];
+
+static void send_msg(firmware_t *fw, uwb_msg_t *msg)
+{
+    uint8_t body[UWB_MAX_BODY];
+    uint8_t enc[UWB_MAX_ENCODED + 1];
+    size_t n, m;
+    msg->seq = fw->tx_seq++;
+    n = uwb_body_encode(msg, body);
+    m = cobs_encode(body, n, enc);
+    enc[m++] = 0;
+    fw->write(fw->write_ctx, enc, m);
+}
+
+static void send_error(firmware_t *fw, uint8_t code, const uwb_msg_t *bad, uint32_t detail)
+{
+    uwb_msg_t msg;
+    memset(&msg, 0, sizeof msg);
+    msg.type = UWB_MSG_ERROR;
+    msg.u.error.code = code;
+    msg.u.error.msg_type = bad->type;
+    msg.u.error.msg_seq = bad->seq;
+    msg.u.error.detail = detail;
+    send_msg(fw, &msg);
+}
+
+static void copy_str(uint8_t *dst, size_t cap, const char *src)
+{
+    size_t i;
+    for (i = 0; i < cap; i++) {
+        dst[i] = (uint8_t)(src[i] != '\0' ? src[i] : '\0');
+        if (src[i] == '\0') {
+            for (; i < cap; i++) {
+                dst[i] = 0;
+            }
+            break;
+        }
+    }
+}
+
+void firmware_init(firmware_t *fw, fw_write_fn write, void *write_ctx, const char *target)
+{
+    memset(fw, 0, sizeof *fw);
+    estimator_init(&fw->est, &bias_model_compiled);
+    frame_rx_init(&fw->rx);
+    fw->write = write;
+    fw->write_ctx = write_ctx;
+    copy_str((uint8_t *)fw->target, sizeof fw->target, target);
+}
+
+static void on_hello(firmware_t *fw, const uwb_msg_t *in)
+{
+    uwb_msg_t msg;
+    const bias_model_t *model = &bias_model_compiled;
+    memset(&msg, 0, sizeof msg);
+    msg.type = UWB_MSG_HELLO_REPLY;
+    msg.u.hello_reply.nonce = in->u.hello.nonce;
+    msg.u.hello_reply.proto_version = UWB_PROTO_VERSION;
+    msg.u.hello_reply.fw_major = FW_VERSION_MAJOR;
+    msg.u.hello_reply.fw_minor = FW_VERSION_MINOR;
+    msg.u.hello_reply.fw_patch = FW_VERSION_PATCH;
+    msg.u.hello_reply.cost_unit = platform_cost_unit();
+    msg.u.hello_reply.layout_twr = model->twr ? model->twr->layout : UWB_LAYOUT_NONE;
+    msg.u.hello_reply.layout_tdoa = model->tdoa ? model->tdoa->layout : UWB_LAYOUT_NONE;
+    msg.u.hello_reply.model_hash = model->hash;
+    copy_str(msg.u.hello_reply.build_id, sizeof msg.u.hello_reply.build_id, UWB_BUILD_ID);
+    memcpy(msg.u.hello_reply.target, fw->target, sizeof msg.u.hello_reply.target);
+    send_msg(fw, &msg);
+}
+
+static void on_stats_req(firmware_t *fw)
+{
+    uwb_msg_t msg;
+    const fw_stats_t *s = &fw->stats;
+    memset(&msg, 0, sizeof msg);
+    msg.type = UWB_MSG_STATS;
+    msg.u.stats.frames_ok = s->frames_ok;
+    msg.u.stats.crc_errors = s->crc_errors;
+    msg.u.stats.framing_errors = s->framing_errors;
+    msg.u.stats.unknown_types = s->unknown_types;
+    msg.u.stats.bad_lengths = s->bad_lengths;
+    msg.u.stats.non_finite = s->non_finite;
+    msg.u.stats.unknown_anchors = s->unknown_anchors;
+    msg.u.stats.time_backwards = s->time_backwards;
+    msg.u.stats.bad_configs = s->bad_configs;
+    msg.u.stats.dropped_meas = s->dropped_meas;
+    msg.u.stats.imu_samples = s->imu_samples;
+    msg.u.stats.twr_meas = s->twr_meas;
+    msg.u.stats.tdoa_meas = s->tdoa_meas;
+    msg.u.stats.results = s->results;
+    msg.u.stats.predictions = estimator_prediction_count(&fw->est);
+    msg.u.stats.seq_gaps = s->seq_gaps;
+    send_msg(fw, &msg);
+}
+
+static void on_config(firmware_t *fw, const uwb_msg_t *in)
+{
+    const uwb_config_t *c = &in->u.config;
+    estimator_config_t cfg;
+    cfg.mode = c->mode;
+    cfg.stages = c->stages;
+    cfg.std_twr = c->std_twr;
+    cfg.std_tdoa = c->std_tdoa;
+    cfg.a_max_twr = c->a_max_twr;
+    cfg.a_max_tdoa = c->a_max_tdoa;
+    cfg.gate_dt_min = c->gate_dt_min;
+    cfg.chi2_twr = c->chi2_twr;
+    cfg.chi2_tdoa = c->chi2_tdoa;
+    cfg.proc_acc_xy = c->proc_acc_xy;
+    cfg.proc_acc_z = c->proc_acc_z;
+    cfg.proc_cv_acc = c->proc_cv_acc;
+    cfg.init_x = c->init_x;
+    cfg.init_y = c->init_y;
+    cfg.init_z = c->init_z;
+    cfg.init_std_xy = c->init_std_xy;
+    cfg.init_std_z = c->init_std_z;
+    cfg.nn_min_z = c->nn_min_z;
+    /* Refuse the whole message: a half-applied configuration would be worse than none. */
+    if (c->reset > 1 || c->reserved != 0 || !estimator_config_valid(&cfg)) {
+        fw->stats.bad_configs++;
+        send_error(fw, UWB_ERROR_CODE_BAD_CONFIG, in, 0);
+        return;
+    }
+    estimator_configure(&fw->est, &cfg, c->reset);
+}
+
+static void fill_result(firmware_t *fw, uwb_result_t *r, const estimator_result_t *er)
+{
+    float pos[3], vel[3], quat[4], var[9];
+    estimator_state(&fw->est, pos, vel, quat, var);
+    r->status = er->status;
+    r->innovation = er->innovation;
+    r->innovation_var = er->innovation_var;
+    r->bias = er->bias;
+    r->d_max = er->d_max;
+    r->gain_x = er->gain[0];
+    r->gain_y = er->gain[1];
+    r->gain_z = er->gain[2];
+    r->cost_nn = er->cost_nn;
+    r->cost_gates = er->cost_gates;
+    r->cost_update = er->cost_update;
+    r->cost_predict = er->cost_predict;
+    r->px = pos[0];
+    r->py = pos[1];
+    r->pz = pos[2];
+    r->vx = vel[0];
+    r->vy = vel[1];
+    r->vz = vel[2];
+    r->qw = quat[0];
+    r->qx = quat[1];
+    r->qy = quat[2];
+    r->qz = quat[3];
+    r->var_x = var[0];
+    r->var_y = var[1];
+    r->var_z = var[2];
+    r->var_vx = var[3];
+    r->var_vy = var[4];
+    r->var_vz = var[5];
+    r->var_d0 = var[6];
+    r->var_d1 = var[7];
+    r->var_d2 = var[8];
+}
+
+static void refuse_measurement(firmware_t *fw, const uwb_msg_t *in, int rc, uint32_t detail)
+{
+    fw->stats.dropped_meas++;
+    if (rc == EST_ERR_UNKNOWN_ANCHOR) {
+        fw->stats.unknown_anchors++;
+    } else if (rc == EST_ERR_TIME_BACKWARDS) {
+        fw->stats.time_backwards++;
+    }
+    send_error(fw, (uint8_t)rc, in, detail);
+}
+
+static void on_measurement(firmware_t *fw, const uwb_msg_t *in)
+{
+    estimator_result_t er;
+    uwb_msg_t out;
+    uint32_t t0, t1;
+    int rc;
+    memset(&er, 0, sizeof er);
+    t0 = platform_cost_now();
+    if (in->type == UWB_MSG_TWR) {
+        fw->stats.twr_meas++;
+        rc = estimator_on_twr(&fw->est, in->u.twr.t_us, in->u.twr.anchor_id, in->u.twr.range, &er);
+    } else {
+        fw->stats.tdoa_meas++;
+        rc = estimator_on_tdoa(&fw->est, in->u.tdoa.t_us, in->u.tdoa.anchor_a, in->u.tdoa.anchor_b,
+                               in->u.tdoa.diff, &er);
+    }
+    t1 = platform_cost_now();
+    if (rc != EST_OK) {
+        uint32_t detail = in->type == UWB_MSG_TWR ? in->u.twr.anchor_id
+                                                  : ((uint32_t)in->u.tdoa.anchor_a | ((uint32_t)in->u.tdoa.anchor_b << 8));
+        refuse_measurement(fw, in, rc, detail);
+        return;
+    }
+    memset(&out, 0, sizeof out);
+    out.type = UWB_MSG_RESULT;
+    out.u.result.meas_seq = in->seq;
+    out.u.result.kind = in->type == UWB_MSG_TWR ? UWB_MEAS_KIND_TWR : UWB_MEAS_KIND_TDOA;
+    out.u.result.t_us = in->type == UWB_MSG_TWR ? in->u.twr.t_us : in->u.tdoa.t_us;
+    fill_result(fw, &out.u.result, &er);
+    out.u.result.compute = t1 - t0;
+    fw->stats.results++;
+    send_msg(fw, &out);
+}
+
+static void track_seq(firmware_t *fw, uint16_t seq)
+{
+    if (fw->rx_seq_valid && seq != fw->next_rx_seq) {
+        uint16_t gap = (uint16_t)(seq - fw->next_rx_seq);
+        /* A small forward jump means frames were lost; anything else is a host restart. */
+        if (gap < 0x8000u) {
+            fw->stats.seq_gaps += gap;
+        }
+    }
+    fw->next_rx_seq = (uint16_t)(seq + 1u);
+    fw->rx_seq_valid = 1;
+}
+
+static void dispatch(firmware_t *fw, const uwb_msg_t *in)
+{
+    int rc;
+    if (!uwb_msg_finite(in)) {
+        fw->stats.non_finite++;
+        if (in->type == UWB_MSG_TWR || in->type == UWB_MSG_TDOA) {
+            fw->stats.dropped_meas++;
+        }
+        send_error(fw, UWB_ERROR_CODE_NON_FINITE, in, 0);
+        return;
+    }
+    switch (in->type) {
+    case UWB_MSG_HELLO:
+        on_hello(fw, in);
+        break;
+    case UWB_MSG_CONFIG:
+        on_config(fw, in);
+        break;
+    case UWB_MSG_ANCHOR: {
+        const float pos[3] = {in->u.anchor.x, in->u.anchor.y, in->u.anchor.z};
+        rc = estimator_set_anchor(&fw->est, in->u.anchor.anchor_id, pos);
+        if (rc != EST_OK) {
+            send_error(fw, (uint8_t)rc, in, in->u.anchor.anchor_id);
+        }
+        break;
+    }
+    case UWB_MSG_IMU: {
+        const float acc[3] = {in->u.imu.ax, in->u.imu.ay, in->u.imu.az};
+        const float gyro[3] = {in->u.imu.gx, in->u.imu.gy, in->u.imu.gz};
+        rc = estimator_on_imu(&fw->est, in->u.imu.t_us, acc, gyro);
+        if (rc == EST_OK) {
+            fw->stats.imu_samples++;
+        } else {
+            fw->stats.time_backwards += rc == EST_ERR_TIME_BACKWARDS;
+            send_error(fw, (uint8_t)rc, in, 0);
+        }
+        break;
+    }
+    case UWB_MSG_TWR:
+    case UWB_MSG_TDOA:
+        on_measurement(fw, in);
+        break;
+    case UWB_MSG_STATS_REQ:
+        on_stats_req(fw);
+        break;
+    default:
+        /* A device -> host type arriving at the device. */
+        fw->stats.unknown_types++;
+        send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, in, 0);
+        break;
+    }
+}
+
+static void on_frame(firmware_t *fw, const uint8_t *enc, size_t n)
+{
+    uint8_t body[UWB_MAX_BODY];
+    uwb_msg_t msg;
+    long len = cobs_decode(enc, n, body, sizeof body);
+    if (len < 0) {
+        fw->stats.framing_errors++;
+        return;
+    }
+    switch (uwb_body_decode(body, (size_t)len, &msg)) {
+    case UWB_DECODE_OK:
+        break;
+    case UWB_DECODE_SHORT:
+        fw->stats.framing_errors++;
+        return;
+    case UWB_DECODE_CRC:
+        fw->stats.crc_errors++;
+        return;
+    case UWB_DECODE_UNKNOWN_TYPE:
+        fw->stats.frames_ok++;
+        fw->stats.unknown_types++;
+        track_seq(fw, msg.seq);
+        send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, &msg, 0);
+        return;
+    case UWB_DECODE_BAD_LENGTH:
+    default:
+        fw->stats.frames_ok++;
+        fw->stats.bad_lengths++;
+        track_seq(fw, msg.seq);
+        send_error(fw, UWB_ERROR_CODE_BAD_LENGTH, &msg, (uint32_t)len);
+        return;
+    }
+    fw->stats.frames_ok++;
+    track_seq(fw, msg.seq);
+    dispatch(fw, &msg);
+}
+
+void firmware_feed(firmware_t *fw, const uint8_t *data, size_t n)
+{
+    size_t i;
+    for (i = 0; i < n; i++) {
+        const uint8_t *frame = NULL;
+        size_t len = 0;
+        switch (frame_rx_push(&fw->rx, data[i], &frame, &len)) {
+        case FRAME_RX_FRAME:
+            on_frame(fw, frame, len);
+            break;
+        case FRAME_RX_OVERSIZE:
+            fw->stats.framing_errors++;
+            break;
+        default:
+            break;
+        }
+    }
+}

@@ -1,0 +1,138 @@
+"""Golden test vectors: frames with their decoded meaning, shared by the Python and C tests.
+
+    python -m protocol.golden            # rewrite protocol/golden/vectors.txt
+    python -m protocol.golden --check    # exit 1 if the file differs from what the codec produces
+
+Line format (one vector per line, '#' comments):
+    <vector name> <seq> <frame hex incl. 0x00 delimiter> <MESSAGE NAME> <field>=<value> ...
+Values: integers in decimal, floats as f:<IEEE-754 bits, 8 hex digits>, bytes as x:<hex>. Both test
+suites decode the frame, compare every field, re-encode and compare the bytes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import struct
+import sys
+from pathlib import Path
+from typing import Any
+
+from protocol import messages as m
+from protocol.framing import decode_body, encode_frame
+from protocol.cobs import cobs_decode
+
+VECTORS_PATH = Path(__file__).with_name("golden") / "vectors.txt"
+NAN = float("nan")
+
+
+def _vectors() -> list[tuple[str, int, Any]]:
+    """Representative messages: every type, zero bytes (COBS), extremes, negative and special floats."""
+    return [
+        ("hello", 0, m.Hello(nonce=0xDEADBEEF)),
+        ("hello_zero", 1, m.Hello(nonce=0)),
+        ("config_defaults", 2, m.Config(mode=0, stages=7, reset=1, reserved=0, std_twr=0.25, std_tdoa=0.15,
+                                        a_max_twr=5000.0, a_max_tdoa=5000.0, gate_dt_min=0.01, chi2_twr=3.841,
+                                        chi2_tdoa=3.841, proc_acc_xy=0.5, proc_acc_z=1.0, proc_cv_acc=2.0,
+                                        init_x=1.5, init_y=0.0, init_z=0.0, init_std_xy=1.0, init_std_z=1.0,
+                                        nn_min_z=0.5)),
+        ("config_uwb_only", 3, m.Config(mode=1, stages=0, reset=0, reserved=0, std_twr=0.1, std_tdoa=0.3,
+                                        a_max_twr=1.0, a_max_tdoa=2.0, gate_dt_min=0.005, chi2_twr=2.25,
+                                        chi2_tdoa=3.24, proc_acc_xy=0.0, proc_acc_z=0.0, proc_cv_acc=1.0,
+                                        init_x=-3.5, init_y=4.0, init_z=0.25, init_std_xy=100.0, init_std_z=1.0,
+                                        nn_min_z=-1.0)),
+        ("anchor0", 4, m.Anchor(anchor_id=0, x=-3.5, y=-4.0, z=0.0)),
+        ("anchor15", 5, m.Anchor(anchor_id=15, x=3.1479, y=3.5671, z=0.16637)),
+        ("imu_rest", 6, m.Imu(t_us=1000, ax=0.0, ay=0.0, az=9.81, gx=0.0, gy=0.0, gz=0.0)),
+        ("imu_moving", 7, m.Imu(t_us=123456789012, ax=-0.125, ay=1e-3, az=9.5, gx=0.5, gy=-1.25, gz=3.0)),
+        ("twr", 8, m.Twr(t_us=5000, anchor_id=3, range=4.2)),
+        ("twr_seq_wrap", 0xFFFF, m.Twr(t_us=2**64 - 1, anchor_id=255, range=-0.0)),
+        ("twr_nan", 9, m.Twr(t_us=5005, anchor_id=1, range=NAN)),
+        ("tdoa", 10, m.Tdoa(t_us=7777, anchor_a=7, anchor_b=0, diff=-1.0625)),
+        ("tdoa_inf", 11, m.Tdoa(t_us=7778, anchor_a=0, anchor_b=1, diff=float("inf"))),
+        ("stats_req", 12, m.StatsReq()),
+        ("hello_reply", 0, m.HelloReply(nonce=0xDEADBEEF, proto_version=1, fw_major=0, fw_minor=1, fw_patch=0,
+                                        cost_unit=0, layout_twr=1, layout_tdoa=2,
+                                        model_hash=0x0123456789ABCDEF, build_id=b"abc1234\x00",
+                                        target=b"host\x00\x00\x00\x00")),
+        ("result", 1, m.Result(meas_seq=8, kind=1, status=0, t_us=5000, innovation=0.03125, innovation_var=0.0625,
+                               bias=-0.1, d_max=0.3, gain_x=0.25, gain_y=-0.5, gain_z=0.0, compute=1234,
+                               cost_nn=600, cost_gates=20, cost_update=400, cost_predict=0, px=1.0, py=-2.0,
+                               pz=1.5, vx=0.375, vy=0.0, vz=-0.01, qw=1.0, qx=0.0, qy=0.0, qz=0.0,
+                               var_x=1e-3, var_y=1e-3, var_z=2e-3, var_vx=1e-2, var_vy=1e-2, var_vz=1e-2,
+                               var_d0=1e-4, var_d1=1e-4, var_d2=1e-4)),
+        ("result_rejected", 2, m.Result(meas_seq=9, kind=2, status=2, t_us=7777, innovation=1.5,
+                                        innovation_var=0.05, bias=0.0, d_max=0.1, gain_x=0.0, gain_y=0.0,
+                                        gain_z=0.0, compute=999, cost_nn=0, cost_gates=10, cost_update=0,
+                                        cost_predict=5000, px=0.0, py=0.0, pz=0.0, vx=0.0, vy=0.0, vz=0.0,
+                                        qw=1.0, qx=0.0, qy=0.0, qz=0.0, var_x=1.0, var_y=1.0, var_z=1.0,
+                                        var_vx=1e-4, var_vy=1e-4, var_vz=1e-4, var_d0=1e-4, var_d1=1e-4,
+                                        var_d2=1e-4)),
+        ("stats", 3, m.Stats(frames_ok=100, crc_errors=1, framing_errors=2, unknown_types=3, bad_lengths=4,
+                             non_finite=5, unknown_anchors=6, time_backwards=7, bad_configs=8, dropped_meas=9,
+                             imu_samples=1000, twr_meas=200, tdoa_meas=0, results=190, predictions=100,
+                             seq_gaps=0)),
+        ("error", 4, m.Error(code=4, msg_type=5, msg_seq=8, detail=12)),
+    ]
+
+
+def format_fields(msg: Any) -> str:
+    parts = []
+    for name, wire in msg.FIELDS:
+        value = getattr(msg, name)
+        if wire == "f32":
+            parts.append(f"{name}=f:{struct.unpack('<I', struct.pack('<f', value))[0]:08x}")
+        elif wire.startswith("bytes"):
+            parts.append(f"{name}=x:{value.hex()}")
+        else:
+            parts.append(f"{name}={value}")
+    return " ".join(parts)
+
+
+def render() -> str:
+    lines = [
+        "# uwb-hil golden vectors: GENERATED by `python -m protocol.golden`; checked by tests/test_protocol.py",
+        "# and firmware_sim/tests/test_proto.c. <name> <seq> <frame hex> <MESSAGE> <field>=<value> ...",
+    ]
+    for name, seq, msg in _vectors():
+        frame = encode_frame(msg, seq)
+        fields = format_fields(msg)
+        lines.append(f"{name} {seq} {frame.hex()} {msg.NAME}" + (f" {fields}" if fields else ""))
+    return "\n".join(lines) + "\n"
+
+
+def parse(text: str) -> list[dict[str, Any]]:
+    out = []
+    for line in text.splitlines():
+        if not line.strip() or line.startswith("#"):
+            continue
+        name, seq, frame_hex, msg_name, *fields = line.split()
+        out.append({"name": name, "seq": int(seq), "frame": bytes.fromhex(frame_hex), "msg_name": msg_name,
+                    "fields": " ".join(fields)})
+    return out
+
+
+def decode_frame_bytes(frame: bytes) -> Any:
+    if not frame.endswith(b"\x00"):
+        raise ValueError("golden frame lacks its delimiter")
+    return decode_body(cobs_decode(frame[:-1]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--check", action="store_true")
+    args = ap.parse_args(argv)
+    text = render()
+    current = VECTORS_PATH.read_text() if VECTORS_PATH.exists() else None
+    if args.check:
+        if current != text:
+            print(f"{VECTORS_PATH} differs from what the codec produces", file=sys.stderr)
+            return 1
+        return 0
+    VECTORS_PATH.parent.mkdir(parents=True, exist_ok=True)
+    VECTORS_PATH.write_text(text)
+    print(f"wrote {VECTORS_PATH}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
