@@ -1,0 +1,216 @@
+"""uwb-hil command line: run flights through a device, print accuracy and latency.
+
+    uwb-hil run --mode tdoa --stages outlier+nn            # simulated circle on the built-in emulator
+    uwb-hil run --recording FILE --anchors anchors.csv     # a recorded flight
+    uwb-hil run --port /dev/ttyACM0 ...                    # a real board
+    uwb-hil demo                                           # TWR and TDoA x three configurations
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from harness.config import PRESETS, EstimatorConfig
+from harness.errors import UwbHilError
+from harness.flight.model import Flight
+from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
+from harness.session import DEFAULT_FIRMWARE, TARGETS, DeviceSpec, config_for, kind_name, open_device
+from harness.stream.streamer import PACING_MODES, Pacing, Streamer
+
+
+# ------------------------------------------------------------------------------------------ flights
+def make_flight(args: argparse.Namespace) -> Flight:
+    if args.recording:
+        from harness.flight.loaders import load_recording
+        anchors = Path(args.anchors) if args.anchors else None
+        return load_recording(Path(args.recording), anchors=anchors)
+    from harness.flight.scenarios import scenario_flight
+    return scenario_flight(args.scenario, mode=args.mode, duration_s=args.duration, seed=args.seed)
+
+
+# ------------------------------------------------------------------------------------------ output
+def _progress_bar(total_label: str) -> tuple[Callable[[int, int], None], Callable[[], None]]:
+    """A rich progress bar when stderr is a terminal; silent otherwise."""
+    if not sys.stderr.isatty():
+        return (lambda done, total: None), (lambda: None)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+    prog = Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), transient=True)
+    prog.start()
+    task = prog.add_task(total_label, total=None)
+
+    def update(done: int, total: int) -> None:
+        prog.update(task, completed=done, total=total)
+
+    return update, prog.stop
+
+
+def _fmt(x: float, digits: int = 3) -> str:
+    return "-" if x != x else f"{x:.{digits}f}"
+
+
+def print_run(summary: dict[str, Any]) -> None:
+    acc = summary["accuracy"]
+    comp = summary["compute"]
+    rtt = summary["round_trip_us"]
+    unit = summary["compute_unit"]
+    print(f"flight {summary['flight']}: {summary['measurements']} measurements, {summary['results']} results, "
+          f"{summary['refused']} refused, {summary['lost']} lost; {summary['pacing']} replay at "
+          f"{summary['realtime_factor']:.1f}x real time")
+    print(f"  position RMSE {_fmt(acc['rmse'])} m (xy {_fmt(acc['rmse_xy'])}, z {_fmt(acc['rmse_z'])}, "
+          f"max {_fmt(acc['max_error'])}); accepted {acc['accepted']}, rejected kinematic "
+          f"{acc['rejected_kinematic']}, chi2 {acc['rejected_chi2']}")
+    print(f"  device compute [{unit}]: n {comp['n']}  p50 {_fmt(comp['p50'], 2)}  p90 {_fmt(comp['p90'], 2)}  "
+          f"p99 {_fmt(comp['p99'], 2)}  max {_fmt(comp['max'], 2)}  over budget {comp['deadline_misses']}")
+    print(f"  round trip [us]: n {rtt['n']}  p50 {_fmt(rtt['p50'], 1)}  p90 {_fmt(rtt['p90'], 1)}  "
+          f"p99 {_fmt(rtt['p99'], 1)}  max {_fmt(rtt['max'], 1)}  deadline misses (5 ms) {rtt['deadline_misses']}")
+
+
+# ------------------------------------------------------------------------------------------ commands
+def _device_spec(args: argparse.Namespace) -> DeviceSpec:
+    return DeviceSpec(target=args.target, port=args.port, baud=args.baud, firmware=Path(args.firmware),
+                      timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    flight = make_flight(args)
+    cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[args.stages], uwb_only=args.uwb_only)
+    pacing = Pacing(mode=args.pacing, window=args.window, speed=args.speed)
+    results_path = Path(args.results) if args.results else None
+    with open_device(_device_spec(args)) as device:
+        hello = device.hello(timeout=args.timeout)
+        update, stop = _progress_bar(f"{flight.name} ({args.stages})")
+        try:
+            run = Streamer(device, timeout_s=args.timeout).run(flight, cfg, pacing, results_path=results_path,
+                                                                progress=update)
+        finally:
+            stop()
+    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+    summary["config"] = args.stages
+    summary["device"] = _hello_dict(hello)
+    if args.json:
+        print(json.dumps(summary, indent=2, default=float))
+    else:
+        print_run(summary)
+    return 0
+
+
+def _hello_dict(hello: Any) -> dict[str, Any]:
+    return {"proto_version": hello.proto_version,
+            "firmware": f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}",
+            "build_id": hello.build_id.rstrip(b"\x00").decode(errors="replace"),
+            "target": hello.target.rstrip(b"\x00").decode(errors="replace"),
+            "model_hash": f"{hello.model_hash:016x}", "layout_twr": hello.layout_twr,
+            "layout_tdoa": hello.layout_tdoa, "cost_unit": hello.cost_unit}
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from harness.flight.scenarios import scenario_flight
+    rows = []
+    spec = _device_spec(args)
+    with open_device(spec) as device:
+        hello = device.hello(timeout=args.timeout)
+        streamer = Streamer(device, timeout_s=args.timeout)
+        for mode in ("twr", "tdoa"):
+            flight = scenario_flight(args.scenario, mode=mode, duration_s=args.duration, seed=args.seed)
+            for preset in ("none", "outlier", "outlier+nn"):
+                cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
+                run = streamer.run(flight, cfg, Pacing(mode=args.pacing, window=args.window))
+                s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+                s["mode"], s["config"] = mode, preset
+                rows.append(s)
+    if args.json:
+        print(json.dumps({"device": _hello_dict(hello), "runs": rows}, indent=2, default=float))
+        return 0
+    _print_demo_table(rows, _hello_dict(hello))
+    return 0
+
+
+def _print_demo_table(rows: list[dict[str, Any]], device: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+    unit = rows[0]["compute_unit"] if rows else "us"
+    table = Table(title=f"uwb-hil demo - device {device['target']} fw {device['firmware']} "
+                        f"build {device['build_id']} model {device['model_hash']}")
+    for col in ("mode", "config", "RMSE [m]", "accepted", "rej. kin", "rej. chi2", f"compute p50 [{unit}]",
+                f"compute p99 [{unit}]", "RTT p50 [us]", "RTT p99 [us]", "lost", "speed"):
+        table.add_column(col, justify="right" if col not in ("mode", "config") else "left")
+    for s in rows:
+        a, c, r = s["accuracy"], s["compute"], s["round_trip_us"]
+        table.add_row(s["mode"], s["config"], _fmt(a["rmse"]), str(a["accepted"]), str(a["rejected_kinematic"]),
+                      str(a["rejected_chi2"]), _fmt(c["p50"], 2), _fmt(c["p99"], 2), _fmt(r["p50"], 0),
+                      _fmt(r["p99"], 0), str(s["lost"]), f"{s['realtime_factor']:.0f}x")
+    Console(width=160).print(table)
+
+
+# ------------------------------------------------------------------------------------------ parser
+def _add_device_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("device")
+    g.add_argument("--target", choices=TARGETS, default="emulator",
+                   help="emulator (host firmware on a pty, default), serial (a board on --port), qemu")
+    g.add_argument("--port", help="pyserial URL or device of a real board: /dev/ttyACM0, rfc2217://host:port")
+    g.add_argument("--baud", type=int, default=115200)
+    g.add_argument("--firmware", default=str(DEFAULT_FIRMWARE), help="host firmware binary for the emulator")
+    g.add_argument("--timeout", type=float, default=5.0, help="seconds of device silence before giving up")
+    g.add_argument("--log-dir", help="where device logs go")
+
+
+def _add_flight_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("flight")
+    g.add_argument("--scenario", default="circle", help="simulated flight: circle, circle-z, random, spin")
+    g.add_argument("--mode", choices=("twr", "tdoa"), default="twr", help="UWB measurement type (simulation)")
+    g.add_argument("--duration", type=float, default=30.0, help="simulated flight length [s]")
+    g.add_argument("--seed", type=int, default=1)
+    g.add_argument("--recording", help="replay a recorded flight instead (UTIL CSV, rcv_twr sequence, .npz)")
+    g.add_argument("--anchors", help="anchor file for the recording (UTIL anchors.csv, YAML)")
+
+
+def _add_pacing_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("pacing")
+    g.add_argument("--pacing", choices=PACING_MODES, default="windowed")
+    g.add_argument("--window", type=int, default=64, help="measurements in flight (windowed)")
+    g.add_argument("--speed", type=float, default=1.0, help="real-time pacing speed factor")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="uwb-hil", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="stream one flight through a device")
+    _add_flight_options(run)
+    _add_pacing_options(run)
+    _add_device_options(run)
+    run.add_argument("--stages", choices=tuple(PRESETS), default="outlier+nn",
+                     help="none | outlier (kinematic + chi-square gates) | outlier+nn (plus bias network)")
+    run.add_argument("--uwb-only", action="store_true", help="ignore the IMU (constant-velocity model)")
+    run.add_argument("--results", help="write per-measurement results as JSON Lines here")
+    run.add_argument("--json", action="store_true", help="print the summary as JSON")
+    run.set_defaults(func=cmd_run)
+    demo = sub.add_parser("demo", help="TWR and TDoA flights in three configurations, one table")
+    _add_flight_options(demo)
+    _add_pacing_options(demo)
+    _add_device_options(demo)
+    demo.add_argument("--json", action="store_true")
+    demo.set_defaults(func=cmd_demo, duration=20.0)
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except (UwbHilError, FileNotFoundError, ValueError, NotImplementedError) as exc:
+        print(f"uwb-hil: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("uwb-hil: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Accuracy and latency figures of runs, as tables and JSON."""

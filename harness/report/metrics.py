@@ -1,0 +1,121 @@
+"""Accuracy (position RMSE against ground truth) and latency (device cost, round trip) of a run."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from harness.flight.model import Flight
+from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT, RunResult
+
+DEFAULT_BUDGET_S = 5e-3  # one UWB slot at 200 Hz, the paper's rate
+
+
+@dataclass(frozen=True)
+class LatencySummary:
+    """Percentiles in microseconds (or instructions, for an instruction-counting device)."""
+
+    n: int
+    p50: float
+    p90: float
+    p99: float
+    p999: float
+    max: float
+    mean: float
+    jitter_p99: float        # p99 of |x - median|
+    deadline_misses: int     # samples above the budget
+    budget: float
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def latency_summary(values: np.ndarray, budget: float) -> LatencySummary:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        nan = float("nan")
+        return LatencySummary(0, nan, nan, nan, nan, nan, nan, nan, 0, budget)
+    p50, p90, p99, p999 = np.percentile(v, [50, 90, 99, 99.9])
+    return LatencySummary(n=int(v.size), p50=float(p50), p90=float(p90), p99=float(p99), p999=float(p999),
+                          max=float(v.max()), mean=float(v.mean()),
+                          jitter_p99=float(np.percentile(np.abs(v - p50), 99)),
+                          deadline_misses=int(np.count_nonzero(v > budget)), budget=budget)
+
+
+@dataclass(frozen=True)
+class AccuracySummary:
+    n: int
+    rmse: float        # 3-D position RMSE [m]
+    rmse_xy: float
+    rmse_z: float
+    max_error: float
+    accepted: int
+    rejected_kinematic: int
+    rejected_chi2: int
+    rejected_geometry: int
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def position_errors(run: RunResult, flight: Flight) -> tuple[np.ndarray, np.ndarray]:
+    """(t_us, error vectors) for every measurement that produced a RESULT."""
+    r = run.results[run.results["outcome"] == OUTCOME_RESULT]
+    est = np.stack([r["px"], r["py"], r["pz"]], axis=1).astype(np.float64)
+    truth = flight.truth.position_at(r["t_us"].astype(np.int64))
+    return r["t_us"].astype(np.int64), est - truth
+
+
+def accuracy_summary(run: RunResult, flight: Flight) -> AccuracySummary:
+    _, err = position_errors(run, flight)
+    r = run.results[run.results["outcome"] == OUTCOME_RESULT]
+    status = r["status"]
+    if len(err) == 0:
+        nan = float("nan")
+        return AccuracySummary(0, nan, nan, nan, nan, 0, 0, 0, 0)
+    norm = np.linalg.norm(err, axis=1)
+    return AccuracySummary(
+        n=len(err),
+        rmse=float(np.sqrt(np.mean(norm ** 2))),
+        rmse_xy=float(np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1)))),
+        rmse_z=float(np.sqrt(np.mean(err[:, 2] ** 2))),
+        max_error=float(norm.max()),
+        accepted=int(np.count_nonzero(status == 0)),
+        rejected_kinematic=int(np.count_nonzero(status == 1)),
+        rejected_chi2=int(np.count_nonzero(status == 2)),
+        rejected_geometry=int(np.count_nonzero(status == 3)),
+    )
+
+
+def run_summary(run: RunResult, flight: Flight, budget_s: float = DEFAULT_BUDGET_S,
+                cost_unit: int = 0) -> dict[str, object]:
+    """Everything a report or `--json` needs about one run."""
+    res = run.results
+    ok = res["outcome"] == OUTCOME_RESULT
+    rtt_us = (res["t_recv_ns"][ok] - res["t_send_ns"][ok]) / 1e3
+    compute = res["compute"][ok].astype(np.float64)
+    if cost_unit == 0:
+        compute_summary = latency_summary(compute / 1e3, budget_s * 1e6)   # ns -> us
+    else:
+        compute_summary = latency_summary(compute, budget_s * 168e6 / 2.0)  # instructions, ~2 CPI at 168 MHz
+    stats = run.stats
+    return {
+        "flight": run.flight,
+        "pacing": run.pacing.mode,
+        "stages": run.config.stages,
+        "measurements": int(len(res)),
+        "results": int(np.count_nonzero(ok)),
+        "refused": int(np.count_nonzero(res["outcome"] == OUTCOME_ERROR)),
+        "lost": int(np.count_nonzero(res["outcome"] == OUTCOME_LOST)),
+        "accuracy": accuracy_summary(run, flight).as_dict(),
+        "compute": compute_summary.as_dict(),
+        "compute_unit": "us" if cost_unit == 0 else "instructions",
+        "round_trip_us": latency_summary(rtt_us, budget_s * 1e6).as_dict(),
+        "wall_s": run.wall_s,
+        "sim_s": run.sim_s,
+        "realtime_factor": run.realtime_factor,
+        "device_stats": asdict(stats) if stats is not None else None,
+        "host_decoder_errors": asdict(run.decoder_errors),
+    }

@@ -1,0 +1,81 @@
+"""One place that turns user choices (target, port, scenario, recording) into devices and flights."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Iterator
+from contextlib import contextmanager
+
+from harness.config import MODE_IMU, MODE_UWB_ONLY, EstimatorConfig
+from harness.flight.model import KIND_TDOA, KIND_TWR, Flight
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_FIRMWARE = REPO_ROOT / "firmware_sim" / "build" / "uwb-fw"
+SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+TARGETS = ("emulator", "serial", "qemu")
+
+
+@dataclass(frozen=True)
+class DeviceSpec:
+    target: str = "emulator"
+    port: str | None = None
+    baud: int = 115200
+    firmware: Path = DEFAULT_FIRMWARE
+    timeout_s: float = 5.0
+    log_dir: Path | None = None
+
+    def resolved_target(self) -> str:
+        return "serial" if (self.port and self.target == "emulator") else self.target
+
+
+@contextmanager
+def open_device(spec: DeviceSpec, expected_model_hash: int | None = None) -> Iterator[object]:
+    """Start (or connect to) the device, check its HELLO, and always stop it."""
+    target = spec.resolved_target()
+    if target == "emulator":
+        from harness.device.emulator import EmulatorDevice
+        if not Path(spec.firmware).exists():
+            raise FileNotFoundError(f"firmware binary {spec.firmware} not found: run `make firmware`")
+        device = EmulatorDevice(Path(spec.firmware), log_dir=spec.log_dir)
+    elif target == "serial":
+        from harness.device.serial_device import SerialDevice
+        if not spec.port:
+            raise ValueError("target 'serial' needs a port (--port /dev/ttyACM0, rfc2217://host:port, ...)")
+        device = SerialDevice(spec.port, spec.baud)
+    elif target == "qemu":
+        try:
+            from harness.device.qemu import QemuDevice  # type: ignore[import-not-found]
+        except ImportError:
+            raise NotImplementedError("the QEMU target is not available in this build") from None
+        device = QemuDevice(log_dir=spec.log_dir)
+    else:
+        raise ValueError(f"unknown target {target!r}; choose one of {TARGETS}")
+    device.start()
+    try:
+        device.hello(timeout=spec.timeout_s)
+        device.check(expected_model_hash=expected_model_hash)
+        yield device
+    finally:
+        device.stop()
+
+
+def config_for(flight: Flight, base: EstimatorConfig | None = None, stages: int | None = None,
+               uwb_only: bool | None = None) -> EstimatorConfig:
+    """Estimator configuration for a flight: start at its first true position, IMU mode if it has IMU."""
+    cfg = base or EstimatorConfig()
+    p0 = flight.truth.position_at([int(flight.uwb.t_us[0])])[0] if len(flight.uwb) else (0.0, 0.0, 0.0)
+    mode = MODE_UWB_ONLY if (uwb_only or not flight.has_imu) else MODE_IMU
+    cfg = replace(cfg, mode=mode).with_init(*p0)
+    if stages is not None:
+        cfg = cfg.with_stages(stages)
+    return cfg
+
+
+def kind_name(kind: int) -> str:
+    return {KIND_TWR: "twr", KIND_TDOA: "tdoa"}[kind]
+
+
+def shared_data_dir() -> Path:
+    return Path(os.environ.get("UWB_HIL_DATA", SHARED_DATA))

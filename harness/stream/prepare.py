@@ -1,0 +1,89 @@
+"""Turn a Flight into the exact byte stream a device will receive (encoded once, with numpy)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from harness.config import EstimatorConfig
+from harness.flight.model import KIND_TWR, Flight
+from harness.stream.batch import encode_rows
+from protocol import encode_frame
+from protocol import messages as m
+
+
+@dataclass(frozen=True)
+class PreparedFlight:
+    """The flight as bytes: `stream[:meas_end[k]]` holds everything up to and including measurement k."""
+
+    stream: bytes
+    meas_end: np.ndarray      # (M,) byte offset just after measurement k's frame
+    meas_seq: np.ndarray      # (M,) uint16 seq of measurement k's frame
+    event_t_us: np.ndarray    # (E,) timestamps of all frames in stream order
+    event_end: np.ndarray     # (E,) byte offset just after each frame
+    n_imu: int
+    next_seq: int             # first seq after the stream
+
+
+def setup_frames(config: EstimatorConfig, flight: Flight, seq0: int, reset: bool = True) -> tuple[bytes, int]:
+    """CONFIG (with reset) and one ANCHOR per anchor, ahead of the sensor stream."""
+    config.validate()
+    msgs = [m.Config(mode=config.mode, stages=config.stages, reset=int(reset), reserved=0,
+                     std_twr=config.std_twr, std_tdoa=config.std_tdoa, a_max_twr=config.a_max_twr,
+                     a_max_tdoa=config.a_max_tdoa, gate_dt_min=config.gate_dt_min, chi2_twr=config.chi2_twr,
+                     chi2_tdoa=config.chi2_tdoa, proc_acc_xy=config.proc_acc_xy, proc_acc_z=config.proc_acc_z,
+                     proc_cv_acc=config.proc_cv_acc, init_x=config.init_x, init_y=config.init_y,
+                     init_z=config.init_z, init_std_xy=config.init_std_xy, init_std_z=config.init_std_z,
+                     nn_min_z=config.nn_min_z)]
+    for aid, pos in zip(flight.anchors.ids, flight.anchors.positions):
+        msgs.append(m.Anchor(anchor_id=int(aid), x=float(pos[0]), y=float(pos[1]), z=float(pos[2])))
+    out = b"".join(encode_frame(msg, seq0 + i) for i, msg in enumerate(msgs))
+    return out, seq0 + len(msgs)
+
+
+def prepare(flight: Flight, seq0: int, include_imu: bool = True) -> PreparedFlight:
+    """Encode every IMU sample and UWB measurement of the flight, merged in time order."""
+    flight.validate()
+    u = flight.uwb
+    imu = flight.imu if (include_imu and flight.has_imu) else None
+    n_imu = len(imu) if imu is not None else 0
+    n_uwb = len(u)
+    t = np.concatenate([imu.t_us if imu is not None else np.zeros(0, np.int64), u.t_us]).astype(np.int64)
+    src = np.concatenate([np.zeros(n_imu, np.int8), np.ones(n_uwb, np.int8)])
+    order = np.lexsort((src, t))                   # IMU first at equal times
+    pos_of = np.empty_like(order)
+    pos_of[order] = np.arange(len(order))          # stream position of each source row
+    seqs = (seq0 + pos_of) & 0xFFFF
+
+    if u.kind == KIND_TWR:
+        uwb_rows = encode_rows(m.Twr, {"t_us": u.t_us, "anchor_id": u.anchor_a, "range": u.value},
+                               seqs[n_imu:])
+    else:
+        uwb_rows = encode_rows(m.Tdoa, {"t_us": u.t_us, "anchor_a": u.anchor_a, "anchor_b": u.anchor_b,
+                                        "diff": u.value}, seqs[n_imu:])
+    sizes = np.empty(len(order), dtype=np.int64)
+    sizes[pos_of[n_imu:]] = uwb_rows.shape[1]
+    imu_rows = None
+    if imu is not None:
+        imu_rows = encode_rows(m.Imu, {"t_us": imu.t_us, "ax": imu.acc[:, 0], "ay": imu.acc[:, 1],
+                                       "az": imu.acc[:, 2], "gx": imu.gyro[:, 0], "gy": imu.gyro[:, 1],
+                                       "gz": imu.gyro[:, 2]}, seqs[:n_imu])
+        sizes[pos_of[:n_imu]] = imu_rows.shape[1]
+    ends = np.cumsum(sizes)
+    starts = ends - sizes
+    buf = np.empty(int(ends[-1]) if len(ends) else 0, dtype=np.uint8)
+    uwb_start = starts[pos_of[n_imu:]]
+    buf[uwb_start[:, None] + np.arange(uwb_rows.shape[1])] = uwb_rows
+    if imu_rows is not None:
+        imu_start = starts[pos_of[:n_imu]]
+        buf[imu_start[:, None] + np.arange(imu_rows.shape[1])] = imu_rows
+    return PreparedFlight(
+        stream=buf.tobytes(),
+        meas_end=ends[pos_of[n_imu:]],
+        meas_seq=seqs[n_imu:].astype(np.uint16),
+        event_t_us=t[order],
+        event_end=ends,
+        n_imu=n_imu,
+        next_seq=(seq0 + len(order)) & 0xFFFF,
+    )

@@ -1,0 +1,394 @@
+"""Stream a flight to a device and collect, per measurement, its RESULT, device cost and round trip.
+
+Pacing modes:
+  lockstep  one measurement in flight: send it (with the IMU samples before it), wait for its RESULT;
+  windowed  up to `window` measurements in flight (same estimates as lockstep: the device processes
+            frames in order, pacing only changes when bytes arrive);
+  realtime  frames written at their data timestamps divided by `speed`, as a sensor would deliver them.
+
+Every measurement ends in exactly one outcome: RESULT, ERROR (refused by the device), or LOST (a later
+measurement was answered first, or the run ended without an answer). Nothing blocks without a timeout.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from harness.config import EstimatorConfig
+from harness.errors import DeviceDied, DeviceTimeout, LinkClosed
+from harness.flight.model import Flight
+from harness.stream.batch import body_dtype, decode_rows
+from harness.stream.prepare import PreparedFlight, prepare, setup_frames
+from protocol import encode_frame
+from protocol import messages as m
+from protocol.framing import DecoderErrors, Frame, FrameDecoder
+
+OUTCOME_PENDING, OUTCOME_RESULT, OUTCOME_ERROR, OUTCOME_LOST = 0, 1, 2, 3
+PACING_MODES = ("lockstep", "windowed", "realtime")
+
+_RESULT_DT = body_dtype(m.Result)
+_RESULT_ENC_LEN = _RESULT_DT.itemsize + 1
+RESULT_FIELDS = [name for name, _ in m.Result.FIELDS]
+RESULTS_DTYPE = np.dtype([(name, _RESULT_DT[name]) for name in RESULT_FIELDS]
+                         + [("t_send_ns", "<i8"), ("t_recv_ns", "<i8"), ("outcome", "i1"), ("error_code", "u1")])
+
+
+class LinkLike(Protocol):
+    def write(self, data: bytes) -> None: ...
+    def read(self, max_bytes: int, timeout: float) -> bytes: ...
+
+
+class DeviceLike(Protocol):
+    @property
+    def link(self) -> LinkLike: ...
+    def alive(self) -> bool: ...
+
+
+@dataclass(frozen=True)
+class Pacing:
+    mode: str = "windowed"
+    window: int = 64
+    speed: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.mode not in PACING_MODES:
+            raise ValueError(f"pacing mode must be one of {PACING_MODES}, got {self.mode!r}")
+        if self.window < 1:
+            raise ValueError("window must be >= 1")
+        if not self.speed > 0:
+            raise ValueError("speed must be > 0")
+
+    @property
+    def in_flight(self) -> int:
+        return 1 if self.mode == "lockstep" else self.window
+
+
+@dataclass
+class RunResult:
+    flight: str
+    config: EstimatorConfig
+    pacing: Pacing
+    results: np.ndarray                      # (M,) RESULTS_DTYPE, one row per UWB measurement
+    stats: m.Stats | None                    # device counters after the run
+    decoder_errors: DecoderErrors            # what the host could not decode
+    errors: list[m.Error] = field(default_factory=list)
+    wall_s: float = 0.0
+    sim_s: float = 0.0
+
+    @property
+    def n_received(self) -> int:
+        return int(np.count_nonzero(self.results["outcome"] == OUTCOME_RESULT))
+
+    @property
+    def n_lost(self) -> int:
+        return int(np.count_nonzero(self.results["outcome"] == OUTCOME_LOST))
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.sim_s / self.wall_s if self.wall_s > 0 else float("inf")
+
+
+class ReplyReader:
+    """Splits device output into frames; RESULT frames are decoded in bulk with numpy."""
+
+    def __init__(self) -> None:
+        self._buf = b""
+        self.decoder = FrameDecoder()
+
+    @property
+    def errors(self) -> DecoderErrors:
+        return self.decoder.errors
+
+    def feed(self, data: bytes) -> tuple[np.ndarray, list[Frame]]:
+        buf = self._buf + data
+        cut = buf.rfind(b"\x00")
+        if cut < 0:
+            self._buf = buf
+            if len(buf) > 4096:  # no delimiter for this long: garbage, let the decoder count it
+                self.decoder.feed(buf)
+                self._buf = b""
+            return np.zeros(0, _RESULT_DT), []
+        self._buf = buf[cut + 1:]
+        chunks = buf[:cut].split(b"\x00")
+        # In a COBS frame the type byte (non-zero) sits unchanged right after the first code byte.
+        res = [c for c in chunks if len(c) == _RESULT_ENC_LEN and c[1] == m.Result.MSG_ID]
+        others = [c for c in chunks if c and not (len(c) == _RESULT_ENC_LEN and c[1] == m.Result.MSG_ID)]
+        results = np.zeros(0, _RESULT_DT)
+        if res:
+            rows = np.frombuffer(b"".join(res), dtype=np.uint8).reshape(len(res), _RESULT_ENC_LEN)
+            arr, valid = decode_rows(m.Result, rows)
+            bad = int(np.count_nonzero(~valid))
+            if bad:
+                # corrupted on the way: let the scalar decoder classify and count each one
+                others += [res[i] for i in np.nonzero(~valid)[0]]
+            results = arr[valid]
+            self.decoder.frames_ok += len(results)
+        frames = self.decoder.feed(b"".join(c + b"\x00" for c in others)) if others else []
+        return results, frames
+
+
+@dataclass
+class _State:
+    results: np.ndarray
+    seq_to_meas: dict[int, int]
+    resolved_upto: int = 0       # every measurement below this index has an outcome
+    max_answered: int = -1
+    errors: list[m.Error] = field(default_factory=list)
+    stats: m.Stats | None = None
+    last_rx: float = 0.0
+
+
+class ResultsWriter:
+    """JSON Lines on disk, appended and flushed as results arrive (an interrupted run keeps them)."""
+
+    def __init__(self, path: Path | None, header: dict[str, Any]) -> None:
+        self._fh = None
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(path, "w", encoding="utf-8")
+            self._fh.write(json.dumps({"type": "header", **header}) + "\n")
+            self._fh.flush()
+
+    def write_rows(self, idx: np.ndarray, rows: np.ndarray) -> None:
+        if self._fh is None or len(idx) == 0:
+            return
+        names = RESULTS_DTYPE.names or ()
+        lines = []
+        for k, row in zip(idx.tolist(), rows.tolist()):
+            rec = {"type": "result", "index": k}
+            rec.update(zip(names, row))
+            lines.append(json.dumps(rec))
+        self._fh.write("\n".join(lines) + "\n")
+        self._fh.flush()
+
+    def write_record(self, record: dict[str, Any]) -> None:
+        if self._fh is not None:
+            self._fh.write(json.dumps(record) + "\n")
+            self._fh.flush()
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+
+class Streamer:
+    """Drives one device through flights. The device must be started (and HELLO-checked) already."""
+
+    def __init__(self, device: DeviceLike, timeout_s: float = 5.0, seq0: int = 0) -> None:
+        self.device = device
+        self.timeout_s = timeout_s
+        self._seq = seq0 & 0xFFFF
+        self._reader = ReplyReader()
+        self._sent_bytes = 0
+
+    # -------------------------------------------------------------------------------- plumbing
+    def _write(self, data: bytes) -> None:
+        try:
+            self.device.link.write(data)
+        except LinkClosed as exc:
+            raise self._died("link closed while writing") from exc
+
+    def _died(self, what: str) -> Exception:
+        if not self.device.alive():
+            return DeviceDied(f"device died: {what}")
+        return LinkClosed(what)
+
+    def _read(self, timeout: float) -> tuple[np.ndarray, list[Frame]]:
+        try:
+            data = self.device.link.read(65536, timeout)
+        except LinkClosed as exc:
+            raise self._died("link closed while reading") from exc
+        if not data:
+            return np.zeros(0, _RESULT_DT), []
+        return self._reader.feed(data)
+
+    def _next_seq(self) -> int:
+        s = self._seq
+        self._seq = (self._seq + 1) & 0xFFFF
+        return s
+
+    def request_stats(self, timeout: float | None = None) -> m.Stats:
+        """Ask for the device counters; also the liveness probe after a silence."""
+        self._write(encode_frame(m.StatsReq(), self._next_seq()))
+        deadline = time.monotonic() + (self.timeout_s if timeout is None else timeout)
+        while time.monotonic() < deadline:
+            _, frames = self._read(min(0.05, max(0.0, deadline - time.monotonic())))
+            for f in frames:
+                if isinstance(f.msg, m.Stats):
+                    return f.msg
+            if not self.device.alive():
+                raise DeviceDied("device died while waiting for STATS")
+        raise DeviceTimeout(f"no STATS reply within {self.timeout_s if timeout is None else timeout:.1f} s")
+
+    # ------------------------------------------------------------------------------ the run
+    def run(self, flight: Flight, config: EstimatorConfig, pacing: Pacing = Pacing(),
+            results_path: Path | None = None, progress: Callable[[int, int], None] | None = None,
+            include_imu: bool = True) -> RunResult:
+        setup, self._seq = setup_frames(config, flight, self._seq)
+        prep = prepare(flight, self._seq, include_imu=include_imu)
+        self._seq = prep.next_seq
+        n = len(prep.meas_end)
+        results = np.zeros(n, RESULTS_DTYPE)
+        state = _State(results=results, seq_to_meas={})
+        writer = ResultsWriter(results_path, {"flight": flight.name, "config": asdict(config),
+                                              "pacing": asdict(pacing), "n_measurements": n})
+        t_start = time.perf_counter()
+        try:
+            self._write(setup)
+            self._drain_setup(state)
+            if pacing.mode == "realtime":
+                self._run_realtime(prep, pacing, state, writer, progress)
+            else:
+                self._run_windowed(prep, pacing.in_flight, state, writer, progress)
+            self._finish(prep, state, writer)
+            state.stats = self.request_stats()
+            writer.write_record({"type": "stats", **asdict(state.stats),
+                                 "host_decoder": asdict(self._reader.errors)})
+        finally:
+            writer.close()
+        wall = time.perf_counter() - t_start
+        sim = (int(flight.uwb.t_us[-1]) - int(flight.uwb.t_us[0])) * 1e-6 if n else 0.0
+        return RunResult(flight=flight.name, config=config, pacing=pacing, results=results, stats=state.stats,
+                         decoder_errors=self._reader.errors, errors=state.errors, wall_s=wall, sim_s=sim)
+
+    def _drain_setup(self, state: _State) -> None:
+        """CONFIG/ANCHOR produce no reply unless refused: give the device a moment to refuse."""
+        _, frames = self._read(0.0)
+        for f in frames:
+            if isinstance(f.msg, m.Error):
+                from harness.errors import DeviceError
+                raise DeviceError(f"device refused the setup: {f.msg}")
+
+    def _absorb(self, got: np.ndarray, frames: list[Frame], state: _State, writer: ResultsWriter,
+                now_ns: int) -> None:
+        res = state.results
+        answered: list[int] = []
+        if len(got):
+            idx = np.array([state.seq_to_meas.pop(int(s), -1) for s in got["meas_seq"]], dtype=np.int64)
+            keep = idx >= 0
+            idx, got = idx[keep], got[keep]
+            for name in RESULT_FIELDS:
+                res[name][idx] = got[name]
+            res["t_recv_ns"][idx] = now_ns
+            res["outcome"][idx] = OUTCOME_RESULT
+            answered += idx.tolist()
+        for f in frames:
+            if isinstance(f.msg, m.Error):
+                state.errors.append(f.msg)
+                k = state.seq_to_meas.pop(f.msg.msg_seq, -1)
+                if k >= 0:
+                    res["outcome"][k] = OUTCOME_ERROR
+                    res["error_code"][k] = f.msg.code
+                    res["t_recv_ns"][k] = now_ns
+                    answered.append(k)
+            elif isinstance(f.msg, m.Stats):
+                state.stats = f.msg
+        if answered:
+            state.max_answered = max(state.max_answered, max(answered))
+            # The device answers in order: anything older still unanswered was lost on the way.
+            lo = state.resolved_upto
+            older = np.nonzero(res["outcome"][lo:state.max_answered] == OUTCOME_PENDING)[0] + lo
+            for k in older.tolist():
+                res["outcome"][k] = OUTCOME_LOST
+                state.seq_to_meas.pop(int(res["meas_seq"][k]), None)
+            new_hi = state.max_answered + 1
+            writer.write_rows(np.arange(lo, new_hi), res[lo:new_hi])
+            state.resolved_upto = max(state.resolved_upto, new_hi)
+            state.last_rx = time.monotonic()
+
+    def _wait_progress(self, state: _State, writer: ResultsWriter, wait_s: float) -> None:
+        got, frames = self._read(wait_s)
+        if len(got) or frames:
+            self._absorb(got, frames, state, writer, time.perf_counter_ns())
+            return
+        if time.monotonic() - state.last_rx > self.timeout_s:
+            self._probe(state, writer)
+
+    def _probe(self, state: _State, writer: ResultsWriter) -> None:
+        """Silence: a dead device raises; a live one that answers STATS lost our frames."""
+        if not self.device.alive():
+            raise DeviceDied(f"device died after {state.resolved_upto} measurements")
+        try:
+            stats = self.request_stats(timeout=min(2.0, self.timeout_s))
+        except DeviceTimeout:
+            raise DeviceTimeout(f"device silent for {self.timeout_s:.1f} s after {state.resolved_upto} "
+                                f"measurements (no RESULT, no STATS)") from None
+        state.stats = stats
+        res = state.results
+        pending = np.nonzero(res["outcome"][state.resolved_upto:] == OUTCOME_PENDING)[0] + state.resolved_upto
+        sent = pending[res["t_send_ns"][pending] > 0]
+        for k in sent.tolist():
+            res["outcome"][k] = OUTCOME_LOST
+            state.seq_to_meas.pop(int(res["meas_seq"][k]), None)
+        if len(sent):
+            hi = int(sent[-1]) + 1
+            writer.write_rows(np.arange(state.resolved_upto, hi), res[state.resolved_upto:hi])
+            state.resolved_upto = hi
+        state.last_rx = time.monotonic()
+
+    def _mark_sent(self, prep: PreparedFlight, state: _State, lo: int, hi: int, now_ns: int) -> None:
+        res = state.results
+        res["t_send_ns"][lo:hi] = now_ns
+        res["meas_seq"][lo:hi] = prep.meas_seq[lo:hi]
+        for k in range(lo, hi):
+            state.seq_to_meas[int(prep.meas_seq[k])] = k
+
+    def _run_windowed(self, prep: PreparedFlight, window: int, state: _State, writer: ResultsWriter,
+                      progress: Callable[[int, int], None] | None) -> None:
+        n = len(prep.meas_end)
+        sent_meas = 0
+        sent_bytes = 0
+        state.last_rx = time.monotonic()
+        while state.resolved_upto < n:
+            hi = min(n, state.resolved_upto + window)
+            if hi > sent_meas:
+                end = int(prep.meas_end[hi - 1])
+                now = time.perf_counter_ns()
+                self._mark_sent(prep, state, sent_meas, hi, now)
+                self._write(prep.stream[sent_bytes:end])
+                sent_bytes, sent_meas = end, hi
+            self._wait_progress(state, writer, 0.05)
+            if progress is not None:
+                progress(state.resolved_upto, n)
+        self._sent_bytes = sent_bytes
+
+    def _run_realtime(self, prep: PreparedFlight, pacing: Pacing, state: _State, writer: ResultsWriter,
+                      progress: Callable[[int, int], None] | None) -> None:
+        n = len(prep.meas_end)
+        if len(prep.event_t_us) == 0:
+            self._sent_bytes = 0
+            return
+        t0_data = int(prep.event_t_us[0])
+        t0_wall = time.perf_counter()
+        sent_bytes = 0
+        sent_meas = 0
+        state.last_rx = time.monotonic()
+        due_t = (prep.event_t_us - t0_data) / 1e6 / pacing.speed
+        n_events = len(prep.event_end)
+        e = 0
+        while e < n_events or state.resolved_upto < n:
+            now = time.perf_counter() - t0_wall
+            e_hi = int(np.searchsorted(due_t, now, side="right"))
+            if e_hi > e:
+                end = int(prep.event_end[e_hi - 1])
+                m_hi = int(np.searchsorted(prep.meas_end, end, side="right"))
+                self._mark_sent(prep, state, sent_meas, m_hi, time.perf_counter_ns())
+                self._write(prep.stream[sent_bytes:end])
+                sent_bytes, sent_meas, e = end, m_hi, e_hi
+            wait = 0.05 if e >= n_events else max(0.0, min(0.05, float(due_t[e]) - now))
+            self._wait_progress(state, writer, wait)
+            if progress is not None:
+                progress(state.resolved_upto, n)
+        self._sent_bytes = sent_bytes
+
+    def _finish(self, prep: PreparedFlight, state: _State, writer: ResultsWriter) -> None:
+        """Send what follows the last measurement (trailing IMU samples)."""
+        if self._sent_bytes < len(prep.stream):
+            self._write(prep.stream[self._sent_bytes:])
