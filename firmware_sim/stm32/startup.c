@@ -7,7 +7,11 @@
 #include "stm32f405_regs.h"
 
 /* Linker script symbols (stm32f405.ld). */
-extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;
+extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _sstack, _estack;
+
+/* The unused stack is painted with this word at reset; the lowest word that no longer holds it is
+ * the high-water mark (read with a debugger, or by the harness through QEMU's monitor). */
+#define STACK_PAINT 0xA5A5A5A5u
 
 int main(void);
 void Reset_Handler(void);
@@ -57,7 +61,7 @@ __attribute__((section(".isr_vector"), used)) const vector_t vector_table[16u + 
 
 void Reset_Handler(void)
 {
-    uint32_t *src, *dst;
+    uint32_t *src, *dst, *sp;
 
     SCB_CPACR |= 0xFu << 20; /* CP10 + CP11 full access: hard-float code may run after this */
     cpu_dsb();
@@ -69,6 +73,10 @@ void Reset_Handler(void)
     }
     for (dst = &_sbss; dst < &_ebss;) {
         *dst++ = 0u;
+    }
+    __asm__ volatile("mov %0, sp" : "=r"(sp));
+    for (dst = &_sstack; dst < sp - 16; dst++) { /* leave this frame alone */
+        *dst = STACK_PAINT;
     }
     (void)main();
     for (;;) {
