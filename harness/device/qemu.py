@@ -32,6 +32,10 @@ DEFAULT_ELF = REPO_ROOT / "firmware_sim" / "build" / "stm32" / "uwb-fw.elf"
 
 _PTY_RE = re.compile(r"char device redirected to (/dev/pts/\d+) \(label (\w+)\)")
 _PROMPT = b"(qemu) "
+# `-serial` index -> USART base address on the STM32F405 SoC model (hw/arm/stm32f405_soc.c).
+USART_BASES = (0x40011000, 0x40004400, 0x40004800, 0x40004C00, 0x40005000, 0x40011400, 0x40007800)
+_USART_CR1 = 0x0C
+_CR1_UE_RE = (1 << 13) | (1 << 2)
 _ANSI_RE = re.compile(rb"\x1b\[[0-9;]*[A-Za-z]")
 
 
@@ -101,6 +105,7 @@ class QemuProcess:
             # bytes would be dropped. The CPU is still halted (-S), so simply wait, then run.
             time.sleep(self.options.settle_s)
             self.monitor("cont")
+            self._wait_for_receiver()
         except BaseException:
             self.stop()
             raise
@@ -193,6 +198,19 @@ class QemuProcess:
                 if time.monotonic() > deadline or not self.alive():
                     raise QemuError(f"QEMU monitor socket {path} never came up (log: {self.log_path})") from None
                 time.sleep(0.02)
+
+    def _wait_for_receiver(self) -> None:
+        """QEMU's USART model drops bytes that arrive before the guest set CR1.UE|RE, and the host
+        may write the moment `cont` returns: wait until the firmware has enabled its receiver."""
+        cr1 = USART_BASES[self.options.serial_index] + _USART_CR1
+        deadline = time.monotonic() + self.options.start_timeout_s
+        while True:
+            if self.read_words(cr1, 1)[0] & _CR1_UE_RE == _CR1_UE_RE:
+                return
+            if time.monotonic() > deadline:
+                raise QemuError(f"the firmware did not enable its USART within {self.options.start_timeout_s:.0f} s"
+                                f" (log: {self.log_path})")
+            time.sleep(0.005)
 
     def _wait_for_pty(self) -> str:
         deadline = time.monotonic() + self.options.start_timeout_s

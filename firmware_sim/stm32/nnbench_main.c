@@ -1,0 +1,120 @@
+/* uwb-nnbench: the compiled-in bias networks run by three kernels on inputs sent by the host, with
+ * the instruction count of each call (TIM2 under QEMU -icount shift=0). Used by harness/bench_qemu.py
+ * to measure the M4 kernels against the core's portable version in the same run, and to check their
+ * outputs against PyTorch.
+ *
+ * Binary protocol on the link USART (little endian, no framing: fixed-size messages):
+ *   host 'I'                         -> 'i' n_in_twr:u8 n_in_tdoa:u8 layout_twr:u8 layout_tdoa:u8
+ *   host 'P' kind:u8 x:f32[n_in]     -> 'p' y:f32[3] cost:u32[3]
+ *        kind 0 = TWR net, 1 = TDoA net; kernels in order: portable (core), C blocked, assembly.
+ *        cost = instructions of the call, the cost of reading the clock subtracted.
+ *   anything else                    -> '?' */
+#include <string.h>
+
+#include "board.h"
+#include "nn_m4.h"
+#include "platform.h"
+#include "stm32f405_regs.h"
+
+typedef float (*predict_fn)(const bias_nn_t *net, const float *features);
+
+static void read_exact(uint8_t *dst, size_t n)
+{
+    while (n > 0u) {
+        const uint8_t *data;
+        size_t got;
+        cpu_irq_disable();
+        got = usart_rx_peek(&data);
+        if (got == 0u) {
+            cpu_wfi();
+            cpu_irq_enable();
+            continue;
+        }
+        cpu_irq_enable();
+        if (got > n) {
+            got = n;
+        }
+        memcpy(dst, data, got);
+        usart_rx_release(got);
+        dst += got;
+        n -= got;
+    }
+}
+
+static void put_u32(uint8_t *p, uint32_t v)
+{
+    p[0] = (uint8_t)v;
+    p[1] = (uint8_t)(v >> 8);
+    p[2] = (uint8_t)(v >> 16);
+    p[3] = (uint8_t)(v >> 24);
+}
+
+static uint32_t clock_overhead;
+
+static uint32_t timed(predict_fn fn, const bias_nn_t *net, const float *x, float *y)
+{
+    uint32_t t0, t1;
+    t0 = platform_cost_now();
+    *y = fn(net, x);
+    t1 = platform_cost_now();
+    return (t1 - t0) - clock_overhead;
+}
+
+static void calibrate(void)
+{
+    uint32_t t0 = platform_cost_now();
+    uint32_t t1 = platform_cost_now();
+    clock_overhead = t1 - t0;
+}
+
+int main(void)
+{
+    static const predict_fn kernels[3] = {__real_bias_nn_predict, nn_m4_predict_c, nn_m4_predict};
+    board_clocks_t clk;
+    const bias_model_t *model = &bias_model_compiled;
+
+    board_clock_init(&clk);
+    platform_stm32_init(&clk);
+    usart_init(&clk, UWB_BAUD);
+    calibrate();
+
+    for (;;) {
+        uint8_t cmd;
+        read_exact(&cmd, 1);
+        if (cmd == 'I') {
+            uint8_t out[5];
+            out[0] = 'i';
+            out[1] = model->twr ? model->twr->n_in : 0u;
+            out[2] = model->tdoa ? model->tdoa->n_in : 0u;
+            out[3] = model->twr ? model->twr->layout : 0u;
+            out[4] = model->tdoa ? model->tdoa->layout : 0u;
+            usart_write(out, sizeof out);
+        } else if (cmd == 'P') {
+            uint8_t kind;
+            const bias_nn_t *net;
+            float x[BIAS_NN_MAX_IN];
+            uint8_t out[1 + 3 * 4 + 3 * 4];
+            unsigned k;
+            read_exact(&kind, 1);
+            net = kind == 0u ? model->twr : model->tdoa;
+            if (net == (const bias_nn_t *)0) {
+                out[0] = '?';
+                usart_write(out, 1);
+                continue;
+            }
+            read_exact((uint8_t *)x, 4u * net->n_in);
+            out[0] = 'p';
+            for (k = 0; k < 3u; k++) {
+                float y;
+                uint32_t bits, cost = timed(kernels[k], net, x, &y);
+                memcpy(&bits, &y, sizeof bits);
+                put_u32(&out[1u + 4u * k], bits);
+                put_u32(&out[13u + 4u * k], cost);
+            }
+            usart_write(out, sizeof out);
+        } else {
+            uint8_t q = '?';
+            usart_write(&q, 1);
+        }
+    }
+}
