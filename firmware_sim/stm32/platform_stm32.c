@@ -129,3 +129,14 @@ uint32_t platform_cost_now(void)
 }
 
 uint8_t platform_cost_unit(void) { return use_dwt ? 0u : 1u; }
+
+/* ------------------------------------------------------------------------------ C library hooks */
+/* newlib's libm wrappers (asinf, atan2f, ...) report domain errors through __errno(). Its libc
+ * version returns a field of the 1 KiB re-entrancy structure (_impure_ptr), which would then be
+ * linked into .data. The firmware is single threaded and never reads errno: one int does. */
+int *__errno(void);
+int *__errno(void)
+{
+    static int errno_value;
+    return &errno_value;
+}
