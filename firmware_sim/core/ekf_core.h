@@ -1,0 +1,95 @@
+/* Error-state EKF core (Crazyflie-style): 9 error states, separately stored attitude quaternion,
+ * 100 Hz IMU prediction or constant-velocity prediction, sequential scalar updates in Joseph form.
+ * OS-free C99, no allocation, single precision; the numpy twin (harness/twin/ekf.py) mirrors it. */
+#ifndef UWB_EKF_CORE_H
+#define UWB_EKF_CORE_H
+
+#include <stdint.h>
+
+#define EKF_N 9
+
+/* Error-state indices: world position, BODY-frame velocity, attitude error (rotation vector). */
+enum { EKF_X = 0, EKF_Y, EKF_Z, EKF_PX, EKF_PY, EKF_PZ, EKF_D0, EKF_D1, EKF_D2 };
+
+#define EKF_GRAVITY 9.81f                /* m/s^2, same constant as the Crazyflie */
+#define EKF_P_MIN 1e-6f                  /* covariance diagonal floor */
+#define EKF_P_MAX 100.0f                 /* covariance magnitude bound; NaN is replaced by this */
+#define EKF_PREDICT_INTERVAL_US 10000u   /* IMU mode: predict at 100 Hz */
+#define EKF_INIT_STD_VEL 0.5f            /* m/s: initial velocity std (the tag may already move) */
+#define EKF_INIT_STD_ATT 0.01f           /* rad: initial roll/pitch/yaw std */
+
+typedef struct {
+    float S[EKF_N];          /* error state; S[D0..D2] is zero outside an update */
+    float q[4];              /* attitude (w, x, y, z), body -> world */
+    float R[3][3];           /* rotation matrix of q, body -> world */
+    float P[EKF_N][EKF_N];   /* covariance of the error state */
+    float acc_sum[3];        /* IMU samples summed since the last prediction */
+    float gyro_sum[3];
+    uint32_t imu_count;
+    uint64_t t_us;           /* IMU mode: time of the last prediction; UWB-only: state time */
+    uint8_t has_time;        /* t_us is valid */
+} ekf_t;
+
+/* Process noise of the IMU-mode prediction (white acceleration, body frame, m/s^2/sqrt(Hz)). */
+typedef struct {
+    float acc_xy;
+    float acc_z;
+} ekf_noise_t;
+
+/* Diagnostics of one scalar update (filterpy style): all exposed after ekf_scalar_prepare/apply. */
+typedef struct {
+    float h[3];          /* nonzero part of H (1x9): H = [h0 h1 h2 0 0 0 0 0 0] */
+    float ph[EKF_N];     /* P H^T */
+    float r_var;         /* measurement noise variance R */
+    float innovation;    /* y = z - h(x) */
+    float S;             /* innovation variance H P H^T + R */
+    float mahalanobis;   /* |y| / sqrt(S) */
+    float K[EKF_N];      /* Kalman gain P H^T / S (set by ekf_scalar_apply) */
+} ekf_scalar_t;
+
+/* Externalised state. */
+typedef struct {
+    float pos[3];
+    float vel_world[3];
+    float quat[4];
+    float var[EKF_N];    /* covariance diagonal */
+    float rpy[3];        /* roll, pitch, yaw [rad] */
+} ekf_state_t;
+
+/* Position pos, zero velocity, identity attitude, diagonal P; time unset, accumulators cleared. */
+void ekf_init(ekf_t *ekf, const float pos[3], float std_xy, float std_z);
+
+/* IMU mode. The first sample only sets the prediction time; later samples are summed and, once
+ * t_us - t_last_predict >= 10 ms, a prediction with their average runs. Returns 1 if it did. */
+int ekf_imu_sample(ekf_t *ekf, const ekf_noise_t *noise, uint64_t t_us, const float acc[3],
+                   const float gyro[3]);
+
+/* One IMU-mode prediction over dt [s] with mean specific force acc and body rates gyro. */
+void ekf_predict_imu(ekf_t *ekf, const ekf_noise_t *noise, const float acc[3], const float gyro[3],
+                     float dt);
+
+/* Constant-velocity prediction over dt [s] with white acceleration std q_acc (UWB-only mode). */
+void ekf_predict_cv(ekf_t *ekf, float q_acc, float dt);
+
+/* Scalar update with H = [h, 0...]: prepare computes P H^T, S and the Mahalanobis distance
+ * (used by the gates), apply computes K, corrects the state and updates P in Joseph form. */
+void ekf_scalar_prepare(const ekf_t *ekf, ekf_scalar_t *m, const float h[3], float innovation,
+                        float r_var);
+void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m);
+void ekf_scalar_update(ekf_t *ekf, ekf_scalar_t *m, const float h[3], float innovation, float r_var);
+
+/* Move the attitude error into q, rotate P accordingly, zero the attitude error. */
+void ekf_finalize(ekf_t *ekf);
+
+/* P = (P + P^T) / 2, then NaN -> EKF_P_MAX, |P_ij| <= EKF_P_MAX, P_ii >= EKF_P_MIN. */
+void ekf_sym_clamp(float P[EKF_N][EKF_N]);
+
+/* 1 if the state, q and the diagonal of P are all finite. */
+int ekf_is_finite(const ekf_t *ekf);
+
+void ekf_externalize(const ekf_t *ekf, ekf_state_t *out);
+
+/* Roll, pitch, yaw [rad] of q (ARCHITECTURE.md formulas). */
+void ekf_quat_to_rpy(const float q[4], float rpy[3]);
+
+#endif

@@ -1,0 +1,308 @@
+/* The per-measurement pipeline (ARCHITECTURE.md "Per UWB measurement pipeline"). */
+#include "estimator.h"
+
+#include <math.h>
+#include <string.h>
+
+#include "gate_chi2.h"
+#include "gate_kinematic.h"
+#include "mm_tdoa.h"
+#include "mm_twr.h"
+#include "platform.h"
+
+void estimator_default_config(estimator_config_t *cfg)
+{
+    /* Keep in step with harness/config.py EstimatorConfig. */
+    cfg->mode = EST_MODE_IMU;
+    cfg->stages = EST_STAGES_ALL;
+    cfg->std_twr = 0.25f;
+    cfg->std_tdoa = 0.15f;
+    cfg->a_max_twr = 5000.0f;
+    cfg->a_max_tdoa = 5000.0f;
+    cfg->gate_dt_min = 0.01f;
+    cfg->chi2_twr = 3.841f;
+    cfg->chi2_tdoa = 3.841f;
+    cfg->proc_acc_xy = 0.5f;
+    cfg->proc_acc_z = 1.0f;
+    cfg->proc_cv_acc = 2.0f;
+    cfg->init_x = 0.0f;
+    cfg->init_y = 0.0f;
+    cfg->init_z = 0.0f;
+    cfg->init_std_xy = 1.0f;
+    cfg->init_std_z = 1.0f;
+    cfg->nn_min_z = 0.5f;
+}
+
+int estimator_config_valid(const estimator_config_t *cfg)
+{
+    const float positive[] = {cfg->std_twr, cfg->std_tdoa, cfg->a_max_twr, cfg->a_max_tdoa,
+                              cfg->gate_dt_min, cfg->chi2_twr, cfg->chi2_tdoa, cfg->proc_cv_acc,
+                              cfg->init_std_xy, cfg->init_std_z};
+    const float other[] = {cfg->proc_acc_xy, cfg->proc_acc_z, cfg->init_x, cfg->init_y, cfg->init_z,
+                           cfg->nn_min_z};
+    unsigned i;
+    if (cfg->mode != EST_MODE_IMU && cfg->mode != EST_MODE_UWB_ONLY) {
+        return 0;
+    }
+    if (cfg->stages & ~EST_STAGES_ALL) {
+        return 0;
+    }
+    for (i = 0; i < sizeof positive / sizeof positive[0]; i++) {
+        if (!isfinite(positive[i]) || !(positive[i] > 0.0f)) {
+            return 0;
+        }
+    }
+    for (i = 0; i < sizeof other / sizeof other[0]; i++) {
+        if (!isfinite(other[i])) {
+            return 0;
+        }
+    }
+    return cfg->proc_acc_xy >= 0.0f && cfg->proc_acc_z >= 0.0f;
+}
+
+/* Filter at the configured init position; time references forgotten. */
+static void reset_filter(estimator_t *est)
+{
+    const float pos[3] = {est->cfg.init_x, est->cfg.init_y, est->cfg.init_z};
+    ekf_init(&est->ekf, pos, est->cfg.init_std_xy, est->cfg.init_std_z);
+    memcpy(est->last_good_pos, pos, sizeof pos);
+    est->has_imu_time = 0;
+    est->has_uwb_time = 0;
+    est->t_imu_us = 0;
+    est->t_uwb_us = 0;
+    est->cost_predict = 0;
+}
+
+void estimator_init(estimator_t *est, const bias_model_t *model)
+{
+    memset(est, 0, sizeof *est);
+    estimator_default_config(&est->cfg);
+    est->model = model;
+    reset_filter(est);
+}
+
+void estimator_configure(estimator_t *est, const estimator_config_t *cfg, int reset)
+{
+    est->cfg = *cfg;
+    if (reset) {
+        reset_filter(est);
+    }
+}
+
+int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3])
+{
+    if (id >= ESTIMATOR_MAX_ANCHORS) {
+        return EST_ERR_BAD_ANCHOR_ID;
+    }
+    memcpy(est->anchors[id], pos, 3 * sizeof pos[0]);
+    est->anchor_known = (uint16_t)(est->anchor_known | (1u << id));
+    return EST_OK;
+}
+
+static int anchor_known(const estimator_t *est, uint8_t id)
+{
+    return id < ESTIMATOR_MAX_ANCHORS && (est->anchor_known >> id) & 1u;
+}
+
+/* Divergence guard: a non-finite state restarts the filter where it last was sane, keeping the
+ * time reference so the next prediction/measurement continues normally. */
+static void guard(estimator_t *est)
+{
+    ekf_t *ekf = &est->ekf;
+    uint64_t t_us;
+    uint8_t has_time;
+    if (ekf_is_finite(ekf)) {
+        memcpy(est->last_good_pos, &ekf->S[EKF_X], sizeof est->last_good_pos);
+        return;
+    }
+    t_us = ekf->t_us;
+    has_time = ekf->has_time;
+    ekf_init(ekf, est->last_good_pos, est->cfg.init_std_xy, est->cfg.init_std_z);
+    ekf->t_us = t_us;
+    ekf->has_time = has_time;
+    est->divergences++;
+}
+
+int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3])
+{
+    uint32_t c0;
+    ekf_noise_t noise;
+    if (est->has_imu_time && t_us < est->t_imu_us) {
+        return EST_ERR_TIME_BACKWARDS;
+    }
+    est->t_imu_us = t_us;
+    est->has_imu_time = 1;
+    if (est->cfg.mode == EST_MODE_UWB_ONLY) {
+        est->imu_ignored++;
+        return EST_OK;
+    }
+    noise.acc_xy = est->cfg.proc_acc_xy;
+    noise.acc_z = est->cfg.proc_acc_z;
+    c0 = platform_cost_now();
+    if (ekf_imu_sample(&est->ekf, &noise, t_us, acc, gyro)) {
+        est->predictions++;
+        guard(est);
+        est->cost_predict += platform_cost_now() - c0;
+    }
+    return EST_OK;
+}
+
+/* Signed t1 - t0 in microseconds without relying on unsigned -> signed wrap-around. */
+static int64_t diff_us(uint64_t t1, uint64_t t0)
+{
+    return t1 >= t0 ? (int64_t)(t1 - t0) : -(int64_t)(t0 - t1);
+}
+
+/* Bias (measured - true) from the network of this kind, or 0 when the stage is off, there is no
+ * network, or the estimate is below nn_min_z (take-off: the paper does not correct there). */
+static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *anchor_a,
+                     const float *anchor_b)
+{
+    float rpy[3], feat[BIAS_NN_MAX_IN];
+    if (!(est->cfg.stages & EST_STAGE_BIAS_NN) || net == NULL || !(est->ekf.S[EKF_Z] > est->cfg.nn_min_z)) {
+        return 0.0f;
+    }
+    ekf_quat_to_rpy(est->ekf.q, rpy);
+    if (bias_nn_features(net->layout, &est->ekf.S[EKF_X], rpy, anchor_a, anchor_b, feat) == 0) {
+        return 0.0f;
+    }
+    return bias_nn_predict(net, feat);
+}
+
+/* The pipeline for one measurement z. anchor_b == NULL means TWR to anchor_a. */
+static void process(estimator_t *est, uint64_t t_us, const float *anchor_a, const float *anchor_b,
+                    float z, estimator_result_t *out)
+{
+    ekf_t *ekf = &est->ekf;
+    const estimator_config_t *cfg = &est->cfg;
+    const int tdoa = anchor_b != NULL;
+    const bias_nn_t *net = NULL;
+    const uint64_t t_ref = ekf->t_us;
+    const int have_ref = ekf->has_time;
+    float h, H[3], dt, y, bias;
+    ekf_scalar_t m;
+    uint32_t c0, c1, c2, c3;
+    int rc;
+
+    memset(out, 0, sizeof *out);
+    est->t_uwb_us = t_us;
+    est->has_uwb_time = 1;
+
+    /* UWB-only: constant-velocity prediction to the measurement time (the first measurement only
+     * sets the state time, so a late first measurement does not inflate P). */
+    if (cfg->mode == EST_MODE_UWB_ONLY) {
+        if (!ekf->has_time) {
+            ekf->t_us = t_us;
+            ekf->has_time = 1;
+        } else if (t_us > ekf->t_us) {
+            c0 = platform_cost_now();
+            ekf_predict_cv(ekf, cfg->proc_cv_acc, (float)(t_us - ekf->t_us) * 1e-6f);
+            ekf->t_us = t_us;
+            est->predictions++;
+            guard(est);
+            est->cost_predict += platform_cost_now() - c0;
+        }
+    }
+    out->cost_predict = est->cost_predict;
+    est->cost_predict = 0;
+
+    /* d_max is reported whatever happens next (plots), so compute it first. The velocity norm is
+     * frame independent and the CV prediction does not change the velocity. */
+    dt = gate_kinematic_dt(diff_us(t_us, t_ref), have_ref, cfg->gate_dt_min);
+    out->d_max = gate_kinematic_dmax(&ekf->S[EKF_PX], dt, tdoa ? cfg->a_max_tdoa : cfg->a_max_twr);
+
+    /* 1. measurement model */
+    c0 = platform_cost_now();
+    rc = tdoa ? mm_tdoa(&ekf->S[EKF_X], anchor_a, anchor_b, &h, H) : mm_twr(&ekf->S[EKF_X], anchor_a, &h, H);
+    c1 = platform_cost_now();
+    if (rc != MM_OK) {
+        out->status = EST_REJECTED_GEOMETRY;
+        out->cost_update = c1 - c0;
+        return;
+    }
+
+    /* 2. bias */
+    if (est->model != NULL) {
+        net = tdoa ? est->model->tdoa : est->model->twr;
+    }
+    bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a);
+    y = (z - bias) - h;
+    c2 = platform_cost_now();
+
+    /* 3./4. gates (S is needed by the chi-square gate and reported in every case) */
+    ekf_scalar_prepare(ekf, &m, H, y, tdoa ? cfg->std_tdoa * cfg->std_tdoa : cfg->std_twr * cfg->std_twr);
+    out->status = EST_ACCEPTED;
+    if ((cfg->stages & EST_STAGE_KINEMATIC_GATE) && !gate_kinematic_pass(y, out->d_max, tdoa ? 2.0f : 1.0f)) {
+        out->status = EST_REJECTED_KINEMATIC;
+    } else if ((cfg->stages & EST_STAGE_CHI2_GATE) &&
+               !gate_chi2_pass(y, m.S, tdoa ? cfg->chi2_tdoa : cfg->chi2_twr)) {
+        out->status = EST_REJECTED_CHI2;
+    }
+    c3 = platform_cost_now();
+
+    /* 5. update */
+    if (out->status == EST_ACCEPTED) {
+        ekf_scalar_apply(ekf, &m);
+        ekf_finalize(ekf);
+        guard(est);
+        out->gain[0] = m.K[EKF_X];
+        out->gain[1] = m.K[EKF_Y];
+        out->gain[2] = m.K[EKF_Z];
+    }
+    out->innovation = y;
+    out->innovation_var = m.S;
+    out->bias = bias;
+    out->cost_nn = c2 - c1;
+    out->cost_gates = c3 - c2;
+    out->cost_update = (c1 - c0) + (platform_cost_now() - c3);
+}
+
+int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float range,
+                     estimator_result_t *out)
+{
+    if (!anchor_known(est, anchor)) {
+        return EST_ERR_UNKNOWN_ANCHOR;
+    }
+    if (est->has_uwb_time && t_us < est->t_uwb_us) {
+        return EST_ERR_TIME_BACKWARDS;
+    }
+    process(est, t_us, est->anchors[anchor], NULL, range, out);
+    return EST_OK;
+}
+
+int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t anchor_b, float diff,
+                      estimator_result_t *out)
+{
+    if (!anchor_known(est, anchor_a) || !anchor_known(est, anchor_b)) {
+        return EST_ERR_UNKNOWN_ANCHOR;
+    }
+    if (est->has_uwb_time && t_us < est->t_uwb_us) {
+        return EST_ERR_TIME_BACKWARDS;
+    }
+    process(est, t_us, est->anchors[anchor_a], est->anchors[anchor_b], diff, out);
+    return EST_OK;
+}
+
+void estimator_state(const estimator_t *est, float pos[3], float vel_world[3], float quat[4],
+                     float var[9])
+{
+    ekf_state_t s;
+    ekf_externalize(&est->ekf, &s);
+    if (pos != NULL) {
+        memcpy(pos, s.pos, sizeof s.pos);
+    }
+    if (vel_world != NULL) {
+        memcpy(vel_world, s.vel_world, sizeof s.vel_world);
+    }
+    if (quat != NULL) {
+        memcpy(quat, s.quat, sizeof s.quat);
+    }
+    if (var != NULL) {
+        memcpy(var, s.var, sizeof s.var);
+    }
+}
+
+uint32_t estimator_prediction_count(const estimator_t *est)
+{
+    return est->predictions;
+}

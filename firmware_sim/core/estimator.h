@@ -1,0 +1,103 @@
+/* The per-measurement pipeline the firmware app calls: time rules, prediction, measurement model,
+ * bias network, kinematic and chi-square gates, Joseph update, finalize, divergence guard.
+ * docs/ARCHITECTURE.md is the contract; harness/twin/estimator.py is the numpy twin. */
+#ifndef UWB_ESTIMATOR_H
+#define UWB_ESTIMATOR_H
+
+#include <stdint.h>
+
+#include "bias_nn.h"
+#include "ekf_core.h"
+
+#define ESTIMATOR_MAX_ANCHORS 16
+
+/* Return codes (numerically equal to protocol enum error_code). */
+enum {
+    EST_OK = 0,
+    EST_ERR_UNKNOWN_ANCHOR = 4,
+    EST_ERR_TIME_BACKWARDS = 5,
+    EST_ERR_BAD_ANCHOR_ID = 7
+};
+
+/* Measurement statuses (= protocol enum status). */
+enum {
+    EST_ACCEPTED = 0,
+    EST_REJECTED_KINEMATIC = 1,
+    EST_REJECTED_CHI2 = 2,
+    EST_REJECTED_GEOMETRY = 3
+};
+
+/* Modes and stage bits (= protocol enums ekf_mode, stage). */
+enum { EST_MODE_IMU = 0, EST_MODE_UWB_ONLY = 1 };
+enum { EST_STAGE_BIAS_NN = 1, EST_STAGE_KINEMATIC_GATE = 2, EST_STAGE_CHI2_GATE = 4 };
+#define EST_STAGES_ALL (EST_STAGE_BIAS_NN | EST_STAGE_KINEMATIC_GATE | EST_STAGE_CHI2_GATE)
+
+/* What CONFIG carries (harness/config.py EstimatorConfig). */
+typedef struct {
+    uint8_t mode, stages;
+    float std_twr, std_tdoa, a_max_twr, a_max_tdoa, gate_dt_min, chi2_twr, chi2_tdoa, proc_acc_xy,
+        proc_acc_z, proc_cv_acc, init_x, init_y, init_z, init_std_xy, init_std_z, nn_min_z;
+} estimator_config_t;
+
+typedef struct {
+    uint8_t status;        /* EST_ACCEPTED / EST_REJECTED_* */
+    float innovation;      /* y = z - bias - h(x), before the update (0 for geometry) */
+    float innovation_var;  /* S = H P H^T + R (0 for geometry) */
+    float bias;            /* what the network subtracted [m] */
+    float d_max;           /* kinematic bound, computed whether the gate is on or not */
+    float gain[3];         /* K position rows, 0 unless accepted */
+    uint32_t cost_nn, cost_gates, cost_update, cost_predict; /* platform_cost_now() units */
+} estimator_result_t;
+
+typedef struct {
+    estimator_config_t cfg;
+    ekf_t ekf;
+    float anchors[ESTIMATOR_MAX_ANCHORS][3];
+    uint16_t anchor_known;            /* bit i: anchors[i] was set */
+    const bias_model_t *model;        /* may be NULL, or have NULL networks */
+    uint64_t t_imu_us, t_uwb_us;      /* last accepted IMU / UWB timestamps (time rule) */
+    uint8_t has_imu_time, has_uwb_time;
+    float last_good_pos[3];           /* re-initialisation point of the divergence guard */
+    uint32_t cost_predict;            /* cost of the predictions since the last measurement */
+    uint32_t predictions;             /* IMU or CV predictions since power-up */
+    uint32_t imu_ignored;             /* IMU samples counted and ignored in UWB-only mode */
+    uint32_t divergences;             /* times the divergence guard re-initialised the filter */
+} estimator_t;
+
+/* Same defaults as harness/config.py EstimatorConfig. */
+void estimator_default_config(estimator_config_t *cfg);
+
+/* 1 if valid: same rules as EstimatorConfig.validate(). */
+int estimator_config_valid(const estimator_config_t *cfg);
+
+/* Default config, filter at its init position, no anchors, counters zero. */
+void estimator_init(estimator_t *est, const bias_model_t *model);
+
+/* cfg must be valid. reset != 0 re-initialises the filter at cfg's init position and forgets the
+ * time references (a new flight may restart its clock); anchors and counters are kept. Changing
+ * the mode should be done with reset. */
+void estimator_configure(estimator_t *est, const estimator_config_t *cfg, int reset);
+
+/* EST_ERR_BAD_ANCHOR_ID if id >= ESTIMATOR_MAX_ANCHORS. */
+int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3]);
+
+/* Inputs are finite (checked by the caller). EST_ERR_TIME_BACKWARDS (nothing changes) if t_us is
+ * before the previous IMU sample. */
+int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3]);
+
+/* One measurement through the pipeline; *out is filled when EST_OK is returned.
+ * EST_ERR_UNKNOWN_ANCHOR / EST_ERR_TIME_BACKWARDS (before the previous UWB measurement): nothing
+ * changes. TDoA: diff = d(tag, B) - d(tag, A). */
+int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float range,
+                     estimator_result_t *out);
+int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t anchor_b, float diff,
+                      estimator_result_t *out);
+
+/* Position, world velocity, attitude (w, x, y, z), covariance diagonal (any pointer may be NULL). */
+void estimator_state(const estimator_t *est, float pos[3], float vel_world[3], float quat[4],
+                     float var[9]);
+
+/* Predictions run since power-up (STATS.predictions). */
+uint32_t estimator_prediction_count(const estimator_t *est);
+
+#endif

@@ -1,0 +1,26 @@
+/* TDoA measurement model (ARCHITECTURE.md, pipeline step 1). */
+#include "mm_tdoa.h"
+
+#include <math.h>
+
+int mm_tdoa(const float p[3], const float anchor_a[3], const float anchor_b[3], float *h, float H[3])
+{
+    const float ax = p[0] - anchor_a[0], ay = p[1] - anchor_a[1], az = p[2] - anchor_a[2];
+    const float bx = p[0] - anchor_b[0], by = p[1] - anchor_b[1], bz = p[2] - anchor_b[2];
+    const float abx = anchor_b[0] - anchor_a[0], aby = anchor_b[1] - anchor_a[1],
+                abz = anchor_b[2] - anchor_a[2];
+    const float da = sqrtf(ax * ax + ay * ay + az * az);
+    const float db = sqrtf(bx * bx + by * by + bz * bz);
+    const float dab = sqrtf(abx * abx + aby * aby + abz * abz);
+    /* Negated comparisons also reject NaN distances. */
+    if (!(da >= MM_MIN_DISTANCE) || !(db >= MM_MIN_DISTANCE) || !(dab >= MM_MIN_DISTANCE)) {
+        *h = 0.0f;
+        H[0] = H[1] = H[2] = 0.0f;
+        return MM_DEGENERATE;
+    }
+    *h = db - da;
+    H[0] = bx / db - ax / da;
+    H[1] = by / db - ay / da;
+    H[2] = bz / db - az / da;
+    return MM_OK;
+}
