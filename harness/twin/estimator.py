@@ -1,0 +1,277 @@
+"""The per-measurement pipeline (twin of firmware_sim/core/estimator.c).
+
+Order per UWB measurement (docs/ARCHITECTURE.md): [UWB-only: constant-velocity prediction] ->
+measurement model -> bias network -> kinematic gate -> chi-square gate -> Joseph update ->
+finalize -> divergence guard.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from harness.config import MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, EstimatorConfig
+from harness.twin import gates, measurements
+from harness.twin.ekf import POS, ErrorStateEkf
+from harness.twin.features import features
+
+if TYPE_CHECKING:
+    from harness.flight.model import Flight
+
+MAX_ANCHORS = 16
+
+# protocol enum status
+ACCEPTED = 0
+REJECTED_KINEMATIC = 1
+REJECTED_CHI2 = 2
+REJECTED_GEOMETRY = 3
+
+# protocol enum error_code (what the firmware answers with ERROR)
+ERR_UNKNOWN_ANCHOR = 4
+ERR_TIME_BACKWARDS = 5
+ERR_BAD_ANCHOR_ID = 7
+
+
+class TwinError(ValueError):
+    """A call the firmware would refuse with ERROR ``code``; the twin's state is unchanged."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class BiasNet(Protocol):
+    """One bias network: its input layout and ``predict(features (n_in,)) -> bias [m]``."""
+
+    layout: int
+
+    def predict(self, features: np.ndarray) -> float: ...
+
+
+@dataclass(frozen=True)
+class TwinState:
+    """Externalised estimate: position (3,), world velocity (3,), quaternion (4,), P diagonal (9,)."""
+
+    pos: np.ndarray
+    vel: np.ndarray
+    quat: np.ndarray
+    var: np.ndarray
+
+
+@dataclass(frozen=True)
+class TwinResult:
+    """Outcome of one measurement (the fields of the RESULT message, plus the Mahalanobis distance).
+
+    Attributes
+    ----------
+    status : int
+        ACCEPTED, REJECTED_KINEMATIC, REJECTED_CHI2 or REJECTED_GEOMETRY.
+    innovation : float
+        ``y = z - bias - h(x)`` before the update (0 for geometry).
+    innovation_var : float
+        ``S = H P H^T + R`` (0 for geometry).
+    bias : float
+        What the network subtracted [m].
+    d_max : float
+        Kinematic bound [m], reported whether the gate is on or not.
+    gain : ndarray, shape (3,)
+        Position rows of K (zero unless accepted).
+    mahalanobis : float
+        ``|y| / sqrt(S)`` (0 for geometry).
+    pos, vel, quat, var : ndarray, shapes (3,), (3,), (4,), (9,)
+        Estimate after the measurement.
+    """
+
+    status: int
+    innovation: float
+    innovation_var: float
+    bias: float
+    d_max: float
+    gain: np.ndarray
+    mahalanobis: float
+    pos: np.ndarray
+    vel: np.ndarray
+    quat: np.ndarray
+    var: np.ndarray
+
+
+class TwinEstimator:
+    """Float64 reference of the firmware estimator.
+
+    Parameters
+    ----------
+    config : EstimatorConfig
+        Validated on construction (the firmware refuses the same values).
+    anchors : dict[int, ndarray of shape (3,)]
+        Anchor positions by id (ids < 16).
+    model : object, optional
+        Bias networks as attributes ``twr`` and ``tdoa`` (either may be missing or None), each
+        with ``layout`` and ``predict(features)``.
+    """
+
+    def __init__(self, config: EstimatorConfig, anchors: dict[int, np.ndarray], model: object | None = None) -> None:
+        config.validate()
+        self.config = config
+        self.model = model
+        self.anchors: dict[int, np.ndarray] = {}
+        for anchor_id, pos in anchors.items():
+            self.set_anchor(anchor_id, pos)
+        self.predictions = 0
+        self.imu_ignored = 0
+        self.divergences = 0
+        self._reset_filter()
+
+    # ---------------------------------------------------------------------------- configuration
+    def _reset_filter(self) -> None:
+        c = self.config
+        self.last_good_pos = np.array([c.init_x, c.init_y, c.init_z], dtype=np.float64)
+        self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
+        self.t_imu_us: int | None = None
+        self.t_uwb_us: int | None = None
+
+    def configure(self, config: EstimatorConfig, reset: bool = True) -> None:
+        """Apply ``config``; ``reset`` re-initialises the filter and forgets the time references."""
+        config.validate()
+        self.config = config
+        if reset:
+            self._reset_filter()
+
+    def set_anchor(self, anchor_id: int, pos: np.ndarray) -> None:
+        """Set an anchor position; TwinError(ERR_BAD_ANCHOR_ID) for ids >= 16."""
+        if not 0 <= int(anchor_id) < MAX_ANCHORS:
+            raise TwinError(ERR_BAD_ANCHOR_ID, f"anchor id {anchor_id} out of range")
+        self.anchors[int(anchor_id)] = np.asarray(pos, dtype=np.float64).reshape(3).copy()
+
+    # ----------------------------------------------------------------------------------- inputs
+    def on_imu(self, t_us: int, acc: np.ndarray, gyro: np.ndarray) -> None:
+        """One IMU sample (ignored, but time-checked, in UWB-only mode)."""
+        t_us = int(t_us)
+        if self.t_imu_us is not None and t_us < self.t_imu_us:
+            raise TwinError(ERR_TIME_BACKWARDS, f"IMU time {t_us} < {self.t_imu_us}")
+        self.t_imu_us = t_us
+        if self.config.mode == MODE_UWB_ONLY:
+            self.imu_ignored += 1
+            return
+        c = self.config
+        if self.ekf.imu_sample(t_us, np.asarray(acc, dtype=np.float64), np.asarray(gyro, dtype=np.float64),
+                               c.proc_acc_xy, c.proc_acc_z):
+            self.predictions += 1
+            self._guard()
+
+    def on_twr(self, t_us: int, anchor: int, rng: float) -> TwinResult:
+        """One two-way range to ``anchor``."""
+        a = self._anchor(anchor)
+        self._check_uwb_time(int(t_us))
+        return self._process(int(t_us), a, None, float(rng))
+
+    def on_tdoa(self, t_us: int, a: int, b: int, diff: float) -> TwinResult:
+        """One TDoA ``diff = d(tag, B) - d(tag, A)``."""
+        pa, pb = self._anchor(a), self._anchor(b)
+        self._check_uwb_time(int(t_us))
+        return self._process(int(t_us), pa, pb, float(diff))
+
+    def state(self) -> TwinState:
+        """The current estimate."""
+        e = self.ekf
+        return TwinState(pos=e.x[POS].copy(), vel=e.velocity_world(), quat=e.q.copy(), var=np.diagonal(e.P).copy())
+
+    # -------------------------------------------------------------------------------- internals
+    def _anchor(self, anchor_id: int) -> np.ndarray:
+        pos = self.anchors.get(int(anchor_id))
+        if pos is None:
+            raise TwinError(ERR_UNKNOWN_ANCHOR, f"unknown anchor {anchor_id}")
+        return pos
+
+    def _check_uwb_time(self, t_us: int) -> None:
+        if self.t_uwb_us is not None and t_us < self.t_uwb_us:
+            raise TwinError(ERR_TIME_BACKWARDS, f"UWB time {t_us} < {self.t_uwb_us}")
+
+    def _guard(self) -> None:
+        """Divergence guard: restart at the last sane position if anything went non-finite."""
+        if self.ekf.is_finite():
+            self.last_good_pos = self.ekf.x[POS].copy()
+            return
+        t_us = self.ekf.t_us
+        c = self.config
+        self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
+        self.ekf.t_us = t_us
+        self.divergences += 1
+
+    def _bias(self, net: BiasNet | None, anchor_a: np.ndarray, anchor_b: np.ndarray | None) -> float:
+        c = self.config
+        if not (c.stages & STAGE_BIAS_NN) or net is None or not (self.ekf.x[2] > c.nn_min_z):
+            return 0.0
+        f = features(int(net.layout), self.ekf.x[POS], self.ekf.rpy(), anchor_a,
+                     anchor_b if anchor_b is not None else anchor_a)
+        if f.size == 0:
+            return 0.0
+        return float(net.predict(f))
+
+    def _process(self, t_us: int, anchor_a: np.ndarray, anchor_b: np.ndarray | None, z: float) -> TwinResult:
+        c, ekf = self.config, self.ekf
+        tdoa = anchor_b is not None
+        self.t_uwb_us = t_us
+        t_ref = ekf.t_us  # IMU mode: last prediction; UWB-only: state time before this prediction
+        if c.mode == MODE_UWB_ONLY:
+            if ekf.t_us is None:
+                ekf.t_us = t_us  # the first measurement only sets the state time
+            elif t_us > ekf.t_us:
+                ekf.predict_cv(c.proc_cv_acc, (t_us - ekf.t_us) * 1e-6)
+                ekf.t_us = t_us
+                self.predictions += 1
+                self._guard()
+                ekf = self.ekf
+        dt = gates.kinematic_dt(None if t_ref is None else t_us - t_ref, c.gate_dt_min)
+        d_max = gates.kinematic_dmax(ekf.x[3:6], dt, c.a_max_tdoa if tdoa else c.a_max_twr)
+
+        model = (measurements.tdoa(ekf.x[POS], anchor_a, anchor_b) if anchor_b is not None
+                 else measurements.twr(ekf.x[POS], anchor_a))
+        if model is None:
+            return self._result(REJECTED_GEOMETRY, 0.0, 0.0, 0.0, d_max, np.zeros(3), 0.0)
+        h, H3 = model
+
+        net = getattr(self.model, "tdoa" if tdoa else "twr", None) if self.model is not None else None
+        bias = self._bias(net, anchor_a, anchor_b)
+        y = (z - bias) - h
+
+        std = c.std_tdoa if tdoa else c.std_twr
+        upd = ekf.prepare(H3, y, std * std)
+        status = ACCEPTED
+        if c.stages & STAGE_KINEMATIC_GATE and not gates.kinematic_pass(y, d_max, 2.0 if tdoa else 1.0):
+            status = REJECTED_KINEMATIC
+        elif c.stages & STAGE_CHI2_GATE and not gates.chi2_pass(y, upd.S, c.chi2_tdoa if tdoa else c.chi2_twr):
+            status = REJECTED_CHI2
+
+        gain = np.zeros(3)
+        if status == ACCEPTED:
+            ekf.apply(upd)
+            ekf.finalize()
+            gain = upd.K[POS].copy()
+            self._guard()
+        return self._result(status, y, upd.S, bias, d_max, gain, upd.mahalanobis)
+
+    def _result(self, status: int, y: float, S: float, bias: float, d_max: float, gain: np.ndarray,
+                mahalanobis: float) -> TwinResult:
+        s = self.state()
+        return TwinResult(status=status, innovation=float(y), innovation_var=float(S), bias=float(bias),
+                          d_max=float(d_max), gain=gain, mahalanobis=float(mahalanobis),
+                          pos=s.pos, vel=s.vel, quat=s.quat, var=s.var)
+
+
+def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None = None) -> list[TwinResult]:
+    """Feed ``flight.events()`` through a fresh twin; one TwinResult per UWB measurement."""
+    twin = TwinEstimator(config, flight.anchors.as_dict(), model)
+    u = flight.uwb
+    imu = flight.imu
+    out: list[TwinResult] = []
+    for t_us, source, i in flight.events():
+        if source == 0:
+            assert imu is not None
+            twin.on_imu(t_us, imu.acc[i], imu.gyro[i])
+        elif u.kind == 1:
+            out.append(twin.on_twr(t_us, int(u.anchor_a[i]), float(u.value[i])))
+        else:
+            out.append(twin.on_tdoa(t_us, int(u.anchor_a[i]), int(u.anchor_b[i]), float(u.value[i])))
+    return out
