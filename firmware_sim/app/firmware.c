@@ -10,13 +10,13 @@
 #endif
 
 /* The core's codes are defined to equal the protocol's; fail the build if they drift apart. */
-typedef char check_status_accepted[(EST_ACCEPTED == UWB_STATUS_ACCEPTED) ? 1 : -1];
-typedef char check_status_kin[(EST_REJECTED_KINEMATIC == UWB_STATUS_REJECTED_KINEMATIC) ? 1 : -1];
-typedef char check_status_chi2[(EST_REJECTED_CHI2 == UWB_STATUS_REJECTED_CHI2) ? 1 : -1];
-typedef char check_status_geom[(EST_REJECTED_GEOMETRY == UWB_STATUS_REJECTED_GEOMETRY) ? 1 : -1];
-typedef char check_err_anchor[(EST_ERR_UNKNOWN_ANCHOR == UWB_ERROR_CODE_UNKNOWN_ANCHOR) ? 1 : -1];
-typedef char check_err_time[(EST_ERR_TIME_BACKWARDS == UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
-typedef char check_err_id[(EST_ERR_BAD_ANCHOR_ID == UWB_ERROR_CODE_BAD_ANCHOR_ID) ? 1 : -1];
+typedef char check_status_accepted[((int)EST_ACCEPTED == (int)UWB_STATUS_ACCEPTED) ? 1 : -1];
+typedef char check_status_kin[((int)EST_REJECTED_KINEMATIC == (int)UWB_STATUS_REJECTED_KINEMATIC) ? 1 : -1];
+typedef char check_status_chi2[((int)EST_REJECTED_CHI2 == (int)UWB_STATUS_REJECTED_CHI2) ? 1 : -1];
+typedef char check_status_geom[((int)EST_REJECTED_GEOMETRY == (int)UWB_STATUS_REJECTED_GEOMETRY) ? 1 : -1];
+typedef char check_err_anchor[((int)EST_ERR_UNKNOWN_ANCHOR == (int)UWB_ERROR_CODE_UNKNOWN_ANCHOR) ? 1 : -1];
+typedef char check_err_time[((int)EST_ERR_TIME_BACKWARDS == (int)UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
+typedef char check_err_id[((int)EST_ERR_BAD_ANCHOR_ID == (int)UWB_ERROR_CODE_BAD_ANCHOR_ID) ? 1 : -1];
 
 static void send_msg(firmware_t *fw, uwb_msg_t *msg)
 {

@@ -1,0 +1,233 @@
+/* The firmware application end to end in memory: frames in, frames out, every refusal accounted. */
+#include <stdlib.h>
+#include <string.h>
+
+#include "cobs.h"
+#include "firmware.h"
+#include "unit.h"
+#include "uwb_msgs.h"
+
+typedef struct {
+    uint8_t data[1 << 20];
+    size_t len;
+} sink_t;
+
+static sink_t sink;
+static firmware_t fw;
+
+static void sink_write(void *ctx, const uint8_t *d, size_t n)
+{
+    sink_t *s = (sink_t *)ctx;
+    if (s->len + n <= sizeof s->data) {
+        memcpy(s->data + s->len, d, n);
+        s->len += n;
+    }
+}
+
+static size_t frame_of(const uwb_msg_t *msg, uint8_t *out)
+{
+    uint8_t body[UWB_MAX_BODY];
+    size_t n = uwb_body_encode(msg, body);
+    size_t m = cobs_encode(body, n, out);
+    out[m++] = 0;
+    return m;
+}
+
+static void send(const uwb_msg_t *msg)
+{
+    uint8_t f[UWB_MAX_ENCODED + 1];
+    firmware_feed(&fw, f, frame_of(msg, f));
+}
+
+/* Decode everything in the sink; returns the number of frames, last one of `type` in *out. */
+static int replies(uint8_t type, uwb_msg_t *out, int *count_of_type)
+{
+    size_t i, start = 0;
+    int frames = 0;
+    *count_of_type = 0;
+    for (i = 0; i < sink.len; i++) {
+        if (sink.data[i] == 0) {
+            uint8_t body[UWB_MAX_BODY];
+            uwb_msg_t msg;
+            long n = cobs_decode(sink.data + start, i - start, body, sizeof body);
+            if (n > 0 && uwb_body_decode(body, (size_t)n, &msg) == UWB_DECODE_OK) {
+                frames++;
+                if (msg.type == type) {
+                    *out = msg;
+                    (*count_of_type)++;
+                }
+            }
+            start = i + 1;
+        }
+    }
+    return frames;
+}
+
+static void reset(void)
+{
+    sink.len = 0;
+    firmware_init(&fw, sink_write, &sink, "test");
+}
+
+static uwb_msg_t twr(uint16_t seq, uint64_t t, uint8_t id, float r)
+{
+    uwb_msg_t m;
+    memset(&m, 0, sizeof m);
+    m.type = UWB_MSG_TWR;
+    m.seq = seq;
+    m.u.twr.t_us = t;
+    m.u.twr.anchor_id = id;
+    m.u.twr.range = r;
+    return m;
+}
+
+static uwb_msg_t anchor(uint16_t seq, uint8_t id, float x, float y, float z)
+{
+    uwb_msg_t m;
+    memset(&m, 0, sizeof m);
+    m.type = UWB_MSG_ANCHOR;
+    m.seq = seq;
+    m.u.anchor.anchor_id = id;
+    m.u.anchor.x = x;
+    m.u.anchor.y = y;
+    m.u.anchor.z = z;
+    return m;
+}
+
+static void test_hello(void)
+{
+    uwb_msg_t m, r;
+    int n;
+    reset();
+    memset(&m, 0, sizeof m);
+    m.type = UWB_MSG_HELLO;
+    m.u.hello.nonce = 0xCAFEu;
+    send(&m);
+    replies(UWB_MSG_HELLO_REPLY, &r, &n);
+    CHECK(n == 1);
+    CHECK(r.u.hello_reply.nonce == 0xCAFEu);
+    CHECK(r.u.hello_reply.proto_version == UWB_PROTO_VERSION);
+    CHECK(r.u.hello_reply.model_hash == bias_model_compiled.hash);
+    CHECK(memcmp(r.u.hello_reply.target, "test", 4) == 0);
+}
+
+static void test_measurement_result_and_refusals(void)
+{
+    uwb_msg_t m, r;
+    int n;
+    reset();
+    send((m = anchor(0, 0, 0.0f, 0.0f, 3.0f), &m));
+    send((m = twr(1, 1000, 0, 3.0f), &m));
+    replies(UWB_MSG_RESULT, &r, &n);
+    CHECK(n == 1);
+    CHECK(r.u.result.meas_seq == 1);
+    CHECK(r.u.result.kind == UWB_MEAS_KIND_TWR);
+    CHECK(r.u.result.t_us == 1000);
+    /* unknown anchor -> ERROR, counted, no RESULT */
+    sink.len = 0;
+    send((m = twr(2, 2000, 5, 3.0f), &m));
+    replies(UWB_MSG_ERROR, &r, &n);
+    CHECK(n == 1 && r.u.error.code == UWB_ERROR_CODE_UNKNOWN_ANCHOR && r.u.error.msg_seq == 2);
+    /* time going backwards */
+    sink.len = 0;
+    send((m = twr(3, 500, 0, 3.0f), &m));
+    replies(UWB_MSG_ERROR, &r, &n);
+    CHECK(n == 1 && r.u.error.code == UWB_ERROR_CODE_TIME_BACKWARDS);
+    /* NaN range */
+    sink.len = 0;
+    send((m = twr(4, 3000, 0, NAN), &m));
+    replies(UWB_MSG_ERROR, &r, &n);
+    CHECK(n == 1 && r.u.error.code == UWB_ERROR_CODE_NON_FINITE);
+    /* anchor id out of range */
+    sink.len = 0;
+    send((m = anchor(5, 200, 1.0f, 1.0f, 1.0f), &m));
+    replies(UWB_MSG_ERROR, &r, &n);
+    CHECK(n == 1 && r.u.error.code == UWB_ERROR_CODE_BAD_ANCHOR_ID);
+    CHECK(fw.stats.unknown_anchors == 1);
+    CHECK(fw.stats.time_backwards == 1);
+    CHECK(fw.stats.non_finite == 1);
+    CHECK(fw.stats.dropped_meas == 3);
+    CHECK(fw.stats.results == 1);
+}
+
+static void test_bad_config_refused_and_state_kept(void)
+{
+    uwb_msg_t m, r;
+    int n;
+    estimator_config_t before;
+    reset();
+    before = fw.est.cfg;
+    memset(&m, 0, sizeof m);
+    m.type = UWB_MSG_CONFIG;
+    m.seq = 1;
+    m.u.config.mode = 1;
+    m.u.config.stages = 7;
+    m.u.config.std_twr = -0.1f; /* invalid */
+    m.u.config.std_tdoa = 0.15f;
+    m.u.config.a_max_twr = 1.0f;
+    m.u.config.a_max_tdoa = 1.0f;
+    m.u.config.gate_dt_min = 0.01f;
+    m.u.config.chi2_twr = 3.8f;
+    m.u.config.chi2_tdoa = 3.8f;
+    m.u.config.proc_cv_acc = 1.0f;
+    m.u.config.init_std_xy = 1.0f;
+    m.u.config.init_std_z = 1.0f;
+    send(&m);
+    replies(UWB_MSG_ERROR, &r, &n);
+    CHECK(n == 1 && r.u.error.code == UWB_ERROR_CODE_BAD_CONFIG);
+    CHECK(memcmp(&before, &fw.est.cfg, sizeof before) == 0);
+    CHECK(fw.stats.bad_configs == 1);
+    /* same message with a valid value is applied */
+    sink.len = 0;
+    m.u.config.std_twr = 0.1f;
+    m.seq = 2;
+    send(&m);
+    replies(UWB_MSG_ERROR, &r, &n);
+    CHECK(n == 0);
+    CHECK(fw.est.cfg.std_twr == 0.1f && fw.est.cfg.mode == 1);
+}
+
+static void test_garbage_is_counted_and_valid_frames_survive(void)
+{
+    uint8_t junk[4096];
+    uwb_msg_t m, r;
+    int n, i;
+    unsigned seed = 99;
+    reset();
+    send((m = anchor(0, 0, 0.0f, 0.0f, 3.0f), &m));
+    for (i = 0; i < 256; i++) {
+        size_t k;
+        for (k = 0; k < sizeof junk; k++) {
+            seed = seed * 1664525u + 1013904223u;
+            junk[k] = (uint8_t)(seed >> 24);
+        }
+        firmware_feed(&fw, junk, sizeof junk);
+    }
+    /* a delimiter ends whatever partial garbage is pending, then a valid frame */
+    firmware_feed(&fw, (const uint8_t *)"\0", 1);
+    sink.len = 0;
+    send((m = twr(60000, 5000, 0, 3.0f), &m));
+    replies(UWB_MSG_RESULT, &r, &n);
+    CHECK(n == 1 && r.u.result.meas_seq == 60000);
+    CHECK(fw.stats.crc_errors + fw.stats.framing_errors > 1000);
+}
+
+static void test_seq_gaps_counted(void)
+{
+    uwb_msg_t m;
+    reset();
+    send((m = anchor(10, 0, 0.0f, 0.0f, 3.0f), &m));
+    send((m = anchor(11, 1, 1.0f, 0.0f, 3.0f), &m));
+    send((m = anchor(15, 2, 2.0f, 0.0f, 3.0f), &m)); /* 12, 13, 14 missing */
+    CHECK(fw.stats.seq_gaps == 3);
+}
+
+int main(void)
+{
+    RUN(test_hello);
+    RUN(test_measurement_result_and_refusals);
+    RUN(test_bad_config_refused_and_state_kept);
+    RUN(test_garbage_is_counted_and_valid_frames_survive);
+    RUN(test_seq_gaps_counted);
+    return UNIT_DONE();
+}
