@@ -104,14 +104,24 @@ static int anchor_known(const estimator_t *est, uint8_t id)
     return id < ESTIMATOR_MAX_ANCHORS && (est->anchor_known >> id) & 1u;
 }
 
-/* Divergence guard: a non-finite state restarts the filter where it last was sane, keeping the
- * time reference so the next prediction/measurement continues normally. */
+/* Beyond this |position| [m] the state is treated as diverged: far outside any UWB network, and
+ * float32 resolution there (~1 cm) is already useless. Keeps "last good" positions sane. */
+#define EST_MAX_ABS_POSITION 1e5f
+
+static int state_sane(const ekf_t *ekf)
+{
+    return ekf_is_finite(ekf) && fabsf(ekf->S[EKF_X]) <= EST_MAX_ABS_POSITION &&
+           fabsf(ekf->S[EKF_Y]) <= EST_MAX_ABS_POSITION && fabsf(ekf->S[EKF_Z]) <= EST_MAX_ABS_POSITION;
+}
+
+/* Divergence guard: a non-finite (or absurd) state restarts the filter where it last was sane,
+ * with the initial covariance, keeping the time reference so the filter continues normally. */
 static void guard(estimator_t *est)
 {
     ekf_t *ekf = &est->ekf;
     uint64_t t_us;
     uint8_t has_time;
-    if (ekf_is_finite(ekf)) {
+    if (state_sane(ekf)) {
         memcpy(est->last_good_pos, &ekf->S[EKF_X], sizeof est->last_good_pos);
         return;
     }

@@ -21,6 +21,8 @@ if TYPE_CHECKING:
     from harness.flight.model import Flight
 
 MAX_ANCHORS = 16
+#: Divergence guard: beyond this |position| [m] the state counts as diverged (as in estimator.c).
+MAX_ABS_POSITION = 1e5
 
 # protocol enum status
 ACCEPTED = 0
@@ -189,8 +191,8 @@ class TwinEstimator:
             raise TwinError(ERR_TIME_BACKWARDS, f"UWB time {t_us} < {self.t_uwb_us}")
 
     def _guard(self) -> None:
-        """Divergence guard: restart at the last sane position if anything went non-finite."""
-        if self.ekf.is_finite():
+        """Divergence guard: restart at the last sane position if anything went non-finite (or absurd)."""
+        if self.ekf.is_finite() and bool(np.all(np.abs(self.ekf.x[POS]) <= MAX_ABS_POSITION)):
             self.last_good_pos = self.ekf.x[POS].copy()
             return
         t_us = self.ekf.t_us

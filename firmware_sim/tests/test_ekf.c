@@ -1,0 +1,406 @@
+/* ekf_core: scalar update against hand-computed numbers and a plain 9x9 Joseph reference,
+ * symmetry/PSD, clamping, IMU and constant-velocity prediction, finalize, externalize. */
+#include <float.h>
+#include <string.h>
+
+#include "ekf_core.h"
+#include "unit.h"
+
+static const float origin[3] = {0.0f, 0.0f, 0.0f};
+static const ekf_noise_t no_noise = {0.0f, 0.0f};
+
+/* Deterministic pseudo-random numbers in [-1, 1). */
+static unsigned rng_state = 12345u;
+static double rnd(void)
+{
+    rng_state = rng_state * 1664525u + 1013904223u;
+    return (double)(rng_state >> 8) / (double)(1u << 23) - 1.0;
+}
+
+/* A random SPD covariance P = L L^T + 0.01 I. */
+static void random_spd(float P[EKF_N][EKF_N])
+{
+    double L[EKF_N][EKF_N];
+    int i, j, k;
+    for (i = 0; i < EKF_N; i++) {
+        for (j = 0; j < EKF_N; j++) {
+            L[i][j] = j <= i ? 0.5 * rnd() : 0.0;
+        }
+    }
+    for (i = 0; i < EKF_N; i++) {
+        for (j = 0; j < EKF_N; j++) {
+            double s = i == j ? 0.01 : 0.0;
+            for (k = 0; k < EKF_N; k++) {
+                s += L[i][k] * L[j][k];
+            }
+            P[i][j] = (float)s;
+        }
+    }
+    ekf_sym_clamp(P);
+}
+
+/* 1 if P is positive definite (Cholesky in double succeeds). */
+static int is_pd(float P[EKF_N][EKF_N])
+{
+    double L[EKF_N][EKF_N];
+    int i, j, k;
+    memset(L, 0, sizeof L);
+    for (j = 0; j < EKF_N; j++) {
+        double d = P[j][j];
+        for (k = 0; k < j; k++) {
+            d -= L[j][k] * L[j][k];
+        }
+        if (!(d > 0.0)) {
+            return 0;
+        }
+        L[j][j] = sqrt(d);
+        for (i = j + 1; i < EKF_N; i++) {
+            double s = P[i][j];
+            for (k = 0; k < j; k++) {
+                s -= L[i][k] * L[j][k];
+            }
+            L[i][j] = s / L[j][j];
+        }
+    }
+    return 1;
+}
+
+static int is_symmetric(float P[EKF_N][EKF_N])
+{
+    int i, j;
+    for (i = 0; i < EKF_N; i++) {
+        for (j = 0; j < EKF_N; j++) {
+            if (P[i][j] != P[j][i]) {
+                return 0;
+            }
+        }
+    }
+    return 1;
+}
+
+/* Plain Joseph form in double with full matrices: the reference for the structured version. */
+static void joseph_reference(const float P[EKF_N][EKF_N], const float h[3], float y, float r,
+                             double x_out[EKF_N], double P_out[EKF_N][EKF_N])
+{
+    double H[EKF_N] = {0}, PH[EKF_N], K[EKF_N], M[EKF_N][EKF_N], MP[EKF_N][EKF_N], S = r;
+    int i, j, k;
+    H[0] = h[0];
+    H[1] = h[1];
+    H[2] = h[2];
+    for (i = 0; i < EKF_N; i++) {
+        PH[i] = 0.0;
+        for (k = 0; k < EKF_N; k++) {
+            PH[i] += P[i][k] * H[k];
+        }
+    }
+    for (i = 0; i < EKF_N; i++) {
+        S += H[i] * PH[i];
+    }
+    for (i = 0; i < EKF_N; i++) {
+        K[i] = PH[i] / S;
+        x_out[i] = K[i] * y;
+    }
+    for (i = 0; i < EKF_N; i++) {
+        for (j = 0; j < EKF_N; j++) {
+            M[i][j] = (i == j) - K[i] * H[j];
+        }
+    }
+    for (i = 0; i < EKF_N; i++) {
+        for (j = 0; j < EKF_N; j++) {
+            MP[i][j] = 0.0;
+            for (k = 0; k < EKF_N; k++) {
+                MP[i][j] += M[i][k] * P[k][j];
+            }
+        }
+    }
+    for (i = 0; i < EKF_N; i++) {
+        for (j = 0; j < EKF_N; j++) {
+            double s = r * K[i] * K[j];
+            for (k = 0; k < EKF_N; k++) {
+                s += MP[i][k] * M[j][k];
+            }
+            P_out[i][j] = s;
+        }
+    }
+}
+
+static void test_scalar_update_hand_computed(void)
+{
+    /* P = diag(1, 2, 3, .5, .5, .5, 1e-4 ...) with P[0][3] = 0.2; H = [0.6 0.8 0 ...]; y = 0.5,
+     * R = 0.25:  P H^T = (0.6, 1.6, 0, 0.12, 0 ...), S = 0.36 + 1.28 + 0.25 = 1.89. */
+    ekf_t e;
+    ekf_scalar_t m;
+    const float h[3] = {0.6f, 0.8f, 0.0f};
+    ekf_init(&e, origin, 1.0f, 1.0f);
+    e.P[1][1] = 2.0f;
+    e.P[2][2] = 3.0f;
+    e.P[EKF_PX][EKF_PX] = e.P[EKF_PY][EKF_PY] = e.P[EKF_PZ][EKF_PZ] = 0.5f;
+    e.P[0][EKF_PX] = e.P[EKF_PX][0] = 0.2f;
+    ekf_scalar_prepare(&e, &m, h, 0.5f, 0.25f);
+    CHECK_NEAR(m.S, 1.89, 1e-6);
+    CHECK_NEAR(m.mahalanobis, 0.5 / sqrt(1.89), 1e-6);
+    CHECK_NEAR(m.ph[3], 0.12, 1e-7);
+    ekf_scalar_apply(&e, &m);
+    CHECK_NEAR(m.K[0], 0.6 / 1.89, 1e-6);
+    CHECK_NEAR(m.K[1], 1.6 / 1.89, 1e-6);
+    CHECK_NEAR(m.K[2], 0.0, 1e-9);
+    CHECK_NEAR(m.K[3], 0.12 / 1.89, 1e-6);
+    CHECK_NEAR(e.S[0], 0.5 * 0.6 / 1.89, 1e-6);
+    CHECK_NEAR(e.S[1], 0.5 * 1.6 / 1.89, 1e-6);
+    CHECK_NEAR(e.S[EKF_PX], 0.5 * 0.12 / 1.89, 1e-6);
+    /* optimal gain: Joseph == P - P H^T H P / S */
+    CHECK_NEAR(e.P[0][0], 1.0 - 0.36 / 1.89, 1e-6);
+    CHECK_NEAR(e.P[0][1], -0.96 / 1.89, 1e-6);
+    CHECK_NEAR(e.P[1][1], 2.0 - 2.56 / 1.89, 1e-6);
+    CHECK_NEAR(e.P[2][2], 3.0, 1e-6);
+    CHECK_NEAR(e.P[0][EKF_PX], 0.2 - 0.6 * 0.12 / 1.89, 1e-6);
+    CHECK_NEAR(e.P[EKF_PX][EKF_PX], 0.5 - 0.0144 / 1.89, 1e-6);
+    CHECK_NEAR(e.P[EKF_D0][EKF_D0], 1e-4, 1e-9);
+}
+
+static void test_scalar_update_matches_full_joseph(void)
+{
+    int trial, i, j;
+    for (trial = 0; trial < 50; trial++) {
+        ekf_t e;
+        ekf_scalar_t m;
+        double x_ref[EKF_N], P_ref[EKF_N][EKF_N];
+        const float h[3] = {(float)rnd(), (float)rnd(), (float)rnd()};
+        const float y = (float)rnd(), r = 0.01f + 0.1f * (float)(rnd() + 1.0);
+        double err = 0.0;
+        ekf_init(&e, origin, 1.0f, 1.0f);
+        random_spd(e.P);
+        joseph_reference(e.P, h, y, r, x_ref, P_ref);
+        ekf_scalar_update(&e, &m, h, y, r);
+        for (i = 0; i < EKF_N; i++) {
+            err = fmax(err, fabs(e.S[i] - x_ref[i]));
+            for (j = 0; j < EKF_N; j++) {
+                err = fmax(err, fabs(e.P[i][j] - P_ref[i][j]));
+            }
+        }
+        CHECK(err < 2e-5);
+    }
+}
+
+static void test_joseph_keeps_symmetric_pd(void)
+{
+    ekf_t e;
+    ekf_scalar_t m;
+    int k, i;
+    ekf_init(&e, origin, 1.0f, 1.0f);
+    random_spd(e.P);
+    /* many precise measurements along few directions drive P towards singular */
+    for (k = 0; k < 2000; k++) {
+        const float h[3] = {(float)rnd(), (float)rnd(), 0.1f * (float)rnd()};
+        ekf_scalar_update(&e, &m, h, (float)rnd() * 0.01f, 1e-4f);
+        CHECK(is_symmetric(e.P));
+        for (i = 0; i < EKF_N; i++) {
+            CHECK(e.P[i][i] >= EKF_P_MIN);
+        }
+        if (!is_pd(e.P)) {
+            CHECK(0);
+            break;
+        }
+    }
+    CHECK(ekf_is_finite(&e));
+}
+
+static void test_sym_clamp(void)
+{
+    float P[EKF_N][EKF_N];
+    memset(P, 0, sizeof P);
+    P[0][1] = 1.0f;
+    P[1][0] = 3.0f;
+    P[2][3] = NAN;
+    P[4][5] = 1e9f;
+    P[5][4] = 1e9f;
+    P[6][7] = -1e9f;
+    P[7][6] = -1e9f;
+    P[8][8] = -5.0f;
+    P[3][3] = INFINITY;
+    ekf_sym_clamp(P);
+    CHECK(P[0][1] == 2.0f && P[1][0] == 2.0f);
+    CHECK(P[2][3] == EKF_P_MAX && P[3][2] == EKF_P_MAX);
+    CHECK(P[4][5] == EKF_P_MAX);
+    CHECK(P[6][7] == -EKF_P_MAX);
+    CHECK(P[8][8] == EKF_P_MIN && P[0][0] == EKF_P_MIN);
+    CHECK(P[3][3] == EKF_P_MAX);
+}
+
+static void test_imu_timing(void)
+{
+    ekf_t e;
+    const float acc[3] = {0.0f, 0.0f, EKF_GRAVITY}, gyro[3] = {0.0f, 0.0f, 0.0f};
+    uint64_t t;
+    int ran = 0;
+    ekf_init(&e, origin, 1.0f, 1.0f);
+    CHECK(ekf_imu_sample(&e, &no_noise, 5000, acc, gyro) == 0); /* first sample: time only */
+    CHECK(e.has_time && e.t_us == 5000 && e.imu_count == 0);
+    for (t = 6000; t < 15000; t += 1000) {
+        ran += ekf_imu_sample(&e, &no_noise, t, acc, gyro);
+    }
+    CHECK(ran == 0 && e.imu_count == 9);
+    CHECK(ekf_imu_sample(&e, &no_noise, 15000, acc, gyro) == 1);
+    CHECK(e.t_us == 15000 && e.imu_count == 0);
+    /* a gap: one prediction over the whole gap */
+    CHECK(ekf_imu_sample(&e, &no_noise, 115000, acc, gyro) == 1);
+    CHECK(e.t_us == 115000);
+}
+
+static void test_imu_prediction_covariance(void)
+{
+    /* Level and at rest: A couples position to velocity only (p = 0, R = I, w = 0). */
+    ekf_t e;
+    const ekf_noise_t noise = {0.5f, 1.0f};
+    const float acc[3] = {0.0f, 0.0f, EKF_GRAVITY}, gyro[3] = {0.0f, 0.0f, 0.0f};
+    const double dt = 0.01, v = EKF_INIT_STD_VEL * EKF_INIT_STD_VEL, a = EKF_INIT_STD_ATT * EKF_INIT_STD_ATT;
+    const double g = EKF_GRAVITY;
+    ekf_init(&e, origin, 1.0f, 2.0f);
+    ekf_predict_imu(&e, &noise, acc, gyro, (float)dt);
+    CHECK_NEAR(e.S[0], 0.0, 1e-7);
+    CHECK_NEAR(e.S[2], 0.0, 1e-6);
+    CHECK_NEAR(e.S[EKF_PZ], 0.0, 1e-6);
+    /* P_xx = 1 + dt^2 v + q^2 dt^3/3;  P_x,vx = dt v + q^2 dt^2/2;  P_vx = v + g^2 dt^2 a + q^2 dt */
+    CHECK_NEAR(e.P[0][0], 1.0 + dt * dt * v + 0.25 * dt * dt * dt / 3.0, 1e-6);
+    CHECK_NEAR(e.P[2][2], 4.0 + dt * dt * v + 1.0 * dt * dt * dt / 3.0, 1e-6);
+    CHECK_NEAR(e.P[0][EKF_PX], dt * v + 0.25 * dt * dt / 2.0, 1e-7);
+    CHECK_NEAR(e.P[EKF_PX][EKF_PX], v + g * g * dt * dt * a + 0.25 * dt, 1e-6);
+    CHECK_NEAR(e.P[EKF_PZ][EKF_PZ], v + 1.0 * dt, 1e-6);
+    /* velocity <- attitude: vx <- d1 (g dt), vy <- d0 (-g dt) */
+    CHECK_NEAR(e.P[EKF_PX][EKF_D1], g * dt * a, 1e-7);
+    CHECK_NEAR(e.P[EKF_PY][EKF_D0], -g * dt * a, 1e-7);
+    CHECK(is_symmetric(e.P));
+}
+
+static void test_imu_integration_exact_for_constant_acceleration(void)
+{
+    /* level, 1 m/s^2 along body x: after 1 s, v = 1 m/s and p = 0.5 m (exact with dt^2/2 terms) */
+    ekf_t e;
+    const float acc[3] = {1.0f, 0.0f, EKF_GRAVITY}, gyro[3] = {0.0f, 0.0f, 0.0f};
+    int k;
+    ekf_init(&e, origin, 1.0f, 1.0f);
+    for (k = 0; k < 100; k++) {
+        ekf_predict_imu(&e, &no_noise, acc, gyro, 0.01f);
+    }
+    CHECK_NEAR(e.S[EKF_PX], 1.0, 1e-5);
+    CHECK_NEAR(e.S[0], 0.5, 1e-5);
+    CHECK_NEAR(e.S[2], 0.0, 1e-5);
+}
+
+static void test_imu_rotation(void)
+{
+    /* 1 rad/s about body z for 1 s -> yaw 1 rad; the accelerometer must read R^T g e3 = g e3 */
+    ekf_t e;
+    ekf_state_t s;
+    const float acc[3] = {0.0f, 0.0f, EKF_GRAVITY}, gyro[3] = {0.0f, 0.0f, 1.0f};
+    int k;
+    ekf_init(&e, origin, 1.0f, 1.0f);
+    for (k = 0; k < 100; k++) {
+        ekf_predict_imu(&e, &no_noise, acc, gyro, 0.01f);
+    }
+    ekf_externalize(&e, &s);
+    CHECK_NEAR(s.rpy[2], 1.0, 1e-5);
+    CHECK_NEAR(s.rpy[0], 0.0, 1e-6);
+    CHECK_NEAR(s.quat[0], cos(0.5), 1e-5);
+    CHECK_NEAR(s.quat[3], sin(0.5), 1e-5);
+    CHECK_NEAR(s.pos[2], 0.0, 1e-5);
+}
+
+static void test_cv_prediction(void)
+{
+    ekf_t e;
+    const double dt = 0.1, q2 = 4.0, v = EKF_INIT_STD_VEL * EKF_INIT_STD_VEL;
+    const float p0[3] = {1.0f, 2.0f, 3.0f};
+    ekf_init(&e, p0, 1.0f, 1.0f);
+    e.S[EKF_PX] = 1.0f;
+    e.S[EKF_PZ] = -2.0f;
+    ekf_predict_cv(&e, 2.0f, (float)dt);
+    CHECK_NEAR(e.S[0], 1.1, 1e-6);
+    CHECK_NEAR(e.S[1], 2.0, 1e-6);
+    CHECK_NEAR(e.S[2], 2.8, 1e-6);
+    CHECK_NEAR(e.P[0][0], 1.0 + dt * dt * v + q2 * dt * dt * dt / 3.0, 1e-6);
+    CHECK_NEAR(e.P[0][EKF_PX], dt * v + q2 * dt * dt / 2.0, 1e-6);
+    CHECK_NEAR(e.P[EKF_PX][0], e.P[0][EKF_PX], 0.0);
+    CHECK_NEAR(e.P[EKF_PX][EKF_PX], v + q2 * dt, 1e-6);
+    CHECK_NEAR(e.P[0][1], 0.0, 0.0);
+    CHECK_NEAR(e.P[EKF_D0][EKF_D0], EKF_INIT_STD_ATT * EKF_INIT_STD_ATT, 1e-9);
+}
+
+static void test_finalize_moves_attitude_error_into_q(void)
+{
+    ekf_t e;
+    ekf_state_t s;
+    const float p0[3] = {0.0f, 0.0f, 1.0f};
+    ekf_init(&e, p0, 1.0f, 1.0f);
+    e.P[EKF_PX][EKF_D2] = e.P[EKF_D2][EKF_PX] = 1e-5f;
+    e.S[EKF_D2] = 0.1f;
+    ekf_finalize(&e);
+    ekf_externalize(&e, &s);
+    CHECK(e.S[EKF_D0] == 0.0f && e.S[EKF_D1] == 0.0f && e.S[EKF_D2] == 0.0f);
+    CHECK_NEAR(s.rpy[2], 0.1, 1e-6);
+    CHECK_NEAR(s.quat[0] * s.quat[0] + s.quat[3] * s.quat[3], 1.0, 1e-6);
+    /* G for d = (0, 0, 0.05): rows D0/D1 rotate by +-0.05, D2 keeps 1 - 0 */
+    CHECK_NEAR(e.P[EKF_PX][EKF_D2], 1e-5, 1e-9);
+    CHECK_NEAR(e.P[EKF_D0][EKF_D0], 1e-4 * ((1 - 0.05 * 0.05 / 2) * (1 - 0.05 * 0.05 / 2) + 0.05 * 0.05), 1e-9);
+    CHECK(is_symmetric(e.P));
+    /* an absurd attitude error is dropped, not applied */
+    e.S[EKF_D0] = 20.0f;
+    ekf_finalize(&e);
+    ekf_externalize(&e, &s);
+    CHECK_NEAR(s.rpy[2], 0.1, 1e-6);
+    CHECK(e.S[EKF_D0] == 0.0f);
+}
+
+static void test_externalize_world_velocity_and_rpy(void)
+{
+    ekf_t e;
+    ekf_state_t s;
+    const float acc[3] = {0.0f, 0.0f, EKF_GRAVITY}, spin[3] = {0.0f, 0.0f, 50.0f};
+    ekf_init(&e, origin, 1.0f, 1.0f);
+    ekf_predict_imu(&e, &no_noise, acc, spin, 0.01f); /* yaw 0.5 rad, still at rest */
+    e.S[EKF_PX] = 1.0f;
+    ekf_externalize(&e, &s);
+    CHECK_NEAR(s.vel_world[0], cos(0.5), 1e-5);
+    CHECK_NEAR(s.vel_world[1], sin(0.5), 1e-5);
+    CHECK_NEAR(s.rpy[2], 0.5, 1e-5);
+    CHECK(s.var[0] == e.P[0][0] && s.var[8] == e.P[8][8]);
+    {
+        /* pure pitch of 0.3 rad and roll of -0.2 rad */
+        float rpy[3];
+        const float qp[4] = {(float)cos(0.15), 0.0f, (float)sin(0.15), 0.0f};
+        const float qr[4] = {(float)cos(-0.1), (float)sin(-0.1), 0.0f, 0.0f};
+        ekf_quat_to_rpy(qp, rpy);
+        CHECK_NEAR(rpy[1], 0.3, 1e-6);
+        ekf_quat_to_rpy(qr, rpy);
+        CHECK_NEAR(rpy[0], -0.2, 1e-6);
+    }
+}
+
+static void test_is_finite(void)
+{
+    ekf_t e;
+    ekf_init(&e, origin, 1.0f, 1.0f);
+    CHECK(ekf_is_finite(&e));
+    e.S[4] = NAN;
+    CHECK(!ekf_is_finite(&e));
+    e.S[4] = 0.0f;
+    e.q[2] = INFINITY;
+    CHECK(!ekf_is_finite(&e));
+}
+
+int main(void)
+{
+    RUN(test_scalar_update_hand_computed);
+    RUN(test_scalar_update_matches_full_joseph);
+    RUN(test_joseph_keeps_symmetric_pd);
+    RUN(test_sym_clamp);
+    RUN(test_imu_timing);
+    RUN(test_imu_prediction_covariance);
+    RUN(test_imu_integration_exact_for_constant_acceleration);
+    RUN(test_imu_rotation);
+    RUN(test_cv_prediction);
+    RUN(test_finalize_moves_attitude_error_into_q);
+    RUN(test_externalize_world_velocity_and_rpy);
+    RUN(test_is_finite);
+    return UNIT_DONE();
+}

@@ -1,0 +1,505 @@
+/* estimator: config defaults/validation, anchors, time rules, statuses and gates in the pipeline,
+ * bias network wiring, static convergence, UWB-only tracking, divergence guard, costs. */
+#include <float.h>
+#include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "estimator.h"
+#include "unit.h"
+
+static const bias_model_t no_model = {NULL, NULL, 0};
+static estimator_t est; /* large: keep off the stack */
+
+/* 8 anchors at the corners of a 7 x 8 x 3 m box centred at the origin, z from 0 to 3. */
+static void set_box_anchors(estimator_t *e)
+{
+    int i;
+    for (i = 0; i < 8; i++) {
+        const float p[3] = {(i & 1) ? 3.5f : -3.5f, (i & 2) ? 4.0f : -4.0f, (i & 4) ? 3.0f : 0.0f};
+        CHECK(estimator_set_anchor(e, (uint8_t)i, p) == EST_OK);
+    }
+}
+
+static float range_to(const estimator_t *e, uint8_t id, const float p[3])
+{
+    const float *a = e->anchors[id];
+    return sqrtf((p[0] - a[0]) * (p[0] - a[0]) + (p[1] - a[1]) * (p[1] - a[1]) + (p[2] - a[2]) * (p[2] - a[2]));
+}
+
+static void setup(uint8_t mode, uint8_t stages, float x, float y, float z)
+{
+    estimator_config_t cfg;
+    estimator_init(&est, &no_model);
+    estimator_default_config(&cfg);
+    cfg.mode = mode;
+    cfg.stages = stages;
+    cfg.init_x = x;
+    cfg.init_y = y;
+    cfg.init_z = z;
+    estimator_configure(&est, &cfg, 1);
+    set_box_anchors(&est);
+}
+
+static const float still_acc[3] = {0.0f, 0.0f, EKF_GRAVITY};
+static const float no_gyro[3] = {0.0f, 0.0f, 0.0f};
+
+/* ------------------------------------------------------------------------------------------ */
+
+#ifdef UWB_REPO_ROOT
+/* Every numeric default in harness/config.py ("    name: float = value") equals the C default. */
+static void check_python_defaults(const estimator_config_t *c)
+{
+    static const struct {
+        const char *name;
+        size_t offset;
+    } fields[] = {
+        {"std_twr", offsetof(estimator_config_t, std_twr)}, {"std_tdoa", offsetof(estimator_config_t, std_tdoa)},
+        {"a_max_twr", offsetof(estimator_config_t, a_max_twr)}, {"a_max_tdoa", offsetof(estimator_config_t, a_max_tdoa)},
+        {"gate_dt_min", offsetof(estimator_config_t, gate_dt_min)}, {"chi2_twr", offsetof(estimator_config_t, chi2_twr)},
+        {"chi2_tdoa", offsetof(estimator_config_t, chi2_tdoa)}, {"proc_acc_xy", offsetof(estimator_config_t, proc_acc_xy)},
+        {"proc_acc_z", offsetof(estimator_config_t, proc_acc_z)}, {"proc_cv_acc", offsetof(estimator_config_t, proc_cv_acc)},
+        {"init_x", offsetof(estimator_config_t, init_x)}, {"init_y", offsetof(estimator_config_t, init_y)},
+        {"init_z", offsetof(estimator_config_t, init_z)}, {"init_std_xy", offsetof(estimator_config_t, init_std_xy)},
+        {"init_std_z", offsetof(estimator_config_t, init_std_z)}, {"nn_min_z", offsetof(estimator_config_t, nn_min_z)},
+    };
+    char line[256];
+    unsigned found = 0, i;
+    FILE *f = fopen(UWB_REPO_ROOT "/harness/config.py", "r");
+    CHECK(f != NULL);
+    if (f == NULL) {
+        return;
+    }
+    while (fgets(line, sizeof line, f) != NULL) {
+        for (i = 0; i < sizeof fields / sizeof fields[0]; i++) {
+            char pattern[64];
+            size_t n;
+            snprintf(pattern, sizeof pattern, "    %s: float = ", fields[i].name);
+            n = strlen(pattern);
+            if (strncmp(line, pattern, n) == 0) {
+                const float py = (float)strtod(line + n, NULL);
+                const float cv = *(const float *)(const void *)((const char *)c + fields[i].offset);
+                if (py != cv) {
+                    fprintf(stderr, "default %s: python %g, C %g\n", fields[i].name, (double)py, (double)cv);
+                }
+                CHECK(py == cv);
+                found++;
+            }
+        }
+        if (strncmp(line, "    mode: int = MODE_IMU", 24) == 0) {
+            CHECK(c->mode == EST_MODE_IMU);
+            found++;
+        }
+        if (strncmp(line, "    stages: int = STAGES_ALL", 28) == 0) {
+            CHECK(c->stages == EST_STAGES_ALL);
+            found++;
+        }
+    }
+    fclose(f);
+    CHECK(found == sizeof fields / sizeof fields[0] + 2);
+}
+#endif
+
+static void test_default_config(void)
+{
+    estimator_config_t c;
+    estimator_default_config(&c);
+    CHECK(estimator_config_valid(&c));
+    CHECK(c.mode == EST_MODE_IMU && c.stages == EST_STAGES_ALL);
+    CHECK(c.std_twr == 0.25f && c.std_tdoa == 0.15f && c.nn_min_z == 0.5f);
+#ifdef UWB_REPO_ROOT
+    check_python_defaults(&c);
+#endif
+    estimator_init(&est, &no_model);
+    CHECK(memcmp(&est.cfg, &c, sizeof c) == 0);
+}
+
+static void test_config_validation(void)
+{
+    estimator_config_t d, c;
+    estimator_default_config(&d);
+#define EXPECT_VALID(field, value, ok) do { c = d; c.field = value; CHECK(estimator_config_valid(&c) == (ok)); } while (0)
+    EXPECT_VALID(mode, 1, 1);
+    EXPECT_VALID(mode, 2, 0);
+    EXPECT_VALID(stages, 0, 1);
+    EXPECT_VALID(stages, 8, 0);
+    EXPECT_VALID(std_twr, 0.0f, 0);
+    EXPECT_VALID(std_twr, -0.1f, 0);
+    EXPECT_VALID(std_tdoa, NAN, 0);
+    EXPECT_VALID(a_max_twr, 0.0f, 0);
+    EXPECT_VALID(a_max_tdoa, INFINITY, 0);
+    EXPECT_VALID(gate_dt_min, 0.0f, 0);
+    EXPECT_VALID(chi2_twr, -1.0f, 0);
+    EXPECT_VALID(chi2_tdoa, 0.0f, 0);
+    EXPECT_VALID(proc_acc_xy, 0.0f, 1);
+    EXPECT_VALID(proc_acc_xy, -0.1f, 0);
+    EXPECT_VALID(proc_acc_z, -0.1f, 0);
+    EXPECT_VALID(proc_cv_acc, 0.0f, 0);
+    EXPECT_VALID(init_x, -1e3f, 1);
+    EXPECT_VALID(init_y, NAN, 0);
+    EXPECT_VALID(init_z, -INFINITY, 0);
+    EXPECT_VALID(init_std_xy, 0.0f, 0);
+    EXPECT_VALID(init_std_z, -1.0f, 0);
+    EXPECT_VALID(nn_min_z, -5.0f, 1);
+    EXPECT_VALID(nn_min_z, NAN, 0);
+#undef EXPECT_VALID
+}
+
+static void test_anchor_ids_and_unknown_anchors(void)
+{
+    estimator_t before;
+    estimator_result_t r;
+    const float p[3] = {1.0f, 2.0f, 3.0f};
+    estimator_init(&est, &no_model);
+    CHECK(estimator_set_anchor(&est, 16, p) == EST_ERR_BAD_ANCHOR_ID);
+    CHECK(estimator_set_anchor(&est, 255, p) == EST_ERR_BAD_ANCHOR_ID);
+    CHECK(estimator_set_anchor(&est, 15, p) == EST_OK);
+    CHECK(est.anchor_known == 0x8000u);
+    memcpy(&before, &est, sizeof est);
+    CHECK(estimator_on_twr(&est, 1000, 3, 2.0f, &r) == EST_ERR_UNKNOWN_ANCHOR);
+    CHECK(estimator_on_twr(&est, 1000, 200, 2.0f, &r) == EST_ERR_UNKNOWN_ANCHOR);
+    CHECK(estimator_on_tdoa(&est, 1000, 15, 4, 0.5f, &r) == EST_ERR_UNKNOWN_ANCHOR);
+    CHECK(estimator_on_tdoa(&est, 1000, 4, 15, 0.5f, &r) == EST_ERR_UNKNOWN_ANCHOR);
+    CHECK(memcmp(&before, &est, sizeof est) == 0);
+    CHECK(estimator_on_twr(&est, 1000, 15, 2.0f, &r) == EST_OK);
+}
+
+static void test_time_backwards_refused_without_change(void)
+{
+    estimator_t before;
+    estimator_result_t r;
+    setup(EST_MODE_IMU, EST_STAGES_ALL, 0.0f, 0.0f, 1.0f);
+    CHECK(estimator_on_imu(&est, 2000, still_acc, no_gyro) == EST_OK);
+    CHECK(estimator_on_imu(&est, 2000, still_acc, no_gyro) == EST_OK); /* equal is fine */
+    memcpy(&before, &est, sizeof est);
+    CHECK(estimator_on_imu(&est, 1999, still_acc, no_gyro) == EST_ERR_TIME_BACKWARDS);
+    CHECK(memcmp(&before, &est, sizeof est) == 0);
+    CHECK(estimator_on_twr(&est, 5000, 0, 4.0f, &r) == EST_OK);
+    CHECK(estimator_on_twr(&est, 5000, 1, 4.0f, &r) == EST_OK);
+    memcpy(&before, &est, sizeof est);
+    CHECK(estimator_on_twr(&est, 4999, 0, 4.0f, &r) == EST_ERR_TIME_BACKWARDS);
+    CHECK(estimator_on_tdoa(&est, 4999, 0, 1, 0.1f, &r) == EST_ERR_TIME_BACKWARDS);
+    CHECK(memcmp(&before, &est, sizeof est) == 0);
+    /* IMU and UWB clocks are checked separately */
+    CHECK(estimator_on_imu(&est, 3000, still_acc, no_gyro) == EST_OK);
+    /* a reset forgets the time references (a new flight), keeps anchors */
+    estimator_configure(&est, &est.cfg, 1);
+    CHECK(estimator_on_imu(&est, 0, still_acc, no_gyro) == EST_OK);
+    CHECK(estimator_on_twr(&est, 0, 0, 4.0f, &r) == EST_OK);
+    /* without reset they are kept */
+    CHECK(estimator_on_twr(&est, 10, 0, 4.0f, &r) == EST_OK);
+    estimator_configure(&est, &est.cfg, 0);
+    CHECK(estimator_on_twr(&est, 5, 0, 4.0f, &r) == EST_ERR_TIME_BACKWARDS);
+}
+
+/* Stationary tag, IMU at 1 kHz, TWR round robin at 100 Hz, noiseless. */
+static void run_static(const float truth[3], int seconds)
+{
+    estimator_result_t r;
+    uint64_t t;
+    uint8_t k = 0;
+    for (t = 0; t <= (uint64_t)seconds * 1000000u; t += 1000) {
+        CHECK(estimator_on_imu(&est, t, still_acc, no_gyro) == EST_OK);
+        if (t % 10000 == 5000) {
+            CHECK(estimator_on_twr(&est, t, k, range_to(&est, k, truth), &r) == EST_OK);
+            k = (uint8_t)((k + 1) % 8);
+        }
+    }
+}
+
+static void test_static_twr_convergence(void)
+{
+    const float truth[3] = {1.0f, -0.5f, 1.2f};
+    float pos[3], vel[3], quat[4], var[9];
+    uint8_t mode;
+    for (mode = 0; mode < 2; mode++) {
+        /* gates off: the start is 1.6 m away, the kinematic gate would refuse every range */
+        setup(mode, 0, 0.0f, 0.0f, 0.0f);
+        run_static(truth, 10);
+        estimator_state(&est, pos, vel, quat, var);
+        CHECK_NEAR(pos[0], truth[0], 0.005);
+        CHECK_NEAR(pos[1], truth[1], 0.005);
+        CHECK_NEAR(pos[2], truth[2], 0.005);
+        CHECK(fabsf(vel[0]) < 0.01f && fabsf(vel[1]) < 0.01f && fabsf(vel[2]) < 0.01f);
+        CHECK(var[0] < 0.05f && var[1] < 0.05f && var[2] < 0.1f); /* from 1 m^2 */
+        CHECK(est.divergences == 0);
+        if (mode == EST_MODE_UWB_ONLY) {
+            CHECK(est.imu_ignored == 10001);
+            CHECK(quat[0] == 1.0f && quat[1] == 0.0f && quat[2] == 0.0f && quat[3] == 0.0f);
+        } else {
+            CHECK(est.predictions == 1000);
+        }
+    }
+}
+
+static void test_uwb_only_constant_velocity_tracking(void)
+{
+    const float v[3] = {0.5f, -0.3f, 0.1f}, p0[3] = {-1.0f, 1.0f, 1.0f};
+    float pos[3], vel[3], quat[4], var[9];
+    estimator_result_t r;
+    int k, accepted = 0;
+    setup(EST_MODE_UWB_ONLY, EST_STAGES_ALL, p0[0], p0[1], p0[2]);
+    for (k = 0; k < 500; k++) { /* 5 s at 100 Hz, TDoA between consecutive anchors */
+        const float t = 0.01f * (float)k;
+        const float p[3] = {p0[0] + v[0] * t, p0[1] + v[1] * t, p0[2] + v[2] * t};
+        const uint8_t a = (uint8_t)(k % 8), b = (uint8_t)((k + 1) % 8);
+        CHECK(estimator_on_tdoa(&est, (uint64_t)k * 10000u, a, b, range_to(&est, b, p) - range_to(&est, a, p), &r) == EST_OK);
+        accepted += r.status == EST_ACCEPTED;
+        if (k > 300) {
+            estimator_state(&est, pos, vel, quat, var);
+            CHECK(fabsf(pos[0] - p[0]) < 0.005f && fabsf(pos[1] - p[1]) < 0.005f && fabsf(pos[2] - p[2]) < 0.005f);
+        }
+    }
+    CHECK(accepted == 500);
+    estimator_state(&est, pos, vel, quat, var);
+    CHECK_NEAR(vel[0], v[0], 0.01);
+    CHECK_NEAR(vel[1], v[1], 0.01);
+    CHECK_NEAR(vel[2], v[2], 0.01);
+    CHECK(est.predictions == 499); /* the first measurement only sets the state time */
+}
+
+static void test_statuses(void)
+{
+    estimator_result_t r;
+    ekf_t before;
+    const float p0[3] = {0.0f, 0.0f, 1.0f};
+    const float on_tag[3] = {0.0f, 0.0f, 1.0f};
+    float h;
+
+    /* geometry: an anchor exactly at the estimate */
+    setup(EST_MODE_IMU, EST_STAGES_ALL, p0[0], p0[1], p0[2]);
+    CHECK(estimator_set_anchor(&est, 9, on_tag) == EST_OK);
+    memcpy(&before, &est.ekf, sizeof before);
+    CHECK(estimator_on_twr(&est, 1000, 9, 0.5f, &r) == EST_OK);
+    CHECK(r.status == EST_REJECTED_GEOMETRY);
+    CHECK(r.innovation == 0.0f && r.innovation_var == 0.0f && r.gain[0] == 0.0f);
+    CHECK_NEAR(r.d_max, 0.25, 1e-6); /* at rest, dt_min = 10 ms, a_max 5000 */
+    CHECK(memcmp(&before, &est.ekf, sizeof before) == 0);
+    CHECK(estimator_on_tdoa(&est, 1000, 9, 9, 0.0f, &r) == EST_OK && r.status == EST_REJECTED_GEOMETRY);
+    CHECK(estimator_on_tdoa(&est, 1000, 0, 9, 0.0f, &r) == EST_OK && r.status == EST_REJECTED_GEOMETRY);
+
+    /* kinematic: rejected when |y| > d_max = 0.25 m (at rest); 0.2 m passes */
+    h = range_to(&est, 0, p0);
+    CHECK(estimator_on_twr(&est, 2000, 0, h + 0.3f, &r) == EST_OK);
+    CHECK(r.status == EST_REJECTED_KINEMATIC);
+    CHECK_NEAR(r.innovation, 0.3, 1e-5);
+    CHECK(r.innovation_var > 0.0625f && r.gain[0] == 0.0f && r.gain[1] == 0.0f && r.gain[2] == 0.0f);
+    CHECK(memcmp(&before, &est.ekf, sizeof before) == 0);
+    CHECK(estimator_on_twr(&est, 2000, 0, h + 0.2f, &r) == EST_OK);
+    CHECK(r.status == EST_ACCEPTED && r.gain[0] != 0.0f);
+    /* TDoA: twice the bound */
+    {
+        const float d = range_to(&est, 1, est.last_good_pos) - range_to(&est, 0, est.last_good_pos);
+        CHECK(estimator_on_tdoa(&est, 3000, 0, 1, d + 0.55f, &r) == EST_OK);
+        CHECK(r.status == EST_REJECTED_KINEMATIC);
+        CHECK_NEAR(r.innovation, 0.55, 1e-5);
+        CHECK(estimator_on_tdoa(&est, 3000, 0, 1, d + 0.45f, &r) == EST_OK);
+        CHECK_NEAR(r.innovation, 0.45, 1e-5);
+        CHECK(r.status != EST_REJECTED_KINEMATIC);
+    }
+
+    /* chi-square only: big innovations pass the (disabled) kinematic gate but not y^2/S */
+    setup(EST_MODE_IMU, EST_STAGE_CHI2_GATE, p0[0], p0[1], p0[2]);
+    h = range_to(&est, 0, p0);
+    CHECK(estimator_on_twr(&est, 1000, 0, h + 3.0f, &r) == EST_OK);
+    CHECK(r.status == EST_REJECTED_CHI2);
+    CHECK(r.innovation * r.innovation / r.innovation_var > est.cfg.chi2_twr);
+    CHECK_NEAR(r.d_max, 0.25, 1e-6); /* reported although the gate is off */
+    CHECK(estimator_on_twr(&est, 1000, 0, h + 1.0f, &r) == EST_OK);
+    CHECK(r.status == EST_ACCEPTED);
+    CHECK(r.innovation * r.innovation / r.innovation_var <= est.cfg.chi2_twr);
+
+    /* no gates: anything finite is used */
+    setup(EST_MODE_IMU, 0, p0[0], p0[1], p0[2]);
+    CHECK(estimator_on_twr(&est, 1000, 0, h + 3.0f, &r) == EST_OK);
+    CHECK(r.status == EST_ACCEPTED);
+}
+
+static void test_gate_dt_references(void)
+{
+    estimator_result_t r;
+    uint64_t t;
+    const float p0[3] = {0.0f, 0.0f, 1.0f};
+    /* IMU mode: dt from the last prediction (20 ms) to the measurement (35 ms) = 15 ms */
+    setup(EST_MODE_IMU, EST_STAGES_ALL, p0[0], p0[1], p0[2]);
+    for (t = 0; t <= 25000; t += 1000) {
+        CHECK(estimator_on_imu(&est, t, still_acc, no_gyro) == EST_OK);
+    }
+    CHECK(est.predictions == 2 && est.ekf.t_us == 20000);
+    CHECK(estimator_on_twr(&est, 35000, 0, range_to(&est, 0, p0), &r) == EST_OK);
+    CHECK_NEAR(r.d_max, 0.5 * 5000.0 * 0.015 * 0.015, 1e-5);
+    /* UWB-only: first measurement dt_min, then the time since the previous state time */
+    setup(EST_MODE_UWB_ONLY, EST_STAGES_ALL, p0[0], p0[1], p0[2]);
+    CHECK(estimator_on_twr(&est, 7000000, 0, range_to(&est, 0, p0), &r) == EST_OK);
+    CHECK_NEAR(r.d_max, 0.25, 1e-6);
+    CHECK(est.predictions == 0);
+    CHECK(estimator_on_twr(&est, 7030000, 0, range_to(&est, 0, p0), &r) == EST_OK);
+    CHECK_NEAR(r.d_max, 0.5 * 5000.0 * 0.03 * 0.03, 1e-4);
+    CHECK(est.predictions == 1);
+}
+
+/* A network whose output depends only on the sum of its scaled inputs, so the test does not depend
+ * on the weight storage order: all first-layer weights 1, second 0.02 (x 50 = 1), output 0.02. */
+static float ones[BIAS_NN_MAX_IN * BIAS_NN_HIDDEN], w2[BIAS_NN_HIDDEN * BIAS_NN_HIDDEN], w3[BIAS_NN_HIDDEN];
+static const float zeros[BIAS_NN_HIDDEN] = {0.0f};
+static const float in_min[3] = {-10.0f, -10.0f, -10.0f}, in_max[3] = {10.0f, 10.0f, 10.0f};
+
+static double expected_bias(const float dp[3])
+{
+    double s = 0.0, out;
+    int i;
+    for (i = 0; i < 3; i++) {
+        s += (dp[i] + 10.0) / 20.0;
+    }
+    out = (s - 1.0) * 2.0 - 1.0; /* b3 = -1; out range [-1, 1] */
+    return out < -1.0 ? -1.0 : (out > 1.0 ? 1.0 : out);
+}
+
+static void test_bias_network_wiring(void)
+{
+    bias_nn_t net;
+    bias_model_t model;
+    estimator_config_t cfg;
+    estimator_result_t r;
+    const float p0[3] = {0.5f, -0.5f, 1.0f};
+    float dp[3], h;
+    int i;
+    for (i = 0; i < BIAS_NN_MAX_IN * BIAS_NN_HIDDEN; i++) {
+        ones[i] = 1.0f;
+    }
+    for (i = 0; i < BIAS_NN_HIDDEN * BIAS_NN_HIDDEN; i++) {
+        w2[i] = 0.02f;
+    }
+    for (i = 0; i < BIAS_NN_HIDDEN; i++) {
+        w3[i] = 0.02f;
+    }
+    memset(&net, 0, sizeof net);
+    net.layout = BIAS_LAYOUT_TWR_POS;
+    net.n_in = 3;
+    net.w1 = ones;
+    net.b1 = zeros;
+    net.w2 = w2;
+    net.b2 = zeros;
+    net.w3 = w3;
+    net.b3 = -1.0f;
+    net.in_min = in_min;
+    net.in_max = in_max;
+    net.out_min = -1.0f;
+    net.out_max = 1.0f;
+    model.twr = &net;
+    model.tdoa = NULL;
+    model.hash = 0;
+
+    estimator_init(&est, &model);
+    estimator_default_config(&cfg);
+    cfg.init_x = p0[0];
+    cfg.init_y = p0[1];
+    cfg.init_z = p0[2];
+    cfg.stages = EST_STAGE_BIAS_NN; /* no gates: the bias must not be hidden by a rejection */
+    estimator_configure(&est, &cfg, 1);
+    set_box_anchors(&est);
+    for (i = 0; i < 3; i++) {
+        dp[i] = est.anchors[7][i] - p0[i]; /* anchor - tag, from the estimate */
+    }
+    h = range_to(&est, 7, p0);
+    CHECK(estimator_on_twr(&est, 1000, 7, h, &r) == EST_OK);
+    CHECK(fabs(expected_bias(dp)) < 0.99);
+    CHECK_NEAR(r.bias, expected_bias(dp), 1e-5);
+    CHECK_NEAR(r.innovation, -r.bias, 1e-5); /* y = (z - bias) - h with z = h */
+
+    /* below nn_min_z: no correction */
+    cfg.init_z = 0.4f;
+    estimator_configure(&est, &cfg, 1);
+    CHECK(estimator_on_twr(&est, 1000, 7, 3.0f, &r) == EST_OK);
+    CHECK(r.bias == 0.0f);
+    /* stage off: no correction */
+    cfg.init_z = p0[2];
+    cfg.stages = 0;
+    estimator_configure(&est, &cfg, 1);
+    CHECK(estimator_on_twr(&est, 1000, 7, h, &r) == EST_OK);
+    CHECK(r.bias == 0.0f && r.innovation == 0.0f);
+    /* no network for TDoA */
+    cfg.stages = EST_STAGE_BIAS_NN;
+    estimator_configure(&est, &cfg, 1);
+    CHECK(estimator_on_tdoa(&est, 1000, 6, 7, 0.1f, &r) == EST_OK);
+    CHECK(r.bias == 0.0f);
+    /* unknown layout: no correction */
+    net.layout = 99;
+    CHECK(estimator_on_twr(&est, 2000, 7, h, &r) == EST_OK);
+    CHECK(r.bias == 0.0f);
+}
+
+static void test_divergence_guard(void)
+{
+    estimator_result_t r;
+    float pos[3], vel[3], quat[4], var[9];
+    const float truth[3] = {0.5f, 0.5f, 1.0f};
+    const float huge_acc[3] = {FLT_MAX, 0.0f, EKF_GRAVITY};
+    uint64_t t;
+    setup(EST_MODE_IMU, 0, truth[0], truth[1], truth[2]);
+    run_static(truth, 1);
+    CHECK(est.divergences == 0);
+    /* IMU samples whose sum overflows: the prediction makes the state infinite */
+    for (t = 1001000; t <= 1010000; t += 1000) {
+        CHECK(estimator_on_imu(&est, t, huge_acc, no_gyro) == EST_OK);
+    }
+    CHECK(est.divergences == 1);
+    estimator_state(&est, pos, vel, quat, var);
+    CHECK_NEAR(pos[0], truth[0], 0.01);
+    CHECK_NEAR(pos[1], truth[1], 0.01);
+    CHECK_NEAR(pos[2], truth[2], 0.01);
+    CHECK(vel[0] == 0.0f && quat[0] == 1.0f);
+    CHECK(var[0] == est.cfg.init_std_xy * est.cfg.init_std_xy && var[2] == est.cfg.init_std_z * est.cfg.init_std_z);
+    CHECK(est.ekf.t_us == 1010000); /* the time reference survives */
+    /* an absurd range (no gates) throws the position out of any network: back again */
+    CHECK(estimator_on_twr(&est, 1010000, 0, FLT_MAX, &r) == EST_OK);
+    CHECK(r.status == EST_ACCEPTED);
+    CHECK(est.divergences == 2);
+    estimator_state(&est, pos, vel, quat, var);
+    CHECK_NEAR(pos[0], truth[0], 0.01);
+    CHECK(isfinite(pos[0]) && isfinite(var[0]));
+    /* and the filter carries on */
+    for (t = 1011000; t <= 3000000; t += 1000) {
+        CHECK(estimator_on_imu(&est, t, still_acc, no_gyro) == EST_OK);
+        if (t % 10000 == 5000) {
+            uint8_t k = (uint8_t)((t / 10000) % 8);
+            CHECK(estimator_on_twr(&est, t, k, range_to(&est, k, truth), &r) == EST_OK);
+        }
+    }
+    estimator_state(&est, pos, vel, quat, var);
+    CHECK_NEAR(pos[0], truth[0], 0.005);
+    CHECK_NEAR(pos[2], truth[2], 0.005);
+    CHECK(est.divergences == 2);
+}
+
+static void test_costs(void)
+{
+    estimator_result_t r;
+    uint64_t t;
+    const float p0[3] = {0.0f, 0.0f, 1.0f};
+    setup(EST_MODE_IMU, EST_STAGES_ALL, p0[0], p0[1], p0[2]);
+    for (t = 0; t <= 30000; t += 1000) {
+        CHECK(estimator_on_imu(&est, t, still_acc, no_gyro) == EST_OK);
+    }
+    CHECK(estimator_on_twr(&est, 30000, 0, range_to(&est, 0, p0), &r) == EST_OK);
+    CHECK(r.cost_predict > 0 && r.cost_update > 0);
+    CHECK(estimator_on_twr(&est, 30000, 1, range_to(&est, 1, p0), &r) == EST_OK);
+    CHECK(r.cost_predict == 0); /* no prediction since the previous result */
+    CHECK(estimator_prediction_count(&est) == 3);
+}
+
+int main(void)
+{
+    RUN(test_default_config);
+    RUN(test_config_validation);
+    RUN(test_anchor_ids_and_unknown_anchors);
+    RUN(test_time_backwards_refused_without_change);
+    RUN(test_static_twr_convergence);
+    RUN(test_uwb_only_constant_velocity_tracking);
+    RUN(test_statuses);
+    RUN(test_gate_dt_references);
+    RUN(test_bias_network_wiring);
+    RUN(test_divergence_guard);
+    RUN(test_costs);
+    return UNIT_DONE();
+}

@@ -1,0 +1,59 @@
+/* Gates at their boundaries: equality passes, the next float up fails, NaN fails. */
+#include <float.h>
+
+#include "gate_chi2.h"
+#include "gate_kinematic.h"
+#include "unit.h"
+
+static void test_dmax(void)
+{
+    const float v[3] = {3.0f, 4.0f, 0.0f}, still[3] = {0.0f, 0.0f, 0.0f};
+    CHECK_NEAR(gate_kinematic_dmax(v, 0.1f, 10.0f), 5.0 * 0.1 + 0.5 * 10.0 * 0.01, 1e-6);
+    CHECK_NEAR(gate_kinematic_dmax(still, 0.01f, 5000.0f), 0.25, 1e-6);
+}
+
+static void test_dt(void)
+{
+    CHECK_NEAR(gate_kinematic_dt(0, 0, 0.01f), 0.01, 1e-9);       /* no reference time yet */
+    CHECK_NEAR(gate_kinematic_dt(123456, 0, 0.01f), 0.01, 1e-9);  /* ignored without reference */
+    CHECK_NEAR(gate_kinematic_dt(5000, 1, 0.01f), 0.01, 1e-9);    /* floored */
+    CHECK_NEAR(gate_kinematic_dt(0, 1, 0.01f), 0.01, 1e-9);       /* the paper code's dt = 0 case */
+    CHECK_NEAR(gate_kinematic_dt(-5000, 1, 0.01f), 0.01, 1e-9);   /* reference after the measurement */
+    CHECK_NEAR(gate_kinematic_dt(20000, 1, 0.01f), 0.02, 1e-9);
+}
+
+static void test_kinematic_boundary(void)
+{
+    const float d = 0.25f;
+    CHECK(gate_kinematic_pass(0.25f, d, 1.0f));
+    CHECK(gate_kinematic_pass(-0.25f, d, 1.0f));
+    CHECK(!gate_kinematic_pass(nextafterf(0.25f, 1.0f), d, 1.0f));
+    CHECK(!gate_kinematic_pass(-nextafterf(0.25f, 1.0f), d, 1.0f));
+    /* TDoA: twice the bound */
+    CHECK(gate_kinematic_pass(0.5f, d, 2.0f));
+    CHECK(!gate_kinematic_pass(nextafterf(0.5f, 1.0f), d, 2.0f));
+    CHECK(!gate_kinematic_pass(NAN, d, 1.0f));
+    CHECK(gate_kinematic_pass(0.0f, 0.0f, 1.0f));
+}
+
+static void test_chi2_boundary(void)
+{
+    CHECK(gate_chi2_pass(2.0f, 1.0f, 4.0f));                     /* y^2/S = 4 = threshold */
+    CHECK(gate_chi2_pass(-2.0f, 1.0f, 4.0f));
+    CHECK(!gate_chi2_pass(2.0f, 1.0f, nextafterf(4.0f, 0.0f)));
+    CHECK(!gate_chi2_pass(nextafterf(2.0f, 3.0f), 1.0f, 4.0f));
+    CHECK(gate_chi2_pass(0.5f, 0.0625f, 4.0f));                  /* 0.25/0.0625 = 4 exactly */
+    CHECK(!gate_chi2_pass(0.5f, nextafterf(0.0625f, 0.0f), 4.0f));
+    CHECK(!gate_chi2_pass(NAN, 1.0f, 4.0f));
+    CHECK(!gate_chi2_pass(1.0f, NAN, 4.0f));
+    CHECK(!gate_chi2_pass(1.0f, 1.0f, NAN));
+}
+
+int main(void)
+{
+    RUN(test_dmax);
+    RUN(test_dt);
+    RUN(test_kinematic_boundary);
+    RUN(test_chi2_boundary);
+    return UNIT_DONE();
+}
