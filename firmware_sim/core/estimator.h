@@ -46,7 +46,10 @@ typedef struct {
     float bias;            /* what the network subtracted [m] */
     float d_max;           /* kinematic bound, computed whether the gate is on or not */
     float gain[3];         /* K position rows, 0 unless accepted */
-    uint32_t cost_nn, cost_gates, cost_update, cost_predict; /* platform_cost_now() units */
+    /* platform_cost_now() units. cost_update includes the measurement model and finalize;
+     * cost_predict: IMU predictions since the previous result, or (UWB-only) this measurement's
+     * constant-velocity prediction. */
+    uint32_t cost_nn, cost_gates, cost_update, cost_predict;
 } estimator_result_t;
 
 typedef struct {
