@@ -86,6 +86,19 @@ def pytest_report_header(config: pytest.Config) -> str:
     return f"uwb-hil: target {target}"
 
 
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[Any]:
+    """A failing test that used `uwb_device` gets the tail of the device log in its report."""
+    outcome = yield
+    report = outcome.get_result()
+    device = getattr(item, "funcargs", {}).get("uwb_device")
+    tail = getattr(device, "log_tail", None)
+    if report.failed and call.when == "call" and callable(tail):
+        text = tail()
+        if text:
+            report.sections.append(("uwb device log (tail)", text))
+
+
 # ------------------------------------------------------------------------------ option fixtures
 def _param_or_option(request: pytest.FixtureRequest, option: str, default: Any) -> Any:
     """Indirect parametrization wins, then the command line, then the default."""
@@ -179,10 +192,18 @@ def _ascii(raw: bytes) -> str:
 @pytest.fixture
 def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | None, uwb_baud: int,
                uwb_firmware: Path, uwb_timeout: float, uwb_expected_model_hash: int | None,
-               record_property: Callable[[str, object], None],
                tmp_path_factory: pytest.TempPathFactory) -> Iterator[Device]:
-    """A started device whose HELLO was checked (protocol version, optional model hash)."""
+    """A started device whose HELLO was checked (protocol version, optional model hash).
+
+    The HELLO (firmware version, build id, model hash, target), link, exit code and log path become
+    the test's user properties (JUnit <properties>). They are appended directly rather than through
+    the `record_property` fixture, which warns on every test under the default xunit2 family.
+    """
     choice = DeviceChoice(uwb_target, uwb_port, uwb_baud, uwb_firmware, uwb_timeout)
+
+    def record_property(name: str, value: object) -> None:
+        request.node.user_properties.append((name, value))
+
     log_dir = tmp_path_factory.mktemp("uwb-device", numbered=True)
     device = _make_device(choice, log_dir)
     record_property("uwb_target", choice.target)

@@ -395,3 +395,123 @@ def test_silent_board_is_a_timeout_not_a_death() -> None:
 def test_device_is_abstract() -> None:
     with pytest.raises(TypeError):
         Device()  # type: ignore[abstract]
+
+
+# ---------------------------------------------------------------------------- pytest plugin
+pytest_plugins = ["pytester"]
+# Inner runs re-import every plugin; hypothesis alone takes a second and is not needed there.
+_LEAN = ("-p", "no:hypothesispytest", "-p", "no:cacheprovider")
+
+
+def _run(pytester: pytest.Pytester, *args: str) -> pytest.RunResult:
+    return pytester.runpytest(*_LEAN, *args)
+
+OPTION_PROBE = """
+import pytest
+
+def test_values(uwb_port, uwb_baud, uwb_target, uwb_firmware, uwb_timeout):
+    print("VALUES", uwb_port, uwb_baud, uwb_target, uwb_firmware.name, uwb_timeout)
+
+@pytest.mark.parametrize("uwb_baud", [921600], indirect=True)
+@pytest.mark.parametrize("uwb_port", ["socket://127.0.0.1:9"], indirect=True)
+def test_indirect(uwb_port, uwb_baud, uwb_target):
+    print("INDIRECT", uwb_port, uwb_baud, uwb_target)
+
+@pytest.mark.hardware
+def test_board_only():
+    print("HARDWARE RAN")
+"""
+
+
+def test_plugin_options_are_in_their_own_help_group(pytester: pytest.Pytester) -> None:
+    result = _run(pytester, "--help")
+    result.stdout.fnmatch_lines(["*uwb-hil*", "*--uwb-port*", "*--uwb-baud*", "*--uwb-target*",
+                                 "*--uwb-firmware*", "*--uwb-timeout*"])
+
+
+def test_plugin_option_fixtures_defaults_cli_and_indirect(pytester: pytest.Pytester) -> None:
+    pytester.makepyfile(OPTION_PROBE)
+    result = _run(pytester, "-s", "-rs")
+    result.assert_outcomes(passed=2, skipped=1)
+    result.stdout.fnmatch_lines(["*VALUES None 115200 emulator uwb-fw 5.0",
+                                 "*INDIRECT socket://127.0.0.1:9 921600 serial",
+                                 "*needs a real board*"])
+    result = _run(pytester, "-s", "--uwb-port", "loop://", "--uwb-baud", "9600", "--uwb-timeout", "2",
+                                "--uwb-firmware", "/x/fw")
+    result.assert_outcomes(passed=3)
+    result.stdout.fnmatch_lines(["*VALUES loop:// 9600 serial fw 2.0", "*HARDWARE RAN"])
+    result = _run(pytester, "-s", "--uwb-target", "qemu", "-k", "values")
+    result.stdout.fnmatch_lines(["*VALUES None 115200 qemu uwb-fw 5.0"])
+
+
+def test_plugin_uwb_device_records_hello(pytester: pytest.Pytester, fake_fw: Path) -> None:
+    pytester.makepyfile("""
+        def test_dev(uwb_device):
+            assert uwb_device.alive()
+            assert uwb_device.last_hello.fw_minor == 2
+            print("DEVICE", uwb_device.link.name)
+    """)
+    xml = pytester.path / "junit.xml"
+    result = _run(pytester, "-s", "--uwb-firmware", str(fake_fw), f"--junitxml={xml}")
+    result.assert_outcomes(passed=1, warnings=0)
+    result.stdout.fnmatch_lines(["uwb-hil: target emulator, firmware *fake-fw", "*DEVICE pty:/dev/*"])
+    text = xml.read_text()
+    for expected in ('name="uwb_fw_version" value="1.2.3"', 'name="uwb_build_id" value="fake-id"',
+                     f'name="uwb_model_hash" value="{FAKE_HASH:#018x}"', 'name="uwb_device_target" value="fake"',
+                     'name="uwb_target" value="emulator"', 'name="uwb_exit_code"', 'name="uwb_log"'):
+        assert expected in text
+
+
+def test_plugin_failing_test_shows_the_device_log(pytester: pytest.Pytester, fake_fw: Path) -> None:
+    pytester.makepyfile("""
+        def test_dev(uwb_device):
+            assert False, "estimate diverged"
+    """)
+    result = _run(pytester, "--uwb-firmware", str(fake_fw))
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["*uwb device log (tail)*", "*fake firmware serving /dev/pts/*"])
+
+
+def test_plugin_uwb_device_checks_the_protocol_and_always_stops(pytester: pytest.Pytester, fake_fw: Path) -> None:
+    wrapper = _script(pytester.path, "fw-proto-99", f"#!/bin/sh\nexec {fake_fw} \"$@\" --proto 99\n")
+    pytester.makepyfile("""
+        def test_dev(uwb_device):
+            pass
+    """)
+    result = _run(pytester, "--uwb-firmware", str(wrapper))
+    result.assert_outcomes(errors=1)
+    result.stdout.fnmatch_lines(["*ProtocolMismatch*reports 99*"])
+
+
+def test_plugin_uwb_device_on_a_serial_url(pytester: pytest.Pytester, board: FakeBoard) -> None:
+    pytester.makepyfile("""
+        def test_dev(uwb_device, uwb_target):
+            assert uwb_target == "serial"
+            assert uwb_device.last_hello.target.rstrip(b"\\0") == b"stm32"
+    """)
+    result = _run(pytester, "--uwb-port", board.url)
+    result.assert_outcomes(passed=1)
+
+
+def test_plugin_missing_firmware_is_a_clear_error(pytester: pytest.Pytester, tmp_path: Path) -> None:
+    pytester.makepyfile("""
+        def test_dev(uwb_device):
+            pass
+    """)
+    result = _run(pytester, "--uwb-firmware", str(tmp_path / "nope"))
+    result.assert_outcomes(errors=1)
+    result.stdout.fnmatch_lines(["*firmware binary*nope not found*make firmware*"])
+
+
+def test_plugin_qemu_target_skips_until_qemu_device_exists(pytester: pytest.Pytester) -> None:
+    from harness.device import qemu
+
+    if hasattr(qemu, "QemuDevice"):
+        pytest.skip("QemuDevice exists now: the qemu target is exercised by its own tests")
+    pytester.makepyfile("""
+        def test_dev(uwb_device):
+            pass
+    """)
+    result = _run(pytester, "--uwb-target", "qemu", "-rs")
+    result.assert_outcomes(skipped=1)
+    result.stdout.fnmatch_lines(["*QEMU target not built yet*"])
