@@ -89,8 +89,8 @@ def pytest_report_header(config: pytest.Config) -> str:
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[Any]:
     """A failing test that used `uwb_device` gets the tail of the device log in its report."""
-    outcome = yield
-    report = outcome.get_result()
+    outcome: Any = yield
+    report: pytest.TestReport = outcome.get_result()
     device = getattr(item, "funcargs", {}).get("uwb_device")
     tail = getattr(device, "log_tail", None)
     if report.failed and call.when == "call" and callable(tail):
@@ -110,7 +110,8 @@ def _param_or_option(request: pytest.FixtureRequest, option: str, default: Any) 
 
 @pytest.fixture
 def uwb_port(request: pytest.FixtureRequest) -> str | None:
-    return _param_or_option(request, "uwb_port", None)
+    port = _param_or_option(request, "uwb_port", None)
+    return None if port is None else str(port)
 
 
 @pytest.fixture

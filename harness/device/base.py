@@ -154,8 +154,11 @@ class Device(ABC):
         """Frame channel over the current link (a new one after every start)."""
         link = self.link
         if self._channel is None or self._channel.link is not link:
-            self._channel = FrameChannel(link, self.died)
+            self._channel = self._new_channel(link)
         return self._channel
+
+    def _new_channel(self, link: Link) -> FrameChannel:
+        return FrameChannel(link, self.died)
 
     @property
     def last_hello(self) -> HelloReply | None:
@@ -181,8 +184,9 @@ class Device(ABC):
                 raise DeviceTimeout.for_request(
                     "HELLO", time.monotonic() - start,
                     f"{self.name}: nonce {nonce:#010x}, sent {sent}x; {channel.diagnosis()}") from None
-            self._last_hello = frame.msg
-            return frame.msg
+            reply: HelloReply = frame.msg
+            self._last_hello = reply
+            return reply
 
     def check(self, expected_model_hash: int | str | None = None, expected_proto: int = PROTOCOL_VERSION,
               expected_layouts: tuple[int, int] | None = None) -> HelloReply:

@@ -27,7 +27,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.device.base import Device
+from harness.device.base import Device, FrameChannel
 from harness.errors import DeviceDied, DeviceError
 from harness.link.base import Link
 from harness.link.pty_link import PtyOptions, PtyPair
@@ -63,7 +63,7 @@ class EmulatorDevice(Device):
         self._proc: subprocess.Popen[bytes] | None = None
         self._pty: PtyPair | None = None
         self._tmp_log_dir: str | None = None
-        self._finalizer: weakref.finalize | None = None
+        self._finalizer: weakref.finalize[..., EmulatorDevice] | None = None
 
     # ------------------------------------------------------------------------------- identity
     @property
@@ -80,6 +80,9 @@ class EmulatorDevice(Device):
         if self._pty is None:
             raise DeviceError(f"{self.name} is not started")
         return self._pty
+
+    def _new_channel(self, link: Link) -> FrameChannel:
+        return FrameChannel(link, self.died, death_grace_s=self.options.death_grace_s)
 
     def command(self, tty_path: str) -> list[str]:
         return [*self.wrapper, str(self.binary), "--tty", tty_path, *self.args]

@@ -124,7 +124,7 @@ def _is_device_file(url: str) -> bool:
 
 def _fileno(port: serial.SerialBase) -> int | None:
     try:
-        fd = port.fileno()  # type: ignore[attr-defined]
+        fd = getattr(port, "fileno")()
     except (AttributeError, NotImplementedError, OSError, serial.SerialException):
         return None
     return fd if isinstance(fd, int) and fd >= 0 else None
