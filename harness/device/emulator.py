@@ -38,7 +38,7 @@ _counter = itertools.count()
 
 @dataclass(frozen=True)
 class EmulatorOptions:
-    startup_check_s: float = 0.2     # the process must survive this long after exec
+    startup_check_s: float = 0.1     # the process must survive this long after exec
     stop_timeout_s: float = 1.0      # per stage: after SIGTERM, after SIGKILL
     write_timeout_s: float = 5.0     # link writes fail after this long without progress
     death_grace_s: float = 0.5       # on a closed link, wait this long for the exit to be visible
