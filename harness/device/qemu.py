@@ -14,6 +14,7 @@ identical from run to run. Every wait has a timeout; stop() always reaps QEMU.
 from __future__ import annotations
 
 import errno
+import itertools
 import os
 import re
 import select
@@ -21,11 +22,15 @@ import shutil
 import socket
 import subprocess
 import tempfile
-import termios
 import time
-import tty
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+from harness.device.base import Device, FrameChannel
+from harness.errors import DeviceDied, DeviceError, LinkClosed, LinkTimeout
+from harness.link.base import DEFAULT_READ_SIZE, Link
+from harness.link.pty_link import make_raw
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_ELF = REPO_ROOT / "firmware_sim" / "build" / "stm32" / "uwb-fw.elf"
@@ -37,9 +42,10 @@ USART_BASES = (0x40011000, 0x40004400, 0x40004800, 0x40004C00, 0x40005000, 0x400
 _USART_CR1 = 0x0C
 _CR1_UE_RE = (1 << 13) | (1 << 2)
 _ANSI_RE = re.compile(rb"\x1b\[[0-9;]*[A-Za-z]")
+_counter = itertools.count()
 
 
-class QemuError(RuntimeError):
+class QemuError(DeviceError):
     """QEMU could not be started, or stopped answering its monitor."""
 
 
@@ -226,73 +232,205 @@ class QemuProcess:
 
 
 def _open_raw(path: str) -> int:
+    """Open the pty slave non-blocking and make it raw (8 bit, no echo/translation/flow control)."""
     fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     try:
-        tty.setraw(fd)
-        attrs = termios.tcgetattr(fd)
-        attrs[0] &= ~(termios.IXON | termios.IXOFF | termios.ICRNL | termios.INLCR | termios.IGNCR)
-        attrs[1] &= ~termios.OPOST
-        attrs[3] &= ~(termios.ECHO | termios.ICANON | termios.ISIG | termios.IEXTEN)
-        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        make_raw(fd)
     except BaseException:
         os.close(fd)
         raise
     return fd
 
 
-class PtyLink:
-    """Byte transport over the raw pty: write(bytes) and read(max_bytes, timeout)."""
+class QemuPtyLink(Link):
+    """The host end of QEMU's pty (the guest's USART). QEMU owns the master; we hold the slave."""
 
-    def __init__(self, fd: int, write_timeout_s: float = 10.0) -> None:
-        self.fd = fd
+    def __init__(self, fd: int, path: str, write_timeout_s: float = 10.0) -> None:
+        self._fd: int | None = fd
+        self._path = path
         self.write_timeout_s = write_timeout_s
 
+    @property
+    def name(self) -> str:
+        return f"qemu-pty:{self._path}"
+
+    @property
+    def closed(self) -> bool:
+        return self._fd is None
+
+    def _require(self) -> int:
+        if self._fd is None:
+            raise LinkClosed(f"{self.name} is closed")
+        return self._fd
+
     def write(self, data: bytes) -> None:
+        fd = self._require()
         view = memoryview(data)
-        deadline = time.monotonic() + self.write_timeout_s
+        last_progress = time.monotonic()
         while view:
             try:
-                n = os.write(self.fd, view)
-                view = view[n:]
-                continue
+                n = os.write(fd, view)
             except BlockingIOError:
-                pass
+                n = 0
             except OSError as exc:
-                raise _link_closed(f"pty write failed: {exc}") from exc
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise _link_timeout(f"pty write blocked for {self.write_timeout_s:.1f} s "
-                                    f"({len(view)} bytes left): the guest stopped reading")
-            select.select([], [self.fd], [], min(left, 0.05))
+                raise LinkClosed(f"{self.name}: write failed: {exc}") from exc
+            if n:
+                view = view[n:]
+                last_progress = time.monotonic()
+                continue
+            waited = time.monotonic() - last_progress
+            if waited >= self.write_timeout_s:
+                raise LinkTimeout(f"{self.name}: no byte accepted for {waited:.1f} s ({len(view)} pending): "
+                                  "the guest stopped reading", pending_bytes=len(view), waited_s=waited)
+            select.select([], [fd], [], min(0.05, self.write_timeout_s - waited))
 
-    def read(self, max_bytes: int, timeout: float) -> bytes:
-        r, _, _ = select.select([self.fd], [], [], max(0.0, timeout))
+    def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.0) -> bytes:
+        fd = self._require()
+        r, _, _ = select.select([fd], [], [], max(0.0, timeout))
         if not r:
             return b""
         try:
-            return os.read(self.fd, max_bytes)
+            return os.read(fd, max_bytes)
         except BlockingIOError:
             return b""
         except OSError as exc:
             if exc.errno == errno.EIO:
-                raise _link_closed("pty closed (QEMU exited)") from exc
-            raise _link_closed(f"pty read failed: {exc}") from exc
+                raise LinkClosed(f"{self.name}: closed (QEMU exited)") from exc
+            raise LinkClosed(f"{self.name}: read failed: {exc}") from exc
 
     def close(self) -> None:
-        pass  # the fd belongs to QemuProcess
+        self._fd = None  # the fd itself belongs to QemuProcess
+
+    def info(self) -> dict[str, Any]:
+        return {"name": self.name, "transport": "QEMU -serial pty (~65 us per byte)"}
 
 
-def _link_closed(msg: str) -> Exception:
-    try:
-        from harness.errors import LinkClosed
-        return LinkClosed(msg)
-    except ImportError:  # pragma: no cover - errors.py is written concurrently
-        return ConnectionError(msg)
+# Kept for callers of the process layer alone (the self-test, the network bench).
+PtyLink = QemuPtyLink
 
 
-def _link_timeout(msg: str) -> Exception:
-    try:
-        from harness.errors import DeviceTimeout
-        return DeviceTimeout(msg)
-    except ImportError:  # pragma: no cover
-        return TimeoutError(msg)
+class QemuDevice(Device):
+    """The STM32F405 firmware ELF in QEMU, serving the protocol on USART1 (or USART3, serial_index=2)."""
+
+    def __init__(self, elf: Path | str = DEFAULT_ELF, log_dir: Path | str | None = None, icount: bool = True,
+                 options: QemuOptions | None = None) -> None:
+        super().__init__()
+        self.elf = Path(elf)
+        self.log_dir = Path(log_dir) if log_dir is not None else None
+        self.options = options if options is not None else QemuOptions(icount=icount)
+        self.log_path: Path | None = None
+        self.returncode: int | None = None
+        self._proc: QemuProcess | None = None
+        self._link: QemuPtyLink | None = None
+        self._tmp_log_dir: str | None = None
+
+    @property
+    def name(self) -> str:
+        pid = f" pid {self._proc.proc.pid}" if self._proc is not None and self._proc.proc is not None else ""
+        return f"qemu {self.options.machine} {self.elf.name}{pid}"
+
+    @property
+    def process(self) -> QemuProcess:
+        if self._proc is None:
+            raise DeviceError(f"{self.name} is not started")
+        return self._proc
+
+    @property
+    def link(self) -> Link:
+        if self._link is None:
+            raise DeviceError(f"{self.name} is not started")
+        return self._link
+
+    def _new_channel(self, link: Link) -> FrameChannel:
+        return FrameChannel(link, self.died, death_grace_s=0.5)
+
+    def start(self) -> None:
+        if self._proc is not None:
+            raise DeviceError(f"{self.name} is already started")
+        if not self.elf.is_file():
+            raise DeviceError(f"firmware {self.elf} not found: build it with `make -C firmware_sim/stm32` "
+                              "(toolchain: scripts/ensure_arm_tools.sh)")
+        if shutil.which(self.options.qemu) is None:
+            raise DeviceError(f"{self.options.qemu} not found: run scripts/ensure_arm_tools.sh")
+        self.returncode = None
+        self.log_path = self._new_log_path()
+        proc = QemuProcess(self.elf, self.log_path, self.options)
+        try:
+            proc.start()
+        except QemuError as exc:
+            self._remove_tmp_log()
+            raise DeviceError(f"cannot start QEMU for {self.elf.name}: {exc}") from exc
+        assert proc.pty_path is not None
+        self._proc = proc
+        self._link = QemuPtyLink(proc.fd, proc.pty_path)
+
+    def alive(self) -> bool:
+        return self._proc is not None and self._proc.alive()
+
+    def died(self, grace_s: float = 0.0) -> DeviceDied | None:
+        proc = self._proc
+        if proc is None or proc.proc is None:
+            return None
+        try:
+            code = proc.proc.wait(max(0.0, grace_s)) if grace_s > 0 else proc.proc.poll()
+        except subprocess.TimeoutExpired:
+            code = None
+        if code is None:
+            return None
+        return DeviceDied(f"{self.name} exited", exit_code=code, log_tail=self.log_tail(),
+                          log_path=self.log_path if self._tmp_log_dir is None else None)
+
+    def stop(self) -> int | None:
+        proc, self._proc = self._proc, None
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+        if proc is not None:
+            popen = proc.proc
+            proc.stop()
+            self.returncode = popen.returncode if popen is not None else None
+        self._remove_tmp_log()
+        return self.returncode
+
+    def log_tail(self, lines: int = 30) -> str:
+        if self.log_path is None:
+            return ""
+        try:
+            text = self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+        return "\n".join(text.splitlines()[-lines:])
+
+    def stack_high_water(self) -> int:
+        """Bytes of the main stack ever used (the firmware paints it at reset), read via the monitor."""
+        proc = self.process
+        lo, size = _symbol_range(self.elf, "_sstack", "_estack")
+        words = proc.read_words(lo, size // 4)
+        untouched = next((i for i, w in enumerate(words) if w != 0xA5A5A5A5), len(words))
+        return size - 4 * untouched
+
+    def _new_log_path(self) -> Path:
+        if self.log_dir is None:
+            self._tmp_log_dir = tempfile.mkdtemp(prefix="uwb-qemu-")
+            directory = Path(self._tmp_log_dir)
+        else:
+            directory = self.log_dir
+            directory.mkdir(parents=True, exist_ok=True)
+        return directory / f"qemu-{self.elf.stem}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}-{next(_counter)}.log"
+
+    def _remove_tmp_log(self) -> None:
+        tmp, self._tmp_log_dir = self._tmp_log_dir, None
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+            self.log_path = None
+
+
+def _symbol_range(elf: Path, lo_sym: str, hi_sym: str) -> tuple[int, int]:
+    nm = shutil.which("arm-none-eabi-nm")
+    if nm is None:
+        raise DeviceError("arm-none-eabi-nm not found (scripts/ensure_arm_tools.sh)")
+    out = subprocess.run([nm, str(elf)], capture_output=True, text=True, timeout=30, check=True).stdout
+    syms = {parts[2]: int(parts[0], 16) for parts in (ln.split() for ln in out.splitlines()) if len(parts) == 3}
+    if lo_sym not in syms or hi_sym not in syms:
+        raise DeviceError(f"{elf.name} has no {lo_sym}/{hi_sym} symbols")
+    return syms[lo_sym], syms[hi_sym] - syms[lo_sym]
