@@ -45,13 +45,24 @@ def arm_tools() -> None:
                     f"and could not be installed: {(proc.stderr or proc.stdout).strip()[-400:]}")
 
 
+def _make(*targets: str) -> Path:
+    proc = subprocess.run(["make", "-s", "-C", str(STM32_DIR), *targets], capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, f"STM32 build ({' '.join(targets)}) failed:\n{proc.stdout[-3000:]}\n" \
+                                 f"{proc.stderr[-3000:]}"
+    return BUILD
+
+
+@pytest.fixture(scope="session")
+def stm32_selftest(arm_tools: None) -> Path:
+    """selftest.elf: the board layer alone."""
+    return _make("selftest")
+
+
 @pytest.fixture(scope="session")
 def stm32_build(arm_tools: None) -> Path:
-    """uwb-fw.elf, selftest.elf and uwb-nnbench.elf (make is incremental)."""
-    proc = subprocess.run(["make", "-s", "-C", str(STM32_DIR), "fw", "selftest", "nnbench"],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, f"STM32 build failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-    return BUILD
+    """uwb-fw.elf and uwb-nnbench.elf (make is incremental)."""
+    return _make("fw", "nnbench")
 
 
 @pytest.fixture
@@ -67,12 +78,13 @@ def _read_until(link: Any, pred: Any, timeout: float) -> bytes:
     return buf
 
 
-def test_board_layer_boots_with_fpu_and_instruction_clock(stm32_build: Path, qemu_log: Path) -> None:
+def test_board_layer_boots_with_fpu_and_instruction_clock(stm32_selftest: Path, qemu_log: Path) -> None:
     from harness.device.qemu import PtyLink, QemuProcess
-    proc = QemuProcess(stm32_build / "selftest.elf", qemu_log)
+    proc = QemuProcess(stm32_selftest / "selftest.elf", qemu_log)
     proc.start()
     try:
-        link = PtyLink(proc.fd)
+        assert proc.pty_path is not None
+        link = PtyLink(proc.fd, proc.pty_path)
         banner = _read_until(link, lambda b: b.endswith(b"\n"), 5.0).decode(errors="replace")
         m = re.search(r"emulated=(\d) dwt=(\d) sysclk=(\d+) fpu=(0x[0-9a-f]+) busy1000=(\d+)", banner)
         assert m, f"no self-test banner: {banner!r} (log {qemu_log})"

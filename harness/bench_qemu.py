@@ -1,0 +1,325 @@
+"""`make bench` (QEMU part): the firmware on the Crazyflie's MCU (STM32F405, Cortex-M4F) under QEMU.
+
+Everything is counted in guest instructions: QEMU runs with `-icount shift=0`, where TIM2 counts one
+tick per executed instruction, and the firmware reads TIM2 around each stage. Instruction counts are
+exact and identical from run to run; they are not cycles. For the share of a 5 ms slot at 168 MHz we
+ASSUME ~2 cycles per instruction (FPU loads/FMAs, taken branches and flash wait states behind the ART
+accelerator put real Cortex-M4 code between ~1.3 and ~2.5; the QEMU recipe's static timing model
+gives 2.1 for the network). On a real board the DWT cycle counter gives true cycles (docs/qemu.md).
+
+1. Per-measurement instructions: TWR and TDoA updates with and without the bias network, per stage
+   (network, gates, EKF update), and the IMU prediction: flights through uwb-fw.elf (M4 network
+   kernel) and through a build with the core's portable network (same run).
+2. The network alone (uwb-nnbench.elf): the core's portable kernel, the blocked C kernel and the
+   assembly kernel on the same inputs, with their largest difference to PyTorch.
+3. Flash and RAM (arm-none-eabi-size + the map file), with the network's share.
+
+    python -m harness.bench_qemu [--json] [--duration 3] [--no-build]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import struct
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Iterator
+from contextlib import contextmanager
+
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+STM32_DIR = REPO_ROOT / "firmware_sim" / "stm32"
+BUILD_M4 = REPO_ROOT / "firmware_sim" / "build" / "stm32"
+BUILD_PORTABLE = REPO_ROOT / "firmware_sim" / "build" / "stm32-portable"
+ELF_M4 = BUILD_M4 / "uwb-fw.elf"
+ELF_PORTABLE = BUILD_PORTABLE / "uwb-fw.elf"
+ELF_NNBENCH = BUILD_M4 / "uwb-nnbench.elf"
+
+SYSCLK_HZ = 168e6
+CYCLES_PER_INSTRUCTION = 2.0          # assumption, see the module docstring
+SLOT_S = 5e-3
+GOAL_TDOA_NN_INSTR = 20_000
+NN_TOLERANCE = 1e-5
+
+STATUS_ACCEPTED = 0
+
+
+class BenchError(RuntimeError):
+    pass
+
+
+# ------------------------------------------------------------------------------------------ build
+def build(timeout_s: float = 900.0) -> None:
+    """Both firmware builds and the network bench ELF (make is incremental)."""
+    cmds = [["make", "-s", "-C", str(STM32_DIR), "fw", "nnbench"],
+            ["make", "-s", "-C", str(STM32_DIR), "fw", "NN_IMPL=portable", f"BUILD={BUILD_PORTABLE}"]]
+    for cmd in cmds:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+        if proc.returncode != 0:
+            raise BenchError(f"{' '.join(cmd)} failed:\n{proc.stdout[-3000:]}{proc.stderr[-3000:]}")
+
+
+def size_figures(build_dir: Path) -> dict[str, Any]:
+    proc = subprocess.run([sys.executable, str(STM32_DIR / "size_report.py"), "--elf", str(build_dir / "uwb-fw.elf"),
+                           "--map", str(build_dir / "uwb-fw.map"), "--json"],
+                          capture_output=True, text=True, timeout=60, check=True)
+    return json.loads(proc.stdout)
+
+
+# ------------------------------------------------------------------------------------------ devices
+@contextmanager
+def qemu_device(elf: Path, log_dir: Path | None = None, timeout_s: float = 10.0) -> Iterator[Any]:
+    from harness.device.qemu import QemuDevice
+    device = QemuDevice(elf=elf, log_dir=log_dir)
+    device.start()
+    try:
+        device.hello(timeout=timeout_s)
+        yield device
+    finally:
+        device.stop()
+
+
+# ------------------------------------------------------------------------------------------ stages
+@dataclass
+class StageRow:
+    build: str            # "m4" | "portable"
+    mode: str             # "twr" | "tdoa"
+    network: bool
+    n: int                # measurements with an EKF update (status ACCEPTED)
+    compute: float        # median instructions of the whole measurement (estimator call)
+    compute_max: int
+    nn: float
+    gates: float
+    update: float
+    predict_per_call: float   # instructions per IMU prediction (0 if none ran)
+    predictions: int
+
+
+def _median(a: np.ndarray) -> float:
+    return float(np.median(a)) if len(a) else float("nan")
+
+
+def stage_costs(device: Any, build_name: str, duration_s: float, seed: int) -> list[StageRow]:
+    from harness.config import PRESETS, EstimatorConfig
+    from harness.flight.scenarios import scenario_flight
+    from harness.session import config_for
+    from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
+
+    rows = []
+    streamer = Streamer(device, timeout_s=20.0)
+    presets = ("outlier", "outlier+nn") if build_name == "m4" else ("outlier+nn",)
+    for mode in ("twr", "tdoa"):
+        flight = scenario_flight("circle", mode=mode, duration_s=duration_s, seed=seed)
+        for preset in presets:
+            cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
+            run = streamer.run(flight, cfg, Pacing("windowed", 16))
+            res = run.results
+            ok = (res["outcome"] == OUTCOME_RESULT) & (res["status"] == STATUS_ACCEPTED)
+            if preset == "outlier+nn":
+                ok &= res["cost_nn"] > 0   # the network ran (it is skipped below nn_min_z)
+            preds = int(run.stats.predictions) if run.stats is not None else 0
+            pred_total = int(np.sum(res["cost_predict"][res["outcome"] == OUTCOME_RESULT], dtype=np.int64))
+            rows.append(StageRow(
+                build=build_name, mode=mode, network=preset == "outlier+nn", n=int(ok.sum()),
+                compute=_median(res["compute"][ok]), compute_max=int(res["compute"][ok].max()) if ok.any() else 0,
+                nn=_median(res["cost_nn"][ok]), gates=_median(res["cost_gates"][ok]),
+                update=_median(res["cost_update"][ok]),
+                predict_per_call=pred_total / preds if preds else 0.0, predictions=preds))
+    return rows
+
+
+# ------------------------------------------------------------------------------------------ network
+@dataclass
+class KernelRow:
+    kernel: str
+    kind: str
+    n: int
+    instructions: float        # median per call
+    speedup: float             # portable / this
+    max_err_torch: float       # max |y - PyTorch|
+
+
+KERNELS = ("portable (core bias_nn.c)", "C blocked (nn_m4.c)", "asm VLDM+VFMA (nn_m4_kernel.S)")
+
+
+def _torch_reference(net: Any, feats: np.ndarray) -> np.ndarray:
+    """The network in PyTorch (float32), with the firmware's input/output scaling and clamp."""
+    import torch
+    w1, b1, w2, b2, w3, b3 = (np.asarray(a, np.float32) for a in (net.w1, net.b1, net.w2, net.b2, net.w3, net.b3))
+    seq = torch.nn.Sequential(torch.nn.Linear(w1.shape[0], w1.shape[1]), torch.nn.ReLU(),
+                              torch.nn.Linear(w2.shape[0], w2.shape[1]), torch.nn.ReLU(),
+                              torch.nn.Linear(w3.size, 1))
+    with torch.no_grad():
+        seq[0].weight.copy_(torch.from_numpy(w1.T.copy()))
+        seq[0].bias.copy_(torch.from_numpy(b1))
+        seq[2].weight.copy_(torch.from_numpy(w2.T.copy()))
+        seq[2].bias.copy_(torch.from_numpy(b2))
+        seq[4].weight.copy_(torch.from_numpy(w3.reshape(1, -1)))
+        seq[4].bias.copy_(torch.from_numpy(np.asarray(b3, np.float32).reshape(1)))
+        lo = np.asarray(net.in_min, np.float32)
+        hi = np.asarray(net.in_max, np.float32)
+        x = torch.from_numpy(((feats.astype(np.float32) - lo) / (hi - lo)).astype(np.float32))
+        y = seq(x).numpy()[:, 0].astype(np.float64)
+    y = y * (float(net.out_max) - float(net.out_min)) + float(net.out_min)
+    return np.clip(y, float(net.out_min), float(net.out_max))
+
+
+class NnBenchClient:
+    """Talks to uwb-nnbench.elf (protocol in firmware_sim/stm32/nnbench_main.c)."""
+
+    def __init__(self, link: Any, timeout_s: float = 5.0) -> None:
+        self.link = link
+        self.timeout_s = timeout_s
+
+    def _read(self, n: int) -> bytes:
+        buf = b""
+        deadline = time.monotonic() + self.timeout_s
+        while len(buf) < n:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise BenchError(f"nnbench: {len(buf)} of {n} reply bytes within {self.timeout_s:.0f} s")
+            buf += self.link.read(n - len(buf), min(left, 0.1))
+        return buf
+
+    def info(self) -> tuple[int, int]:
+        self.link.write(b"I")
+        r = self._read(5)
+        if r[:1] != b"i":
+            raise BenchError(f"nnbench: bad info reply {r!r}")
+        return r[1], r[2]
+
+    def predict(self, kind: int, x: np.ndarray) -> tuple[tuple[float, float, float], tuple[int, int, int]]:
+        self.link.write(b"P" + bytes([kind]) + np.asarray(x, "<f4").tobytes())
+        r = self._read(25)
+        if r[:1] != b"p":
+            raise BenchError(f"nnbench: bad predict reply {r!r}")
+        return struct.unpack("<3f", r[1:13]), struct.unpack("<3I", r[13:25])
+
+
+def _process_start(elf: Path, log_dir: Path | None) -> Any:
+    from harness.device.qemu import QemuOptions, QemuProcess
+    log = (log_dir or Path("/tmp")) / f"qemu-nnbench-{time.time_ns()}.log"
+    proc = QemuProcess(elf, log, QemuOptions())
+    proc.start()
+    return proc
+
+
+def network_kernels(model: Any, n_inputs: int, seed: int, log_dir: Path | None = None) -> list[KernelRow]:
+    from harness.device.qemu import PtyLink
+    rng = np.random.default_rng(seed)
+    rows: list[KernelRow] = []
+    proc = _process_start(ELF_NNBENCH, log_dir)
+    try:
+        client = NnBenchClient(PtyLink(proc.fd, proc.pty_path or "?"))
+        n_twr, n_tdoa = client.info()
+        for kind, kind_name, net, n_in in ((0, "twr", model.twr, n_twr), (1, "tdoa", model.tdoa, n_tdoa)):
+            if net is None or n_in == 0:
+                continue
+            lo = np.asarray(net.in_min, np.float64)
+            hi = np.asarray(net.in_max, np.float64)
+            feats = (lo + rng.uniform(0.0, 1.0, (n_inputs, n_in)) * (hi - lo)).astype(np.float32)
+            ys = np.zeros((n_inputs, 3))
+            costs = np.zeros((n_inputs, 3), np.int64)
+            for i in range(n_inputs):
+                y, c = client.predict(kind, feats[i])
+                ys[i], costs[i] = y, c
+            ref = _torch_reference(net, feats)
+            base = float(np.median(costs[:, 0]))
+            for k, name in enumerate(KERNELS):
+                med = float(np.median(costs[:, k]))
+                rows.append(KernelRow(kernel=name, kind=kind_name, n=n_inputs, instructions=med,
+                                      speedup=base / med if med else float("inf"),
+                                      max_err_torch=float(np.max(np.abs(ys[:, k] - ref)))))
+    finally:
+        proc.stop()
+    return rows
+
+
+# ------------------------------------------------------------------------------------------ report
+def _share(instr: float) -> tuple[float, float, float]:
+    cycles = instr * CYCLES_PER_INSTRUCTION
+    us = cycles / SYSCLK_HZ * 1e6
+    return cycles, us, 100.0 * us * 1e-6 / SLOT_S
+
+
+def print_report(out: dict[str, Any]) -> None:
+    print("== STM32F405 (Cortex-M4F) under QEMU -icount shift=0: guest instructions per measurement")
+    print(f"   median over measurements with an EKF update; cycles ASSUMED = {CYCLES_PER_INSTRUCTION:g} x instructions;"
+          f" slot = 5 ms at 168 MHz ({SLOT_S * SYSCLK_HZ:,.0f} cycles)")
+    hdr = f"{'measurement':34} {'n':>5} {'instr':>8} {'~cycles':>8} {'~us':>7} {'% slot':>7}   {'network':>7} {'gates':>6} {'update':>7}"
+    print(hdr)
+    for r in out["stages"]:
+        label = f"{r['mode'].upper()} update" + (f" + network ({r['build']})" if r["network"] else ", no network")
+        cyc, us, pct = _share(r["compute"])
+        print(f"{label:34} {r['n']:5d} {r['compute']:8.0f} {cyc:8.0f} {us:7.1f} {pct:6.2f}%   "
+              f"{r['nn']:7.0f} {r['gates']:6.0f} {r['update']:7.0f}")
+    preds = [r for r in out["stages"] if r["predictions"] > 0]
+    if preds:
+        p = float(np.median([r["predict_per_call"] for r in preds]))
+        cyc, us, pct = _share(p)
+        print(f"{'IMU prediction (per prediction)':34} {sum(r['predictions'] for r in preds):5d} {p:8.0f} {cyc:8.0f} "
+              f"{us:7.1f} {pct:6.2f}%")
+    g = out["goals"]
+    print(f"goal: TDoA update incl. network <= {GOAL_TDOA_NN_INSTR:,} instructions: {g['tdoa_nn_instructions']:,.0f} "
+          f"-> {'OK' if g['tdoa_nn_ok'] else 'MISSED'}")
+    print("== bias network alone (uwb-nnbench.elf, same run, same inputs): instructions per call")
+    print(f"{'kernel':34} {'net':5} {'instr':>8} {'speed-up':>9} {'max |y - PyTorch|':>18}")
+    for r in out["network"]:
+        print(f"{r['kernel']:34} {r['kind']:5} {r['instructions']:8.0f} {r['speedup']:8.2f}x {r['max_err_torch']:18.2e}")
+    print(f"all kernels within {NN_TOLERANCE:g} of PyTorch: {g['nn_within_tolerance']}")
+    s = out["size"]
+    print("== size (arm-none-eabi-size, uwb-fw.elf with the M4 kernel)")
+    print(f"flash {s['flash']:,} B (goal <= 65,536: {'OK' if s['flash'] <= 65536 else 'OVER'}), "
+          f"RAM {s['ram']:,} B incl. {s['stack_reserved']:,} B stack (goal <= 32,768: {'OK' if s['ram'] <= 32768 else 'OVER'}); "
+          f"network {s['network_flash']:,} B flash = {100.0 * s['network_flash'] / s['flash']:.1f}% "
+          f"(weights {s['network_weights']:,} B)")
+
+
+def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_dir: Path | None) -> dict[str, Any]:
+    from harness.biasnet.model import BiasModel
+    if do_build:
+        build()
+    model = BiasModel.load(REPO_ROOT / "firmware_sim" / "models" / "bias_model_default.npz")
+    out: dict[str, Any] = {"cycles_per_instruction_assumed": CYCLES_PER_INSTRUCTION, "sysclk_hz": SYSCLK_HZ}
+    stages: list[StageRow] = []
+    for name, elf in (("m4", ELF_M4), ("portable", ELF_PORTABLE)):
+        with qemu_device(elf, log_dir) as dev:
+            stages += stage_costs(dev, name, duration_s, seed)
+    out["stages"] = [asdict(r) for r in stages]
+    out["network"] = [asdict(r) for r in network_kernels(model, nn_inputs, seed, log_dir)]
+    out["size"] = size_figures(BUILD_M4)
+    out["size_portable"] = size_figures(BUILD_PORTABLE)
+    tdoa_nn = [r for r in stages if r.build == "m4" and r.mode == "tdoa" and r.network]
+    tdoa_instr = tdoa_nn[0].compute if tdoa_nn else float("nan")
+    out["goals"] = {
+        "tdoa_nn_instructions": tdoa_instr, "tdoa_nn_ok": bool(tdoa_instr <= GOAL_TDOA_NN_INSTR),
+        "flash_ok": out["size"]["flash"] <= 65536, "ram_ok": out["size"]["ram"] <= 32768,
+        "nn_within_tolerance": all(r["max_err_torch"] <= NN_TOLERANCE for r in out["network"]),
+    }
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--duration", type=float, default=3.0, help="simulated seconds per flight (QEMU's UART is slow)")
+    ap.add_argument("--nn-inputs", type=int, default=200, help="random inputs per network for the kernel bench")
+    ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--no-build", action="store_true", help="use the ELFs already built")
+    ap.add_argument("--log-dir", type=Path, default=None, help="keep QEMU logs here")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    out = run_bench(args.duration, args.seed, args.nn_inputs, not args.no_build, args.log_dir)
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        print_report(out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
