@@ -27,6 +27,31 @@ static int wait_set(volatile uint32_t *reg, uint32_t mask, uint32_t value)
     return 0;
 }
 
+static uint32_t apb_div(uint32_t ppre)
+{
+    return (ppre & 4u) != 0u ? 2u << (ppre & 3u) : 1u; /* 0xx: /1, 100: /2, 101: /4, 110: /8, 111: /16 */
+}
+
+/* What the clock tree is actually set to (also right when a bootloader configured it). */
+static void clocks_from_registers(board_clocks_t *clk)
+{
+    const uint32_t cfgr = RCC_CFGR;
+    uint32_t sys = HSI_HZ;
+    if ((cfgr & RCC_CFGR_SWS_MASK) == (1u << 2)) {
+        sys = HSE_HZ;
+    } else if ((cfgr & RCC_CFGR_SWS_MASK) == RCC_CFGR_SWS_PLL) {
+        const uint32_t pll = RCC_PLLCFGR;
+        const uint32_t src = (pll & RCC_PLLCFGR_SRC_HSE) != 0u ? HSE_HZ : HSI_HZ;
+        const uint32_t m = pll & 0x3Fu, n = (pll >> 6) & 0x1FFu, p = (((pll >> 16) & 3u) + 1u) * 2u;
+        if (m != 0u) {
+            sys = (uint32_t)(((uint64_t)src / m * n) / p);
+        }
+    }
+    clk->sysclk_hz = sys;
+    clk->pclk1_hz = sys / apb_div((cfgr >> 10) & 7u);
+    clk->pclk2_hz = sys / apb_div((cfgr >> 13) & 7u);
+}
+
 void board_clock_init(board_clocks_t *clk)
 {
     const uint32_t pll_m = HSE_HZ / 1000000u; /* 1 MHz PLL input */
@@ -36,40 +61,38 @@ void board_clock_init(board_clocks_t *clk)
 
     clk->emulated = 0;
     clk->hse_ok = 0;
-    clk->sysclk_hz = HSI_HZ;
-    clk->pclk1_hz = HSI_HZ;
-    clk->pclk2_hz = HSI_HZ;
-
-    if ((RCC_CR & RCC_CR_HSIRDY) == 0u) {
-        /* Silicon runs from HSI out of reset, so HSIRDY reads 1. Reading 0 means the RCC is not
-         * modelled: QEMU's netduinoplus2 runs its SoC at a fixed 168 MHz and ignores dividers. */
+    if (RCC_CR == 0u) {
+        /* On silicon RCC_CR is never 0 (HSITRIM resets to 16, and some oscillator is on). Reading 0
+         * means the RCC is not modelled: QEMU's netduinoplus2 runs at a fixed 168 MHz. */
         clk->emulated = 1;
         clk->sysclk_hz = SYSCLK_TARGET_HZ;
         clk->pclk1_hz = SYSCLK_TARGET_HZ / 4u;
         clk->pclk2_hz = SYSCLK_TARGET_HZ / 2u;
         return;
     }
+    if ((RCC_CFGR & RCC_CFGR_SWS_MASK) == RCC_CFGR_SWS_PLL) {
+        /* A bootloader (the Crazyflie's) already runs us from the PLL: keep its set-up. */
+        clocks_from_registers(clk);
+        clk->hse_ok = (RCC_PLLCFGR & RCC_PLLCFGR_SRC_HSE) != 0u;
+        return;
+    }
     RCC_CR |= RCC_CR_HSEON;
-    if (!wait_set(&RCC_CR, RCC_CR_HSERDY, RCC_CR_HSERDY)) {
-        RCC_CR &= ~RCC_CR_HSEON;
-        return; /* no crystal: stay on HSI */
+    if (wait_set(&RCC_CR, RCC_CR_HSERDY, RCC_CR_HSERDY)) {
+        RCC_CR &= ~RCC_CR_PLLON; /* PLLCFGR may only change while the PLL is off */
+        RCC_PLLCFGR = pll_m | (pll_n << 6) | (((pll_p / 2u) - 1u) << 16) | RCC_PLLCFGR_SRC_HSE | (pll_q << 24);
+        RCC_CR |= RCC_CR_PLLON;
+        if (wait_set(&RCC_CR, RCC_CR_PLLRDY, RCC_CR_PLLRDY)) {
+            /* 5 wait states at 168 MHz / 3.3 V, prefetch and ART instruction/data caches on,
+             * before the switch; APB1 = /4 (42 MHz max), APB2 = /2 (84 MHz max). */
+            FLASH_ACR = FLASH_ACR_LATENCY_5WS | FLASH_ACR_PRFTEN | FLASH_ACR_ICEN | FLASH_ACR_DCEN;
+            RCC_CFGR = (RCC_CFGR & ~0xFCF0u) | RCC_CFGR_PPRE1_DIV4 | RCC_CFGR_PPRE2_DIV2;
+            RCC_CFGR = (RCC_CFGR & ~3u) | RCC_CFGR_SW_PLL;
+            clk->hse_ok = (uint8_t)wait_set(&RCC_CFGR, RCC_CFGR_SWS_MASK, RCC_CFGR_SWS_PLL);
+        }
+    } else {
+        RCC_CR &= ~RCC_CR_HSEON; /* no crystal: stay on the 16 MHz HSI */
     }
-    RCC_PLLCFGR = pll_m | (pll_n << 6) | (((pll_p / 2u) - 1u) << 16) | RCC_PLLCFGR_SRC_HSE | (pll_q << 24);
-    RCC_CR |= RCC_CR_PLLON;
-    if (!wait_set(&RCC_CR, RCC_CR_PLLRDY, RCC_CR_PLLRDY)) {
-        return;
-    }
-    /* 5 wait states at 168 MHz / 3.3 V, prefetch and ART instruction/data caches on. */
-    FLASH_ACR = FLASH_ACR_LATENCY_5WS | FLASH_ACR_PRFTEN | FLASH_ACR_ICEN | FLASH_ACR_DCEN;
-    RCC_CFGR = (RCC_CFGR & ~0xFCF3u) | RCC_CFGR_PPRE1_DIV4 | RCC_CFGR_PPRE2_DIV2;
-    RCC_CFGR = (RCC_CFGR & ~3u) | RCC_CFGR_SW_PLL;
-    if (!wait_set(&RCC_CFGR, RCC_CFGR_SWS_MASK, RCC_CFGR_SWS_PLL)) {
-        return;
-    }
-    clk->hse_ok = 1;
-    clk->sysclk_hz = SYSCLK_TARGET_HZ;
-    clk->pclk1_hz = SYSCLK_TARGET_HZ / 4u;
-    clk->pclk2_hz = SYSCLK_TARGET_HZ / 2u;
+    clocks_from_registers(clk);
 }
 
 /* ------------------------------------------------------------------------------ cost clock */
