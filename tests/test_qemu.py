@@ -92,10 +92,16 @@ def test_board_layer_boots_with_fpu_and_instruction_clock(stm32_selftest: Path, 
         assert m.group(4) == "0x40580000"                     # 1.5f * 2.25f = 3.375f in the FPU
         # busy(1000) executes exactly 2000 loop instructions: TIM2 counts instructions under -icount.
         assert 2000 <= int(m.group(5)) <= 2050
-        data = bytes(range(256)) * 16                         # every byte value, 4 KiB: more than the ring
+        data = bytes(b for b in range(256) if b != ord("B")) * 16   # 4 KiB, more than the RX ring
         link.write(data)
         echo = _read_until(link, lambda b: len(b) >= len(data), 10.0)
         assert echo == data
+        # Costs exclude interrupt time: a busy loop costs the same with link bytes arriving meanwhile.
+        link.write(b"B")
+        quiet = _read_until(link, lambda b: b.endswith(b"\n"), 5.0)
+        link.write(b"B" + b"x" * 300)
+        busy = _read_until(link, lambda b: b.count(b"x") >= 300 and b"\n" in b, 10.0)
+        assert quiet.startswith(b"B=2000") and busy.startswith(quiet), (quiet, busy[:20])
     finally:
         proc.stop()
 
@@ -111,49 +117,8 @@ def devices(stm32_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Iter
 
 
 def _flight(mode: str, duration_s: float = 2.0, seed: int = 21) -> Any:
-    """A short simulated flight: the project's simulator when present, else a synthetic circle."""
-    try:
-        from harness.flight.scenarios import scenario_flight
-    except ImportError:
-        return synthetic_flight(mode, duration_s, seed)
-    return scenario_flight("circle", mode=mode, duration_s=duration_s, seed=seed, noise="gaussian", noise_std=0.1)
-
-
-def synthetic_flight(mode: str, duration_s: float, seed: int, uwb_hz: float = 100.0, imu_hz: float = 500.0) -> Any:
-    """Level circle (r 1.5 m, 1.5 m up, 0.5 rad/s) in a 4 x 4 x 3 m room with 8 anchors; true IMU;
-    Gaussian UWB noise (0.1 m) plus 5 % outliers (+0.8 m) so that the gates have work to do."""
-    from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
-    rng = np.random.default_rng(seed)
-    corners = np.array([[x, y, z] for z in (0.2, 2.8) for x, y in ((-2, -2), (2, -2), (2, 2), (-2, 2))], float)
-    anchors = Anchors(ids=np.arange(8), positions=corners)
-    r, w, c = 1.5, 0.5, np.array([0.0, 0.0, 1.5])
-
-    def pos(t: np.ndarray) -> np.ndarray:
-        return c + np.stack([r * np.cos(w * t), r * np.sin(w * t), np.zeros_like(t)], axis=1)
-
-    t_imu = np.arange(0.0, duration_s, 1.0 / imu_hz)
-    acc = np.stack([-r * w * w * np.cos(w * t_imu), -r * w * w * np.sin(w * t_imu), np.full_like(t_imu, 9.81)], axis=1)
-    imu = ImuStream(t_us=(t_imu * 1e6).astype(np.int64), acc=acc, gyro=np.zeros_like(acc))
-    t_uwb = np.arange(0.01, duration_s, 1.0 / uwb_hz)
-    n = len(t_uwb)
-    p = pos(t_uwb)
-    a = np.arange(n) % 8
-    if mode == "twr":
-        b = np.full(n, -1)
-        true = np.linalg.norm(p - corners[a], axis=1)
-        kind = KIND_TWR
-    else:
-        b = (a + 1 + np.arange(n) // 8 % 7) % 8
-        true = np.linalg.norm(p - corners[b], axis=1) - np.linalg.norm(p - corners[a], axis=1)
-        kind = KIND_TDOA
-    value = true + rng.normal(0.0, 0.1, n) + np.where(rng.uniform(size=n) < 0.05, 0.8, 0.0)
-    t_truth = np.arange(0.0, duration_s + 0.01, 0.005)
-    truth = Truth(t_us=(t_truth * 1e6).astype(np.int64), pos=pos(t_truth))
-    uwb = UwbStream(kind=kind, t_us=(t_uwb * 1e6).astype(np.int64), anchor_a=a, anchor_b=b, value=value,
-                    true_value=true)
-    flight = Flight(name=f"synthetic-circle-{mode}", anchors=anchors, uwb=uwb, truth=truth, imu=imu)
-    flight.validate()
-    return flight
+    from harness.bench_qemu import flight_for
+    return flight_for(mode, duration_s, seed)
 
 
 def test_qemu_hello_reports_instruction_costs_and_same_model(devices: dict[str, Any]) -> None:

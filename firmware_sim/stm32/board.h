@@ -44,10 +44,17 @@ void usart_rx_release(size_t n);
  * policy this stays 0 under QEMU (its 1-byte RX register gives back-pressure); on silicon a
  * paused receiver overruns instead, counted here via SR.ORE. */
 uint32_t usart_rx_overruns(void);
+/* The RX interrupt's work (called from the vector in link_irq.S). */
+void link_rx_isr(void);
 
 /* ---- platform_stm32.c: the cost clock (platform.h). */
 void platform_stm32_init(const board_clocks_t *clk);
 /* 1 if the DWT cycle counter runs (silicon), 0 if not (QEMU: TIM2 under -icount is used). */
 int platform_stm32_has_dwt(void);
+/* Read by the interrupt wrapper (link_irq.S): the raw counter behind the cost clock (TIM2->CNT or
+ * DWT->CYCCNT) and the running total of counter ticks spent in interrupts, which
+ * platform_cost_now() subtracts. */
+extern volatile uint32_t *platform_cost_counter;
+extern volatile uint32_t platform_isr_ticks;
 
 #endif

@@ -97,6 +97,8 @@ void board_clock_init(board_clocks_t *clk)
 
 /* ------------------------------------------------------------------------------ cost clock */
 static int use_dwt;
+volatile uint32_t *platform_cost_counter = &TIM2_CNT;
+volatile uint32_t platform_isr_ticks;
 static uint32_t dwt_last_cycles;
 static uint64_t dwt_total_cycles;
 static uint32_t ns_per_cycle_q16; /* 1e9 / sysclk in Q16.16 */
@@ -129,26 +131,41 @@ void platform_stm32_init(const board_clocks_t *clk)
     TIM2_CR1 = TIM_CR1_CEN;
 
     use_dwt = clk->emulated ? 0 : dwt_start();
+    platform_cost_counter = use_dwt ? &DWT_CYCCNT : &TIM2_CNT;
+    platform_isr_ticks = 0u;
     if (use_dwt) {
         ns_per_cycle_q16 = (uint32_t)((1000000000ull << 16) / clk->sysclk_hz);
-        dwt_last_cycles = DWT_CYCCNT;
+        dwt_last_cycles = DWT_CYCCNT - platform_isr_ticks;
         dwt_total_cycles = 0u;
     }
 }
 
 int platform_stm32_has_dwt(void) { return use_dwt; }
 
+/* The raw counter minus the ticks interrupts took: the cost of the main thread's own work, so a
+ * stage costs the same instructions whether or not link bytes arrived while it ran. Interrupts are
+ * masked for the two reads (3 instructions), which keeps the count itself constant. */
+static inline uint32_t main_thread_ticks(void)
+{
+    uint32_t c, isr;
+    cpu_irq_disable();
+    c = *platform_cost_counter;
+    isr = platform_isr_ticks;
+    cpu_irq_enable();
+    return c - isr;
+}
+
 uint32_t platform_cost_now(void)
 {
     if (use_dwt) {
         /* Accumulate cycle deltas in 64 bits (CYCCNT wraps every 25.6 s at 168 MHz; the estimator
          * calls this far more often), then scale to ns: the result wraps at 2^32 ns consistently. */
-        uint32_t now = DWT_CYCCNT;
+        uint32_t now = main_thread_ticks();
         dwt_total_cycles += (uint32_t)(now - dwt_last_cycles);
         dwt_last_cycles = now;
         return (uint32_t)((dwt_total_cycles * ns_per_cycle_q16) >> 16);
     }
-    return TIM2_CNT;
+    return main_thread_ticks();
 }
 
 uint8_t platform_cost_unit(void) { return use_dwt ? 0u : 1u; }

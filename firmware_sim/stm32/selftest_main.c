@@ -1,6 +1,9 @@
 /* Board self-test (no firmware core): prints one line describing the board layer, then echoes
  * every received byte. Used to check the board layer and QemuDevice's pty plumbing on their own:
- *   "uwb-stm32 selftest emulated=1 dwt=0 sysclk=168000000 fpu=0x40580000 busy1000=2003\n" */
+ *   "uwb-stm32 selftest emulated=1 dwt=0 sysclk=168000000 fpu=0x40580000 busy1000=2011\n"
+ * A received 'B' is not echoed: it runs busy(1000000) and answers "B=<cost>\n", the main-thread cost
+ * from platform_cost_now(). Bytes the host sends meanwhile interrupt the loop; the answer must not
+ * change (interrupt time is excluded from costs), and those bytes are echoed afterwards. */
 #include "board.h"
 #include "platform.h"
 #include "stm32f405_regs.h"
@@ -67,6 +70,17 @@ int main(void)
             continue;
         }
         cpu_irq_enable();
+        if (data[0] == 'B') {
+            uint32_t c0, c1;
+            usart_rx_release(1);
+            c0 = platform_cost_now();
+            busy(1000000u);
+            c1 = platform_cost_now();
+            usart_puts("B=");
+            put_dec(c1 - c0);
+            usart_puts("\n");
+            continue;
+        }
         usart_write(data, n);
         usart_rx_release(n);
     }

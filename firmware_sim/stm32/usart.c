@@ -11,18 +11,15 @@
 #if UWB_USART == 1
 #define LINK_BASE USART1_BASE
 #define LINK_IRQn USART1_IRQn
-#define LINK_IRQ_HANDLER USART1_IRQHandler
 #elif UWB_USART == 3
 #define LINK_BASE USART3_BASE
 #define LINK_IRQn USART3_IRQn
-#define LINK_IRQ_HANDLER USART3_IRQHandler
 #else
 #error "UWB_USART must be 1 (PA9/PA10) or 3 (PC10/PC11)"
 #endif
 
 #define RX_RING_SIZE 1024u /* power of two */
 
-void LINK_IRQ_HANDLER(void);
 
 static uint8_t rx_ring[RX_RING_SIZE];
 static volatile uint32_t rx_head; /* written by the ISR only */
@@ -75,7 +72,9 @@ void usart_init(const board_clocks_t *clk, uint32_t baud)
     NVIC_ISER(LINK_IRQn / 32u) = 1u << (LINK_IRQn % 32u);
 }
 
-void LINK_IRQ_HANDLER(void)
+/* The body of the link's RX interrupt; the vector (USARTn_IRQHandler in link_irq.S) wraps it to
+ * account its own cost, so that stage costs measured by the main loop exclude interrupt time. */
+void link_rx_isr(void)
 {
     uint32_t sr = USART_SR(LINK_BASE);
     if ((sr & USART_SR_ORE) != 0u) {
