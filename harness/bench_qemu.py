@@ -194,26 +194,49 @@ class KernelRow:
 KERNELS = ("portable (core bias_nn.c)", "C blocked (nn_m4.c)", "asm VLDM+VFMA (nn_m4_kernel.S)")
 
 
-def _torch_reference(net: Any, feats: np.ndarray) -> np.ndarray:
-    """The network in PyTorch (float32), with the firmware's input/output scaling and clamp."""
+@dataclass
+class NetTables:
+    """One compiled-in network as dumped by uwb-nnbench.elf (w1 input-major: n_in x 50)."""
+    n_in: int
+    in_min: np.ndarray
+    in_max: np.ndarray
+    w1: np.ndarray
+    b1: np.ndarray
+    w2: np.ndarray
+    b2: np.ndarray
+    w3: np.ndarray
+    b3: float
+    out_min: float
+    out_max: float
+
+    @classmethod
+    def from_floats(cls, n_in: int, v: np.ndarray, hidden: int = 50) -> "NetTables":
+        sizes = [n_in, n_in, n_in * hidden, hidden, hidden * hidden, hidden, hidden, 1, 1, 1]
+        if len(v) != sum(sizes):
+            raise BenchError(f"nnbench: {len(v)} floats for a {n_in}-input network, expected {sum(sizes)}")
+        parts = np.split(v, np.cumsum(sizes)[:-1])
+        return cls(n_in=n_in, in_min=parts[0], in_max=parts[1], w1=parts[2].reshape(n_in, hidden), b1=parts[3],
+                   w2=parts[4].reshape(hidden, hidden), b2=parts[5], w3=parts[6], b3=float(parts[7][0]),
+                   out_min=float(parts[8][0]), out_max=float(parts[9][0]))
+
+
+def torch_reference(net: NetTables, feats: np.ndarray) -> np.ndarray:
+    """The network in PyTorch (float32 nn.Linear/ReLU), with the firmware's input/output scaling and clamp."""
     import torch
-    w1, b1, w2, b2, w3, b3 = (np.asarray(a, np.float32) for a in (net.w1, net.b1, net.w2, net.b2, net.w3, net.b3))
-    seq = torch.nn.Sequential(torch.nn.Linear(w1.shape[0], w1.shape[1]), torch.nn.ReLU(),
-                              torch.nn.Linear(w2.shape[0], w2.shape[1]), torch.nn.ReLU(),
-                              torch.nn.Linear(w3.size, 1))
+    hidden = net.b1.size
+    seq = torch.nn.Sequential(torch.nn.Linear(net.n_in, hidden), torch.nn.ReLU(),
+                              torch.nn.Linear(hidden, hidden), torch.nn.ReLU(), torch.nn.Linear(hidden, 1))
     with torch.no_grad():
-        seq[0].weight.copy_(torch.from_numpy(w1.T.copy()))
-        seq[0].bias.copy_(torch.from_numpy(b1))
-        seq[2].weight.copy_(torch.from_numpy(w2.T.copy()))
-        seq[2].bias.copy_(torch.from_numpy(b2))
-        seq[4].weight.copy_(torch.from_numpy(w3.reshape(1, -1)))
-        seq[4].bias.copy_(torch.from_numpy(np.asarray(b3, np.float32).reshape(1)))
-        lo = np.asarray(net.in_min, np.float32)
-        hi = np.asarray(net.in_max, np.float32)
-        x = torch.from_numpy(((feats.astype(np.float32) - lo) / (hi - lo)).astype(np.float32))
-        y = seq(x).numpy()[:, 0].astype(np.float64)
-    y = y * (float(net.out_max) - float(net.out_min)) + float(net.out_min)
-    return np.clip(y, float(net.out_min), float(net.out_max))
+        seq[0].weight.copy_(torch.from_numpy(net.w1.T.copy()))
+        seq[0].bias.copy_(torch.from_numpy(net.b1.copy()))
+        seq[2].weight.copy_(torch.from_numpy(net.w2.T.copy()))
+        seq[2].bias.copy_(torch.from_numpy(net.b2.copy()))
+        seq[4].weight.copy_(torch.from_numpy(net.w3.reshape(1, -1).copy()))
+        seq[4].bias.fill_(net.b3)
+        x = (feats.astype(np.float32) - net.in_min) / (net.in_max - net.in_min)
+        y = seq(torch.from_numpy(x.astype(np.float32))).numpy()[:, 0].astype(np.float64)
+    y = y * (net.out_max - net.out_min) + net.out_min
+    return np.clip(y, net.out_min, net.out_max)
 
 
 class NnBenchClient:
@@ -240,6 +263,17 @@ class NnBenchClient:
             raise BenchError(f"nnbench: bad info reply {r!r}")
         return r[1], r[2]
 
+    def tables(self, kind: int) -> NetTables | None:
+        self.link.write(b"W" + bytes([kind]))
+        head = self._read(1)
+        if head == b"?":
+            return None
+        if head != b"w":
+            raise BenchError(f"nnbench: bad tables reply {head!r}")
+        n_in = self._read(1)[0]
+        count = 2 * n_in + 50 * n_in + 50 + 2500 + 50 + 50 + 3
+        return NetTables.from_floats(n_in, np.frombuffer(self._read(4 * count), "<f4").copy())
+
     def predict(self, kind: int, x: np.ndarray) -> tuple[tuple[float, float, float], tuple[int, int, int]]:
         self.link.write(b"P" + bytes([kind]) + np.asarray(x, "<f4").tobytes())
         r = self._read(25)
@@ -256,26 +290,28 @@ def _process_start(elf: Path, log_dir: Path | None) -> Any:
     return proc
 
 
-def network_kernels(model: Any, n_inputs: int, seed: int, log_dir: Path | None = None) -> list[KernelRow]:
+def network_kernels(n_inputs: int, seed: int, log_dir: Path | None = None,
+                    elf: Path = ELF_NNBENCH) -> list[KernelRow]:
+    """The compiled-in networks through the three kernels on the same random inputs (uniform over each
+    input's scaling range), against PyTorch on the same weights (dumped from the device)."""
     from harness.device.qemu import PtyLink
     rng = np.random.default_rng(seed)
     rows: list[KernelRow] = []
-    proc = _process_start(ELF_NNBENCH, log_dir)
+    proc = _process_start(elf, log_dir)
     try:
-        client = NnBenchClient(PtyLink(proc.fd, proc.pty_path or "?"))
-        n_twr, n_tdoa = client.info()
-        for kind, kind_name, net, n_in in ((0, "twr", model.twr, n_twr), (1, "tdoa", model.tdoa, n_tdoa)):
-            if net is None or n_in == 0:
+        client = NnBenchClient(PtyLink(proc.fd, proc.pty_path or "?"), timeout_s=10.0)
+        for kind, kind_name in ((0, "twr"), (1, "tdoa")):
+            net = client.tables(kind)
+            if net is None:
                 continue
-            lo = np.asarray(net.in_min, np.float64)
-            hi = np.asarray(net.in_max, np.float64)
-            feats = (lo + rng.uniform(0.0, 1.0, (n_inputs, n_in)) * (hi - lo)).astype(np.float32)
+            feats = (net.in_min + rng.uniform(0.0, 1.0, (n_inputs, net.n_in)) * (net.in_max - net.in_min))
+            feats = feats.astype(np.float32)
             ys = np.zeros((n_inputs, 3))
             costs = np.zeros((n_inputs, 3), np.int64)
             for i in range(n_inputs):
                 y, c = client.predict(kind, feats[i])
                 ys[i], costs[i] = y, c
-            ref = _torch_reference(net, feats)
+            ref = torch_reference(net, feats)
             base = float(np.median(costs[:, 0]))
             for k, name in enumerate(KERNELS):
                 med = float(np.median(costs[:, k]))
@@ -328,17 +364,15 @@ def print_report(out: dict[str, Any]) -> None:
 
 
 def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_dir: Path | None) -> dict[str, Any]:
-    from harness.biasnet.model import BiasModel
     if do_build:
         build()
-    model = BiasModel.load(REPO_ROOT / "firmware_sim" / "models" / "bias_model_default.npz")
     out: dict[str, Any] = {"cycles_per_instruction_assumed": CYCLES_PER_INSTRUCTION, "sysclk_hz": SYSCLK_HZ}
     stages: list[StageRow] = []
     for name, elf in (("m4", ELF_M4), ("portable", ELF_PORTABLE)):
         with qemu_device(elf, log_dir) as dev:
             stages += stage_costs(dev, name, duration_s, seed)
     out["stages"] = [asdict(r) for r in stages]
-    out["network"] = [asdict(r) for r in network_kernels(model, nn_inputs, seed, log_dir)]
+    out["network"] = [asdict(r) for r in network_kernels(nn_inputs, seed, log_dir)]
     out["size"] = size_figures(BUILD_M4)
     out["size_portable"] = size_figures(BUILD_PORTABLE)
     tdoa_nn = [r for r in stages if r.build == "m4" and r.mode == "tdoa" and r.network]

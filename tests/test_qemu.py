@@ -178,9 +178,7 @@ def test_qemu_costs_are_deterministic(devices: dict[str, Any]) -> None:
 
 def test_m4_network_kernels_match_pytorch_and_are_faster(stm32_build: Path, tmp_path: Path) -> None:
     from harness.bench_qemu import NN_TOLERANCE, network_kernels
-    from harness.biasnet.model import BiasModel
-    model = BiasModel.load(REPO_ROOT / "firmware_sim" / "models" / "bias_model_default.npz")
-    rows = network_kernels(model, n_inputs=25, seed=5, log_dir=tmp_path)
+    rows = network_kernels(n_inputs=25, seed=5, log_dir=tmp_path)
     assert rows, "the compiled-in model has no network"
     for r in rows:
         assert r.max_err_torch <= NN_TOLERANCE, r

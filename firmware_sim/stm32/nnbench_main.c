@@ -8,6 +8,9 @@
  *   host 'P' kind:u8 x:f32[n_in]     -> 'p' y:f32[3] cost:u32[3]
  *        kind 0 = TWR net, 1 = TDoA net; kernels in order: portable (core), C blocked, assembly.
  *        cost = instructions of the call, the cost of reading the clock subtracted.
+ *   host 'W' kind:u8                 -> 'w' n_in:u8 then f32: in_min[n_in] in_max[n_in] w1[n_in*50] b1[50]
+ *                                       w2[50*50] b2[50] w3[50] b3 out_min out_max
+ *        (the compiled-in tables, so the host can run the same network in PyTorch)
  *   anything else                    -> '?' */
 #include <string.h>
 
@@ -112,6 +115,29 @@ int main(void)
                 put_u32(&out[13u + 4u * k], cost);
             }
             usart_write(out, sizeof out);
+        } else if (cmd == 'W') {
+            uint8_t kind, head[2];
+            const bias_nn_t *net;
+            read_exact(&kind, 1);
+            net = kind == 0u ? model->twr : model->tdoa;
+            if (net == (const bias_nn_t *)0) {
+                head[0] = '?';
+                usart_write(head, 1);
+                continue;
+            }
+            head[0] = 'w';
+            head[1] = net->n_in;
+            usart_write(head, 2);
+            usart_write((const uint8_t *)net->in_min, 4u * net->n_in);
+            usart_write((const uint8_t *)net->in_max, 4u * net->n_in);
+            usart_write((const uint8_t *)net->w1, 4u * net->n_in * BIAS_NN_HIDDEN);
+            usart_write((const uint8_t *)net->b1, 4u * BIAS_NN_HIDDEN);
+            usart_write((const uint8_t *)net->w2, 4u * BIAS_NN_HIDDEN * BIAS_NN_HIDDEN);
+            usart_write((const uint8_t *)net->b2, 4u * BIAS_NN_HIDDEN);
+            usart_write((const uint8_t *)net->w3, 4u * BIAS_NN_HIDDEN);
+            usart_write((const uint8_t *)&net->b3, 4u);
+            usart_write((const uint8_t *)&net->out_min, 4u);
+            usart_write((const uint8_t *)&net->out_max, 4u);
         } else {
             uint8_t q = '?';
             usart_write(&q, 1);
