@@ -363,18 +363,19 @@ def print_report(out: dict[str, Any]) -> None:
           f"(weights {s['network_weights']:,} B)")
 
 
-def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_dir: Path | None) -> dict[str, Any]:
+def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_dir: Path | None,
+              build_m4: Path = BUILD_M4, build_portable: Path = BUILD_PORTABLE) -> dict[str, Any]:
     if do_build:
         build()
     out: dict[str, Any] = {"cycles_per_instruction_assumed": CYCLES_PER_INSTRUCTION, "sysclk_hz": SYSCLK_HZ}
     stages: list[StageRow] = []
-    for name, elf in (("m4", ELF_M4), ("portable", ELF_PORTABLE)):
+    for name, elf in (("m4", build_m4 / "uwb-fw.elf"), ("portable", build_portable / "uwb-fw.elf")):
         with qemu_device(elf, log_dir) as dev:
             stages += stage_costs(dev, name, duration_s, seed)
     out["stages"] = [asdict(r) for r in stages]
-    out["network"] = [asdict(r) for r in network_kernels(nn_inputs, seed, log_dir)]
-    out["size"] = size_figures(BUILD_M4)
-    out["size_portable"] = size_figures(BUILD_PORTABLE)
+    out["network"] = [asdict(r) for r in network_kernels(nn_inputs, seed, log_dir, build_m4 / "uwb-nnbench.elf")]
+    out["size"] = size_figures(build_m4)
+    out["size_portable"] = size_figures(build_portable)
     tdoa_nn = [r for r in stages if r.build == "m4" and r.mode == "tdoa" and r.network]
     tdoa_instr = tdoa_nn[0].compute if tdoa_nn else float("nan")
     out["goals"] = {
@@ -392,9 +393,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--no-build", action="store_true", help="use the ELFs already built")
     ap.add_argument("--log-dir", type=Path, default=None, help="keep QEMU logs here")
+    ap.add_argument("--build-dir", type=Path, default=BUILD_M4, help="where uwb-fw.elf/uwb-nnbench.elf are")
+    ap.add_argument("--portable-build-dir", type=Path, default=BUILD_PORTABLE,
+                    help="where the NN_IMPL=portable uwb-fw.elf is")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    out = run_bench(args.duration, args.seed, args.nn_inputs, not args.no_build, args.log_dir)
+    out = run_bench(args.duration, args.seed, args.nn_inputs, not args.no_build, args.log_dir,
+                    args.build_dir, args.portable_build_dir)
     if args.json:
         print(json.dumps(out, indent=2))
     else:
