@@ -23,9 +23,10 @@ import socket
 import subprocess
 import tempfile
 import time
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from harness.device.base import Device, FrameChannel
 from harness.errors import DeviceDied, DeviceError, LinkClosed, LinkTimeout
@@ -86,7 +87,8 @@ class QemuProcess:
         self.fd: int = -1
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
         self._mon: socket.socket | None = None
-        self._log = None
+        self._log: IO[bytes] | None = None
+        self._finalizer: weakref.finalize[..., QemuProcess] | None = None
 
     # ---------------------------------------------------------------------------- lifecycle
     def start(self) -> None:
@@ -104,6 +106,8 @@ class QemuProcess:
         try:
             self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=self._log,
                                          stderr=subprocess.STDOUT, start_new_session=True)
+            # QEMU runs in its own session: make sure it never outlives a harness that forgot stop().
+            self._finalizer = weakref.finalize(self, _kill_quietly, self.proc)
             self.pty_path = self._wait_for_pty()
             self.fd = _open_raw(self.pty_path)
             self._mon = self._connect_monitor(mon_path)
@@ -120,6 +124,9 @@ class QemuProcess:
         return self.proc is not None and self.proc.poll() is None
 
     def stop(self) -> None:
+        if self._finalizer is not None:
+            self._finalizer.detach()
+            self._finalizer = None
         proc, self.proc = self.proc, None
         if proc is not None and proc.poll() is None:
             if self._mon is not None:
@@ -229,6 +236,15 @@ class QemuProcess:
                 raise QemuError(f"QEMU exited during start-up:\n{text[-2000:]}")
             time.sleep(0.02)
         raise QemuError(f"QEMU printed no pty name within {self.options.start_timeout_s:.0f} s (log: {self.log_path})")
+
+
+def _kill_quietly(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        proc.kill()
+        try:
+            proc.wait(3.0)
+        except subprocess.TimeoutExpired:
+            pass
 
 
 def _open_raw(path: str) -> int:
