@@ -6,7 +6,7 @@ import enum
 from dataclasses import dataclass
 from typing import ClassVar
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -56,6 +56,7 @@ class ErrorCode(enum.IntEnum):
     BAD_CONFIG = 6
     BAD_ANCHOR_ID = 7
     NOT_CONFIGURED = 8
+    BAD_SETPOINT = 9
 
 
 class Layout(enum.IntEnum):
@@ -66,6 +67,22 @@ class Layout(enum.IntEnum):
     TDOA_POSE = 2
     TWR_POS = 3
     TDOA_POS = 4
+
+
+class ControlMode(enum.IntEnum):
+    """SETPOINT.mode / CONTROL.mode"""
+
+    OFF = 0
+    POSITION = 1
+
+
+class ControlFlag(enum.IntEnum):
+    """Bit flags in CONTROL.flags"""
+
+    THRUST_SATURATED = 1
+    TILT_LIMITED = 2
+    RATE_LIMITED = 4
+    INTEGRATOR_LIMITED = 8
 
 
 class CostUnit(enum.IntEnum):
@@ -205,6 +222,32 @@ class StatsReq:
 
 
 @dataclass(frozen=True)
+class Setpoint:
+    """One control step: the commanded state at t_us. Answered by CONTROL (or ERROR). Send it after the sensor frames up to t_us."""
+
+    MSG_ID: ClassVar[int] = 0x08
+    NAME: ClassVar[str] = 'SETPOINT'
+    DIRECTION: ClassVar[str] = 'to_device'
+    FORMAT: ClassVar[str] = '<QBBffffffffff'
+    SIZE: ClassVar[int] = 50
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('t_us', 'u64'), ('mode', 'u8'), ('reserved', 'u8'), ('x', 'f32'), ('y', 'f32'), ('z', 'f32'), ('vx', 'f32'), ('vy', 'f32'), ('vz', 'f32'), ('ax', 'f32'), ('ay', 'f32'), ('az', 'f32'), ('yaw', 'f32'))
+
+    t_us: int  # control step time [us], on the sensor clock; must not go backwards
+    mode: int  # control_mode
+    reserved: int  # 0
+    x: float  # commanded position, world [m]
+    y: float
+    z: float
+    vx: float  # commanded velocity, world [m/s] (feed-forward)
+    vy: float
+    vz: float
+    ax: float  # commanded acceleration, world [m/s^2] (feed-forward)
+    ay: float
+    az: float
+    yaw: float  # commanded yaw [rad]
+
+
+@dataclass(frozen=True)
 class HelloReply:
     """Who the device is."""
 
@@ -322,5 +365,37 @@ class Error:
     detail: int  # code-specific (e.g. the anchor id)
 
 
-MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, StatsReq, HelloReply, Result, Stats, Error,)
+@dataclass(frozen=True)
+class Control:
+    """The controller's output for one SETPOINT, and the estimate it used."""
+
+    MSG_ID: ClassVar[int] = 0x85
+    NAME: ClassVar[str] = 'CONTROL'
+    DIRECTION: ClassVar[str] = 'to_host'
+    FORMAT: ClassVar[str] = '<HBBQffffffffffffffI'
+    SIZE: ClassVar[int] = 72
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('setpoint_seq', 'u16'), ('mode', 'u8'), ('flags', 'u8'), ('t_us', 'u64'), ('thrust', 'f32'), ('rate_x', 'f32'), ('rate_y', 'f32'), ('rate_z', 'f32'), ('px', 'f32'), ('py', 'f32'), ('pz', 'f32'), ('vx', 'f32'), ('vy', 'f32'), ('vz', 'f32'), ('qw', 'f32'), ('qx', 'f32'), ('qy', 'f32'), ('qz', 'f32'), ('compute', 'u32'))
+
+    setpoint_seq: int  # seq of the SETPOINT frame
+    mode: int  # control_mode
+    flags: int  # control_flag bits
+    t_us: int  # the SETPOINT's t_us
+    thrust: float  # collective thrust command [N]
+    rate_x: float  # body-rate command [rad/s], body frame
+    rate_y: float
+    rate_z: float
+    px: float  # estimated position the controller used [m]
+    py: float
+    pz: float
+    vx: float  # estimated world velocity [m/s]
+    vy: float
+    vz: float
+    qw: float  # estimated attitude (w, x, y, z), body -> world
+    qx: float
+    qy: float
+    qz: float
+    compute: int  # device cost of the control step (cost_unit)
+
+
+MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, StatsReq, Setpoint, HelloReply, Result, Stats, Error, Control,)
 MESSAGES_BY_ID: dict[int, type] = {cls.MSG_ID: cls for cls in MESSAGE_TYPES}

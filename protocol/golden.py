@@ -72,6 +72,22 @@ def _vectors() -> list[tuple[str, int, Any]]:
                              imu_samples=1000, twr_meas=200, tdoa_meas=0, results=190, predictions=100,
                              seq_gaps=0)),
         ("error", 4, m.Error(code=4, msg_type=5, msg_seq=8, detail=12)),
+        ("setpoint_hover", 13, m.Setpoint(t_us=3_000_000, mode=1, reserved=0, x=0.0, y=0.0, z=1.0, vx=0.0,
+                                          vy=0.0, vz=0.0, ax=0.0, ay=0.0, az=0.0, yaw=0.0)),
+        ("setpoint_circle", 14, m.Setpoint(t_us=12_345_678, mode=1, reserved=0, x=1.5, y=-0.25, z=0.75,
+                                           vx=-0.0625, vy=0.375, vz=0.0, ax=-0.09375, ay=-0.015625, az=0.0,
+                                           yaw=-1.5)),
+        ("setpoint_off", 15, m.Setpoint(t_us=0, mode=0, reserved=0, x=0.0, y=0.0, z=0.0, vx=0.0, vy=0.0,
+                                        vz=0.0, ax=0.0, ay=0.0, az=0.0, yaw=0.0)),
+        ("setpoint_nan", 16, m.Setpoint(t_us=10_000, mode=1, reserved=0, x=NAN, y=0.0, z=1.0, vx=0.0, vy=0.0,
+                                        vz=0.0, ax=0.0, ay=0.0, az=0.0, yaw=0.0)),
+        ("control", 5, m.Control(setpoint_seq=14, mode=1, flags=0, t_us=12_345_678, thrust=0.3125,
+                                 rate_x=0.5, rate_y=-0.25, rate_z=0.0, px=1.5, py=-0.25, pz=0.75, vx=-0.0625,
+                                 vy=0.375, vz=0.0, qw=1.0, qx=0.0, qy=0.0, qz=0.0, compute=321)),
+        ("control_saturated", 6, m.Control(setpoint_seq=0xFFFF, mode=1, flags=15, t_us=2**64 - 1, thrust=0.6,
+                                           rate_x=-6.0, rate_y=6.0, rate_z=-1.0, px=-3.0, py=4.0, pz=0.0,
+                                           vx=0.0, vy=0.0, vz=-0.5, qw=0.5, qx=0.5, qy=-0.5, qz=0.5,
+                                           compute=0)),
     ]
 
 

@@ -98,10 +98,12 @@ int uwb_payload_len(uint8_t type)
     case UWB_MSG_TWR: return (int)UWB_MSG_TWR_LEN;
     case UWB_MSG_TDOA: return (int)UWB_MSG_TDOA_LEN;
     case UWB_MSG_STATS_REQ: return (int)UWB_MSG_STATS_REQ_LEN;
+    case UWB_MSG_SETPOINT: return (int)UWB_MSG_SETPOINT_LEN;
     case UWB_MSG_HELLO_REPLY: return (int)UWB_MSG_HELLO_REPLY_LEN;
     case UWB_MSG_RESULT: return (int)UWB_MSG_RESULT_LEN;
     case UWB_MSG_STATS: return (int)UWB_MSG_STATS_LEN;
     case UWB_MSG_ERROR: return (int)UWB_MSG_ERROR_LEN;
+    case UWB_MSG_CONTROL: return (int)UWB_MSG_CONTROL_LEN;
     default: return -1;
     }
 }
@@ -230,6 +232,40 @@ static void pack_tdoa(const uwb_tdoa_t *m, uint8_t *p)
     p[8] = m->anchor_a;
     p[9] = m->anchor_b;
     put_f32(p + 10, m->diff);
+}
+
+static void unpack_setpoint(const uint8_t *p, uwb_setpoint_t *m)
+{
+    m->t_us = get_u64(p + 0);
+    m->mode = p[8];
+    m->reserved = p[9];
+    m->x = get_f32(p + 10);
+    m->y = get_f32(p + 14);
+    m->z = get_f32(p + 18);
+    m->vx = get_f32(p + 22);
+    m->vy = get_f32(p + 26);
+    m->vz = get_f32(p + 30);
+    m->ax = get_f32(p + 34);
+    m->ay = get_f32(p + 38);
+    m->az = get_f32(p + 42);
+    m->yaw = get_f32(p + 46);
+}
+
+static void pack_setpoint(const uwb_setpoint_t *m, uint8_t *p)
+{
+    put_u64(p + 0, m->t_us);
+    p[8] = m->mode;
+    p[9] = m->reserved;
+    put_f32(p + 10, m->x);
+    put_f32(p + 14, m->y);
+    put_f32(p + 18, m->z);
+    put_f32(p + 22, m->vx);
+    put_f32(p + 26, m->vy);
+    put_f32(p + 30, m->vz);
+    put_f32(p + 34, m->ax);
+    put_f32(p + 38, m->ay);
+    put_f32(p + 42, m->az);
+    put_f32(p + 46, m->yaw);
 }
 
 static void unpack_hello_reply(const uint8_t *p, uwb_hello_reply_t *m)
@@ -396,6 +432,52 @@ static void pack_error(const uwb_error_t *m, uint8_t *p)
     put_u32(p + 4, m->detail);
 }
 
+static void unpack_control(const uint8_t *p, uwb_control_t *m)
+{
+    m->setpoint_seq = get_u16(p + 0);
+    m->mode = p[2];
+    m->flags = p[3];
+    m->t_us = get_u64(p + 4);
+    m->thrust = get_f32(p + 12);
+    m->rate_x = get_f32(p + 16);
+    m->rate_y = get_f32(p + 20);
+    m->rate_z = get_f32(p + 24);
+    m->px = get_f32(p + 28);
+    m->py = get_f32(p + 32);
+    m->pz = get_f32(p + 36);
+    m->vx = get_f32(p + 40);
+    m->vy = get_f32(p + 44);
+    m->vz = get_f32(p + 48);
+    m->qw = get_f32(p + 52);
+    m->qx = get_f32(p + 56);
+    m->qy = get_f32(p + 60);
+    m->qz = get_f32(p + 64);
+    m->compute = get_u32(p + 68);
+}
+
+static void pack_control(const uwb_control_t *m, uint8_t *p)
+{
+    put_u16(p + 0, m->setpoint_seq);
+    p[2] = m->mode;
+    p[3] = m->flags;
+    put_u64(p + 4, m->t_us);
+    put_f32(p + 12, m->thrust);
+    put_f32(p + 16, m->rate_x);
+    put_f32(p + 20, m->rate_y);
+    put_f32(p + 24, m->rate_z);
+    put_f32(p + 28, m->px);
+    put_f32(p + 32, m->py);
+    put_f32(p + 36, m->pz);
+    put_f32(p + 40, m->vx);
+    put_f32(p + 44, m->vy);
+    put_f32(p + 48, m->vz);
+    put_f32(p + 52, m->qw);
+    put_f32(p + 56, m->qx);
+    put_f32(p + 60, m->qy);
+    put_f32(p + 64, m->qz);
+    put_u32(p + 68, m->compute);
+}
+
 uwb_decode_status_t uwb_body_decode(const uint8_t *body, size_t n, uwb_msg_t *out)
 {
     const uint8_t *p;
@@ -425,10 +507,12 @@ uwb_decode_status_t uwb_body_decode(const uint8_t *body, size_t n, uwb_msg_t *ou
     case UWB_MSG_IMU: unpack_imu(p, &out->u.imu); break;
     case UWB_MSG_TWR: unpack_twr(p, &out->u.twr); break;
     case UWB_MSG_TDOA: unpack_tdoa(p, &out->u.tdoa); break;
+    case UWB_MSG_SETPOINT: unpack_setpoint(p, &out->u.setpoint); break;
     case UWB_MSG_HELLO_REPLY: unpack_hello_reply(p, &out->u.hello_reply); break;
     case UWB_MSG_RESULT: unpack_result(p, &out->u.result); break;
     case UWB_MSG_STATS: unpack_stats(p, &out->u.stats); break;
     case UWB_MSG_ERROR: unpack_error(p, &out->u.error); break;
+    case UWB_MSG_CONTROL: unpack_control(p, &out->u.control); break;
     default: break;
     }
     return UWB_DECODE_OK;
@@ -450,10 +534,12 @@ size_t uwb_body_encode(const uwb_msg_t *msg, uint8_t *body)
     case UWB_MSG_IMU: pack_imu(&msg->u.imu, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_TWR: pack_twr(&msg->u.twr, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_TDOA: pack_tdoa(&msg->u.tdoa, body + UWB_HEADER_SIZE); break;
+    case UWB_MSG_SETPOINT: pack_setpoint(&msg->u.setpoint, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_HELLO_REPLY: pack_hello_reply(&msg->u.hello_reply, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_RESULT: pack_result(&msg->u.result, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_STATS: pack_stats(&msg->u.stats, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_ERROR: pack_error(&msg->u.error, body + UWB_HEADER_SIZE); break;
+    case UWB_MSG_CONTROL: pack_control(&msg->u.control, body + UWB_HEADER_SIZE); break;
     default: break;
     }
     n = UWB_HEADER_SIZE + (size_t)len;
@@ -474,8 +560,12 @@ int uwb_msg_finite(const uwb_msg_t *msg)
         return isfinite(msg->u.twr.range);
     case UWB_MSG_TDOA:
         return isfinite(msg->u.tdoa.diff);
+    case UWB_MSG_SETPOINT:
+        return isfinite(msg->u.setpoint.x) && isfinite(msg->u.setpoint.y) && isfinite(msg->u.setpoint.z) && isfinite(msg->u.setpoint.vx) && isfinite(msg->u.setpoint.vy) && isfinite(msg->u.setpoint.vz) && isfinite(msg->u.setpoint.ax) && isfinite(msg->u.setpoint.ay) && isfinite(msg->u.setpoint.az) && isfinite(msg->u.setpoint.yaw);
     case UWB_MSG_RESULT:
         return isfinite(msg->u.result.innovation) && isfinite(msg->u.result.innovation_var) && isfinite(msg->u.result.bias) && isfinite(msg->u.result.d_max) && isfinite(msg->u.result.gain_x) && isfinite(msg->u.result.gain_y) && isfinite(msg->u.result.gain_z) && isfinite(msg->u.result.px) && isfinite(msg->u.result.py) && isfinite(msg->u.result.pz) && isfinite(msg->u.result.vx) && isfinite(msg->u.result.vy) && isfinite(msg->u.result.vz) && isfinite(msg->u.result.qw) && isfinite(msg->u.result.qx) && isfinite(msg->u.result.qy) && isfinite(msg->u.result.qz) && isfinite(msg->u.result.var_x) && isfinite(msg->u.result.var_y) && isfinite(msg->u.result.var_z) && isfinite(msg->u.result.var_vx) && isfinite(msg->u.result.var_vy) && isfinite(msg->u.result.var_vz) && isfinite(msg->u.result.var_d0) && isfinite(msg->u.result.var_d1) && isfinite(msg->u.result.var_d2);
+    case UWB_MSG_CONTROL:
+        return isfinite(msg->u.control.thrust) && isfinite(msg->u.control.rate_x) && isfinite(msg->u.control.rate_y) && isfinite(msg->u.control.rate_z) && isfinite(msg->u.control.px) && isfinite(msg->u.control.py) && isfinite(msg->u.control.pz) && isfinite(msg->u.control.vx) && isfinite(msg->u.control.vy) && isfinite(msg->u.control.vz) && isfinite(msg->u.control.qw) && isfinite(msg->u.control.qx) && isfinite(msg->u.control.qy) && isfinite(msg->u.control.qz);
     default: return 1;
     }
 }

@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 1u
+#define UWB_PROTO_VERSION 2u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -49,6 +49,7 @@ enum {
     UWB_ERROR_CODE_BAD_CONFIG = 6,
     UWB_ERROR_CODE_BAD_ANCHOR_ID = 7,
     UWB_ERROR_CODE_NOT_CONFIGURED = 8,
+    UWB_ERROR_CODE_BAD_SETPOINT = 9,
 };
 
 /* Input layout of a bias network */
@@ -58,6 +59,20 @@ enum {
     UWB_LAYOUT_TDOA_POSE = 2,
     UWB_LAYOUT_TWR_POS = 3,
     UWB_LAYOUT_TDOA_POS = 4,
+};
+
+/* SETPOINT.mode / CONTROL.mode */
+enum {
+    UWB_CONTROL_MODE_OFF = 0,
+    UWB_CONTROL_MODE_POSITION = 1,
+};
+
+/* Bit flags in CONTROL.flags */
+enum {
+    UWB_CONTROL_FLAG_THRUST_SATURATED = 1,
+    UWB_CONTROL_FLAG_TILT_LIMITED = 2,
+    UWB_CONTROL_FLAG_RATE_LIMITED = 4,
+    UWB_CONTROL_FLAG_INTEGRATOR_LIMITED = 8,
 };
 
 /* Unit of the per-stage cost fields in RESULT */
@@ -144,6 +159,25 @@ typedef struct {
 /* STATS_REQ (to_device): Ask for the counters. Answered by STATS. */
 #define UWB_MSG_STATS_REQ 0x07u
 #define UWB_MSG_STATS_REQ_LEN 0u
+
+/* SETPOINT (to_device): One control step: the commanded state at t_us. Answered by CONTROL (or ERROR). Send it after the sensor frames up to t_us. */
+#define UWB_MSG_SETPOINT 0x08u
+#define UWB_MSG_SETPOINT_LEN 50u
+typedef struct {
+    uint64_t t_us;
+    uint8_t mode;
+    uint8_t reserved;
+    float x;
+    float y;
+    float z;
+    float vx;
+    float vy;
+    float vz;
+    float ax;
+    float ay;
+    float az;
+    float yaw;
+} uwb_setpoint_t;
 
 /* HELLO_REPLY (to_host): Who the device is. */
 #define UWB_MSG_HELLO_REPLY 0x81u
@@ -235,6 +269,31 @@ typedef struct {
     uint32_t detail;
 } uwb_error_t;
 
+/* CONTROL (to_host): The controller's output for one SETPOINT, and the estimate it used. */
+#define UWB_MSG_CONTROL 0x85u
+#define UWB_MSG_CONTROL_LEN 72u
+typedef struct {
+    uint16_t setpoint_seq;
+    uint8_t mode;
+    uint8_t flags;
+    uint64_t t_us;
+    float thrust;
+    float rate_x;
+    float rate_y;
+    float rate_z;
+    float px;
+    float py;
+    float pz;
+    float vx;
+    float vy;
+    float vz;
+    float qw;
+    float qx;
+    float qy;
+    float qz;
+    uint32_t compute;
+} uwb_control_t;
+
 /* A decoded frame: header + one payload. */
 typedef struct {
     uint8_t type;
@@ -246,10 +305,12 @@ typedef struct {
         uwb_imu_t imu;
         uwb_twr_t twr;
         uwb_tdoa_t tdoa;
+        uwb_setpoint_t setpoint;
         uwb_hello_reply_t hello_reply;
         uwb_result_t result;
         uwb_stats_t stats;
         uwb_error_t error;
+        uwb_control_t control;
     } u;
 } uwb_msg_t;
 

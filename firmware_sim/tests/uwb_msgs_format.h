@@ -87,6 +87,21 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         break;
     case UWB_MSG_STATS_REQ:
         break;
+    case UWB_MSG_SETPOINT:
+        w += fmt_u64(out + w, cap - w, "t_us", (unsigned long long)msg->u.setpoint.t_us);
+        w += fmt_u64(out + w, cap - w, "mode", (unsigned long long)msg->u.setpoint.mode);
+        w += fmt_u64(out + w, cap - w, "reserved", (unsigned long long)msg->u.setpoint.reserved);
+        w += fmt_f32(out + w, cap - w, "x", msg->u.setpoint.x);
+        w += fmt_f32(out + w, cap - w, "y", msg->u.setpoint.y);
+        w += fmt_f32(out + w, cap - w, "z", msg->u.setpoint.z);
+        w += fmt_f32(out + w, cap - w, "vx", msg->u.setpoint.vx);
+        w += fmt_f32(out + w, cap - w, "vy", msg->u.setpoint.vy);
+        w += fmt_f32(out + w, cap - w, "vz", msg->u.setpoint.vz);
+        w += fmt_f32(out + w, cap - w, "ax", msg->u.setpoint.ax);
+        w += fmt_f32(out + w, cap - w, "ay", msg->u.setpoint.ay);
+        w += fmt_f32(out + w, cap - w, "az", msg->u.setpoint.az);
+        w += fmt_f32(out + w, cap - w, "yaw", msg->u.setpoint.yaw);
+        break;
     case UWB_MSG_HELLO_REPLY:
         w += fmt_u64(out + w, cap - w, "nonce", (unsigned long long)msg->u.hello_reply.nonce);
         w += fmt_u64(out + w, cap - w, "proto_version", (unsigned long long)msg->u.hello_reply.proto_version);
@@ -160,6 +175,27 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_u64(out + w, cap - w, "msg_type", (unsigned long long)msg->u.error.msg_type);
         w += fmt_u64(out + w, cap - w, "msg_seq", (unsigned long long)msg->u.error.msg_seq);
         w += fmt_u64(out + w, cap - w, "detail", (unsigned long long)msg->u.error.detail);
+        break;
+    case UWB_MSG_CONTROL:
+        w += fmt_u64(out + w, cap - w, "setpoint_seq", (unsigned long long)msg->u.control.setpoint_seq);
+        w += fmt_u64(out + w, cap - w, "mode", (unsigned long long)msg->u.control.mode);
+        w += fmt_u64(out + w, cap - w, "flags", (unsigned long long)msg->u.control.flags);
+        w += fmt_u64(out + w, cap - w, "t_us", (unsigned long long)msg->u.control.t_us);
+        w += fmt_f32(out + w, cap - w, "thrust", msg->u.control.thrust);
+        w += fmt_f32(out + w, cap - w, "rate_x", msg->u.control.rate_x);
+        w += fmt_f32(out + w, cap - w, "rate_y", msg->u.control.rate_y);
+        w += fmt_f32(out + w, cap - w, "rate_z", msg->u.control.rate_z);
+        w += fmt_f32(out + w, cap - w, "px", msg->u.control.px);
+        w += fmt_f32(out + w, cap - w, "py", msg->u.control.py);
+        w += fmt_f32(out + w, cap - w, "pz", msg->u.control.pz);
+        w += fmt_f32(out + w, cap - w, "vx", msg->u.control.vx);
+        w += fmt_f32(out + w, cap - w, "vy", msg->u.control.vy);
+        w += fmt_f32(out + w, cap - w, "vz", msg->u.control.vz);
+        w += fmt_f32(out + w, cap - w, "qw", msg->u.control.qw);
+        w += fmt_f32(out + w, cap - w, "qx", msg->u.control.qx);
+        w += fmt_f32(out + w, cap - w, "qy", msg->u.control.qy);
+        w += fmt_f32(out + w, cap - w, "qz", msg->u.control.qz);
+        w += fmt_u64(out + w, cap - w, "compute", (unsigned long long)msg->u.control.compute);
         break;
     default:
         return 0;
