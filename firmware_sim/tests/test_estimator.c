@@ -103,6 +103,7 @@ static void check_python_defaults(const estimator_config_t *c)
 static void test_default_config(void)
 {
     estimator_config_t c;
+    memset(&c, 0, sizeof c); /* padding too: the struct is compared with memcmp below */
     estimator_default_config(&c);
     CHECK(estimator_config_valid(&c));
     CHECK(c.mode == EST_MODE_IMU && c.stages == EST_STAGES_ALL);

@@ -1,0 +1,108 @@
+/* The bias network: 2 hidden layers x 50 ReLU -> 1 linear output, float32, no allocation.
+ *
+ * Storage order (written by harness/biasnet/export.py, read the same way by stm32/nn_m4.c):
+ *   w1[i * 50 + j]  weight from scaled input i to hidden-1 unit j   (n_in x 50, input-major)
+ *   w2[i * 50 + j]  weight from hidden-1 unit i to hidden-2 unit j  (50 x 50, input-major)
+ *   w3[j]           weight from hidden-2 unit j to the output
+ * Each unit sums its bias first, then its inputs in order: the M4 kernel keeps that order so its
+ * results stay within float32 rounding of this reference.
+ * Input scaling x' = (x - in_min) / (in_max - in_min); output y = y' (out_max - out_min) + out_min,
+ * clamped to [out_min, out_max] so a network queried outside its training range cannot produce an
+ * arbitrarily large correction. */
+#include "bias_nn.h"
+
+/* The compiled-in model: BIAS_MODEL_HEADER (a header written by `uwb-hil export-c`) or the shipped
+ * default. The header defines BIAS_MODEL_TWR, BIAS_MODEL_TDOA (pointers or NULL) and BIAS_MODEL_HASH. */
+#ifdef BIAS_MODEL_HEADER
+#include BIAS_MODEL_HEADER
+#else
+#include "bias_model_default.h"
+#endif
+
+#ifndef NULL
+#define NULL ((void *)0)
+#endif
+
+const bias_model_t bias_model_compiled = {BIAS_MODEL_TWR, BIAS_MODEL_TDOA, BIAS_MODEL_HASH};
+
+uint8_t bias_nn_layout_inputs(uint8_t layout)
+{
+    switch (layout) {
+    case BIAS_LAYOUT_TWR_POSE:
+        return 6u;
+    case BIAS_LAYOUT_TDOA_POSE:
+        return 9u;
+    case BIAS_LAYOUT_TWR_POS:
+        return 3u;
+    case BIAS_LAYOUT_TDOA_POS:
+        return 6u;
+    default:
+        return 0u;
+    }
+}
+
+uint8_t bias_nn_features(uint8_t layout, const float tag[3], const float rpy[3], const float anchor_a[3],
+                         const float anchor_b[3], float out[BIAS_NN_MAX_IN])
+{
+    uint8_t n = 0u;
+    int k;
+    const int tdoa = layout == BIAS_LAYOUT_TDOA_POSE || layout == BIAS_LAYOUT_TDOA_POS;
+    const int angles = layout == BIAS_LAYOUT_TWR_POSE || layout == BIAS_LAYOUT_TDOA_POSE;
+
+    if (bias_nn_layout_inputs(layout) == 0u || (tdoa && anchor_b == NULL)) {
+        return 0u;
+    }
+    for (k = 0; k < 3; k++) {
+        out[n++] = anchor_a[k] - tag[k];
+    }
+    if (tdoa) {
+        for (k = 0; k < 3; k++) {
+            out[n++] = anchor_b[k] - tag[k];
+        }
+    }
+    if (angles) {
+        for (k = 0; k < 3; k++) {
+            out[n++] = rpy[k];
+        }
+    }
+    return n;
+}
+
+/* out[j] = relu(b[j] + sum_i x[i] w[i * 50 + j]) */
+static void dense_relu(const float *x, uint8_t n_in, const float *w, const float *b, float *out)
+{
+    int i, j;
+    for (j = 0; j < BIAS_NN_HIDDEN; j++) {
+        float acc = b[j];
+        for (i = 0; i < (int)n_in; i++) {
+            acc += x[i] * w[i * BIAS_NN_HIDDEN + j];
+        }
+        out[j] = acc > 0.0f ? acc : 0.0f;
+    }
+}
+
+float bias_nn_predict(const bias_nn_t *net, const float *features)
+{
+    float x[BIAS_NN_MAX_IN], h1[BIAS_NN_HIDDEN], h2[BIAS_NN_HIDDEN];
+    float y;
+    int i;
+    const uint8_t n_in = net->n_in <= BIAS_NN_MAX_IN ? net->n_in : (uint8_t)BIAS_NN_MAX_IN;
+
+    for (i = 0; i < (int)n_in; i++) {
+        x[i] = (features[i] - net->in_min[i]) / (net->in_max[i] - net->in_min[i]);
+    }
+    dense_relu(x, n_in, net->w1, net->b1, h1);
+    dense_relu(h1, (uint8_t)BIAS_NN_HIDDEN, net->w2, net->b2, h2);
+    y = net->b3;
+    for (i = 0; i < BIAS_NN_HIDDEN; i++) {
+        y += h2[i] * net->w3[i];
+    }
+    y = y * (net->out_max - net->out_min) + net->out_min;
+    if (y < net->out_min) {
+        y = net->out_min;
+    }
+    if (y > net->out_max) {
+        y = net->out_max;
+    }
+    return y;
+}

@@ -1,0 +1,1 @@
+"""The learned bias correction: network container and hash (model), C export (export), training (train)."""
