@@ -80,6 +80,31 @@ class Truth:
         tt = self.t_us.astype(np.float64)
         return np.stack([np.interp(t, tt, self.pos[:, k]) for k in range(3)], axis=-1)
 
+    def quat_at(self, t_us: np.ndarray) -> np.ndarray:
+        """(N, 4) attitude at the given times: normalised linear interpolation between the neighbouring
+        samples (sign-aligned), clamped at the ends. Raises FlightError if the truth has no attitude."""
+        if self.quat is None:
+            raise FlightError("this truth has no attitude (quat is None)")
+        t = np.atleast_1d(np.asarray(t_us, dtype=np.float64))
+        tt = self.t_us.astype(np.float64)
+        if tt.shape[0] == 1:
+            return np.repeat(self.quat[:1] / np.linalg.norm(self.quat[0]), t.shape[0], axis=0)
+        i = np.clip(np.searchsorted(tt, t, side="right") - 1, 0, tt.shape[0] - 2)
+        w = np.clip((t - tt[i]) / (tt[i + 1] - tt[i]), 0.0, 1.0)[:, None]
+        q0 = self.quat[i]
+        q1 = self.quat[i + 1] * np.sign(np.sum(self.quat[i] * self.quat[i + 1], axis=1) + 1e-300)[:, None]
+        q = (1.0 - w) * q0 + w * q1
+        return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+    def attitude_at(self, t_us: np.ndarray) -> np.ndarray:
+        """(N, 3) roll, pitch, yaw [rad] at the given times (the firmware's Euler formulas)."""
+        q = self.quat_at(t_us)
+        w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+        pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+        yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+        return np.stack([roll, pitch, yaw], axis=1)
+
 
 @dataclass
 class Flight:
