@@ -1,0 +1,220 @@
+"""Shared pieces of the recorded-data readers: the error type, a strict CSV table, time and quaternion helpers.
+
+Every reader goes through `read_csv_table` so a malformed file is reported the same way everywhere:
+file, line number, column name and what was expected. Parsing is vectorised (numpy) on the good path;
+only when that fails do we walk the column again to find the offending cell.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from harness.flight.model import Anchors, FlightError
+
+
+class RecordingError(FlightError):
+    """A recording or anchor file is malformed. Names the file, the line and/or field, and what was expected."""
+
+    def __init__(self, message: str, *, path: Path | str | None = None, line: int | None = None,
+                 field: str | None = None) -> None:
+        self.path = Path(path) if path is not None else None
+        self.line = line
+        self.field = field
+        where = str(path) if path is not None else "<recording>"
+        if line is not None:
+            where += f", line {line}"
+        if field is not None:
+            where += f", field {field!r}"
+        super().__init__(f"{where}: {message}")
+
+
+@dataclass(frozen=True)
+class CsvTable:
+    """A CSV file with a header: every data row has exactly len(header) cells (checked on read)."""
+
+    path: Path
+    header: tuple[str, ...]
+    rows: list[list[str]]
+    lines: np.ndarray   # (N,) file line number of each data row
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def column(self, name: str) -> list[str]:
+        idx = self.header.index(name)
+        return [r[idx] for r in self.rows]
+
+    def stream_length(self, names: Sequence[str]) -> int:
+        """Rows used by a stream of columns that may end early (trailing empty cells, as in the UTIL CSVs).
+
+        The named cells of a row are either all set or all empty, and once a stream has ended (an empty
+        row) it stays empty; anything else is a truncated or corrupted row.
+        """
+        filled = np.stack([np.fromiter((c.strip() != "" for c in self.column(n)), dtype=bool, count=len(self))
+                           for n in names], axis=1) if len(self) else np.zeros((0, len(names)), dtype=bool)
+        partial = np.nonzero(filled.any(axis=1) & ~filled.all(axis=1))[0]
+        if partial.size:
+            k = int(partial[0])
+            empty = [n for n, f in zip(names, filled[k]) if not f]
+            raise RecordingError(f"cell is empty while the rest of the stream ({', '.join(names)}) is set "
+                                 "(truncated or corrupted row)", path=self.path, line=int(self.lines[k]),
+                                 field=empty[0])
+        row_set = filled.all(axis=1) if len(names) else np.zeros(len(self), dtype=bool)
+        n = int(np.argmin(row_set)) if not row_set.all() else len(self)
+        later = np.nonzero(row_set[n:])[0]
+        if later.size:
+            k = n + int(later[0])
+            raise RecordingError(f"the stream ({', '.join(names)}) ended on line {int(self.lines[n])} but "
+                                 "resumes here; empty cells are only allowed at the end of a stream",
+                                 path=self.path, line=int(self.lines[k]), field=names[0])
+        return n
+
+    def floats(self, name: str, n: int | None = None, finite: bool = True) -> np.ndarray:
+        """The first n cells of a column as float64; a non-numeric (or NaN/Inf, if finite) cell is an error."""
+        cells = self.column(name)[: len(self) if n is None else n]
+        try:
+            values = np.array(cells, dtype=np.float64) if cells else np.zeros(0)
+        except ValueError:
+            for k, c in enumerate(cells):
+                try:
+                    float(c)
+                except ValueError:
+                    raise RecordingError(f"expected a number, got {c!r}", path=self.path,
+                                         line=int(self.lines[k]), field=name) from None
+            raise  # pragma: no cover - numpy and float() agree on what a number is
+        if finite:
+            bad = np.nonzero(~np.isfinite(values))[0]
+            if bad.size:
+                k = int(bad[0])
+                raise RecordingError(f"expected a finite number, got {cells[k].strip()!r} "
+                                     f"({bad.size} non-finite cell(s) in this column)", path=self.path,
+                                     line=int(self.lines[k]), field=name)
+        return values
+
+    def ints(self, name: str, n: int | None = None, lo: int = 0, hi: int = 255) -> np.ndarray:
+        """Integer ids written as integers or integral floats ("4", "4.0"), within [lo, hi]."""
+        values = self.floats(name, n)
+        bad = np.nonzero((values != np.round(values)) | (values < lo) | (values > hi))[0]
+        if bad.size:
+            k = int(bad[0])
+            raise RecordingError(f"expected an integer id in [{lo}, {hi}], got {self.column(name)[k]!r}",
+                                 path=self.path, line=int(self.lines[k]), field=name)
+        return values.astype(np.int64)
+
+
+def read_csv_table(path: Path, what: str) -> CsvTable:
+    """Read a headed CSV file strictly. `what` names the expected content in error messages."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{what} {path} not found")
+    if path.is_dir():
+        raise RecordingError(f"expected a {what} file, got a directory", path=path)
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            reader = csv.reader(f)
+            header: list[str] | None = None
+            rows: list[list[str]] = []
+            lines: list[int] = []
+            for row in reader:
+                if not row or all(not c.strip() for c in row):
+                    continue  # blank lines carry nothing; skipping them loses nothing
+                if header is None:
+                    header = [c.strip() for c in row]
+                    continue
+                if len(row) != len(header):
+                    raise RecordingError(f"expected {len(header)} fields (as in the header), got {len(row)} "
+                                         "(truncated or malformed line)", path=path, line=reader.line_num)
+                rows.append(row)
+                lines.append(reader.line_num)
+    except UnicodeDecodeError as exc:
+        raise RecordingError(f"not a UTF-8 text file ({exc.reason} at byte {exc.start})", path=path) from None
+    except csv.Error as exc:
+        raise RecordingError(f"malformed CSV: {exc}", path=path) from None
+    if header is None:
+        raise RecordingError(f"empty file, expected a {what} with a header line", path=path, line=1)
+    if len(set(header)) != len(header):
+        raise RecordingError(f"duplicate column names in the header: {header}", path=path, line=1)
+    return CsvTable(path=path, header=tuple(header), rows=rows, lines=np.asarray(lines, dtype=np.int64))
+
+
+def require_columns(table: CsvTable, expected: Sequence[str], what: str) -> None:
+    missing = [c for c in expected if c not in table.header]
+    if missing:
+        raise RecordingError(f"not a {what}: missing column(s) {missing}; expected header "
+                             f"{','.join(expected)}", path=table.path, line=1)
+
+
+def seconds_to_us(t_s: np.ndarray) -> np.ndarray:
+    """Seconds -> int64 microseconds, rounded to the nearest microsecond (the data has 1 us resolution)."""
+    return np.rint(np.asarray(t_s, dtype=np.float64) * 1e6).astype(np.int64)
+
+
+def check_not_backwards(t: np.ndarray, table: CsvTable, field: str, rows: np.ndarray | None = None) -> None:
+    """Refuse a stream whose time goes backwards; name the first offending line."""
+    bad = np.nonzero(np.diff(t) < 0)[0]
+    if bad.size:
+        k = int(bad[0]) + 1
+        row = int(rows[k]) if rows is not None else k
+        prev = int(rows[k - 1]) if rows is not None else k - 1
+        raise RecordingError(f"time goes backwards: {t[k]} after {t[k - 1]} on line {int(table.lines[prev])} "
+                             f"({bad.size} backward step(s) in this stream)", path=table.path,
+                             line=int(table.lines[row]), field=field)
+
+
+def repeated_rows(*columns: np.ndarray) -> np.ndarray:
+    """Mask of rows identical (every column) to the row before: logging duplicates, dropped and counted."""
+    n = len(columns[0])
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    same = np.ones(n - 1, dtype=bool)
+    for c in columns:
+        c = np.asarray(c)
+        d = c[1:] == c[:-1]
+        same &= d.all(axis=tuple(range(1, d.ndim))) if d.ndim > 1 else d
+    return np.concatenate([[False], same])
+
+
+def anchor_positions(anchors: Anchors, ids: np.ndarray) -> np.ndarray:
+    """Positions of the given (known) anchor ids, vectorised."""
+    lut = np.full(int(max(anchors.ids.max(), ids.max())) + 1, -1, dtype=np.int64)
+    lut[anchors.ids.astype(np.int64)] = np.arange(len(anchors.ids))
+    k = lut[ids.astype(np.int64)]
+    if np.any(k < 0):
+        raise FlightError(f"unknown anchor id(s) {sorted(set(ids[k < 0].tolist()))}")
+    return anchors.positions[k]
+
+
+def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions (w, x, y, z), body -> world -> (N, 3, 3) rotation matrices."""
+    w, x, y, z = (q[:, k] for k in range(4))
+    r = np.empty((len(q), 3, 3))
+    r[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    r[:, 0, 1] = 2 * (x * y - w * z)
+    r[:, 0, 2] = 2 * (x * z + w * y)
+    r[:, 1, 0] = 2 * (x * y + w * z)
+    r[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    r[:, 1, 2] = 2 * (y * z - w * x)
+    r[:, 2, 0] = 2 * (x * z - w * y)
+    r[:, 2, 1] = 2 * (y * z + w * x)
+    r[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return r
+
+
+def normalised_quats(q: np.ndarray, table: CsvTable | None, field: str, path: Path | None = None,
+                     rows: np.ndarray | None = None, tol: float = 0.01) -> np.ndarray:
+    """Normalise quaternions; one whose norm is off by more than tol is corrupt, not rounding."""
+    norm = np.linalg.norm(q, axis=1)
+    bad = np.nonzero(np.abs(norm - 1.0) > tol)[0]
+    if bad.size:
+        k = int(bad[0])
+        line = None
+        if table is not None:
+            line = int(table.lines[int(rows[k]) if rows is not None else k])
+        raise RecordingError(f"quaternion norm {norm[k]:.4f} is not 1 (expected a unit quaternion)",
+                             path=table.path if table is not None else path, line=line, field=field)
+    return q / norm[:, None]

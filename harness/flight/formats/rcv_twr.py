@@ -1,0 +1,170 @@
+"""The RCV drone TWR recordings (github cjhhalla/RCV_uwb_dataset, arXiv 2407.03890) -> Flight (KIND_TWR).
+
+A sequence is a directory:
+* `anchor.yaml`: anchor positions [m] and orientation quaternions [x, y, z, w] (see formats/anchors.py);
+* `anchor_K.csv`: `Time,Address,Range,Rxpower,Position X,Position Y,Position Z,Orientation X,Orientation Y,
+  Orientation Z,Orientation W`: TWR ranges to anchor K (1 cm resolution) with the tag pose the source
+  matched to each (nearest motion-capture sample within 10 ms); Time is a wall-clock datetime string;
+* `gt.csv`: `Time,Position X,Position Y,Position Z,Orientation X..W`: the whole motion-capture stream.
+
+The four anchors' ranges are merged in time order into one TWR stream (anchor id = K). Times become
+microseconds since the earliest timestamp of the sequence. Truth is gt.csv (pose as recorded, taken as the
+tag: the source's analysis does the same). `true_value` uses the pose matched in the anchor file itself.
+
+The source's analysis adds an antenna offset (0, -0.05, +0.045) m (world frame) to the surveyed anchor
+positions; we do the same by default (`anchor_offset`). Ranges <= 0 are impossible values (failed
+ranging, not noisy measurements; the source's analysis discards them too) and are dropped and counted.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from harness.flight.formats.anchors import load_anchor_yaml
+from harness.flight.formats.common import (CsvTable, RecordingError, anchor_positions, check_not_backwards,
+                                           normalised_quats, read_csv_table, repeated_rows)
+from harness.flight.model import KIND_TWR, Anchors, Flight, FlightError, Truth, UwbStream
+
+ANCHOR_COLUMNS = ("Time", "Address", "Range", "Rxpower", "Position X", "Position Y", "Position Z",
+                  "Orientation X", "Orientation Y", "Orientation Z", "Orientation W")
+GT_COLUMNS = ("Time", "Position X", "Position Y", "Position Z", "Orientation X", "Orientation Y",
+              "Orientation Z", "Orientation W")
+DEFAULT_ANCHOR_OFFSET = (0.0, -0.05, 0.045)
+_ANCHOR_FILE = re.compile(r"^anchor_(\d+)\.csv$")
+
+
+def is_rcv_twr_dir(path: Path) -> bool:
+    return path.is_dir() and ((path / "anchor.yaml").exists() or any(
+        _ANCHOR_FILE.match(p.name) for p in path.iterdir()))
+
+
+def load_rcv_twr(directory: Path, anchors: Anchors | None = None,
+                 anchor_offset: tuple[float, float, float] | None = DEFAULT_ANCHOR_OFFSET,
+                 drop_nonpositive: bool = True) -> Flight:
+    """One sequence directory -> Flight. `anchors` overrides anchor.yaml (the offset is applied to either)."""
+    directory = Path(directory)
+    if not directory.exists():
+        raise FileNotFoundError(f"recording {directory} not found")
+    if anchors is None:
+        yaml = directory / "anchor.yaml"
+        if not yaml.exists():
+            raise FileNotFoundError(f"anchor file {yaml} not found (an rcv_twr sequence needs anchor.yaml)")
+        anchors = load_anchor_yaml(yaml)
+    offset = np.zeros(3) if anchor_offset is None else np.asarray(anchor_offset, dtype=np.float64)
+    anchors = Anchors(ids=anchors.ids, positions=anchors.positions + offset, orientations=anchors.orientations)
+
+    files = sorted((int(m.group(1)), p) for p in directory.iterdir() if (m := _ANCHOR_FILE.match(p.name)))
+    if not files:
+        raise RecordingError("no anchor_K.csv range files in this directory", path=directory)
+    known = set(int(i) for i in anchors.ids)
+    gt_path = directory / "gt.csv"
+    gt = read_csv_table(gt_path, "rcv_twr ground-truth CSV")
+    _require(gt, GT_COLUMNS)
+    if len(gt) < 2:
+        raise RecordingError(f"the ground truth needs at least 2 samples, got {len(gt)}", path=gt_path)
+    gt_t = _datetimes(gt)
+    tables: list[tuple[int, CsvTable, np.ndarray]] = []
+    for k, path in files:
+        table = read_csv_table(path, "rcv_twr range CSV")
+        _require(table, ANCHOR_COLUMNS)
+        if k not in known:
+            raise RecordingError(f"unknown anchor {k}: the anchor file has {sorted(known)}", path=path)
+        tables.append((k, table, _datetimes(table)))
+    t0 = min([int(gt_t[0])] + [int(t[0]) for _, _, t in tables if len(t)])
+
+    dropped: dict[str, int] = {}
+    addresses: dict[str, list[int]] = {}
+    parts = []
+    for k, table, t_abs in tables:
+        t = t_abs - t0
+        check_not_backwards(t, table, "Time")
+        rng = table.floats("Range")
+        addr = table.ints("Address", hi=1 << 31)
+        pose = np.stack([table.floats(c) for c in ("Position X", "Position Y", "Position Z")], axis=1)
+        rep = repeated_rows(t, rng, pose)
+        if rep.any():
+            dropped[f"duplicate_rows_anchor_{k}"] = int(rep.sum())
+        keep = ~rep
+        if drop_nonpositive:
+            bad = keep & ~(rng > 0)
+            if bad.any():
+                dropped[f"nonpositive_range_anchor_{k}"] = int(bad.sum())
+            keep &= rng > 0
+        addresses[str(k)] = sorted(set(int(x) for x in addr))
+        parts.append((t[keep], np.full(int(keep.sum()), k, dtype=np.int64), rng[keep], pose[keep]))
+    t = np.concatenate([p[0] for p in parts])
+    aid = np.concatenate([p[1] for p in parts])
+    rng = np.concatenate([p[2] for p in parts])
+    matched = np.concatenate([p[3] for p in parts])
+    order = np.lexsort((aid, t))    # time order; equal times by anchor id, so the merge is deterministic
+    t, aid, rng, matched = t[order], aid[order], rng[order], matched[order]
+
+    truth = _truth(gt, gt_t - t0, dropped)
+    inside = (t >= truth.t_us[0]) & (t <= truth.t_us[-1])
+    if (~inside).any():
+        dropped["range_outside_truth_span"] = int((~inside).sum())
+    t, aid, rng, matched = t[inside], aid[inside], rng[inside], matched[inside]
+    if len(t) == 0:
+        raise RecordingError("no range measurement falls within the ground truth's time span", path=directory)
+    true_value = np.linalg.norm(matched - anchor_positions(anchors, aid), axis=1)
+    uwb = UwbStream(kind=KIND_TWR, t_us=t, anchor_a=aid, anchor_b=np.full(len(t), -1, dtype=np.int64), value=rng,
+                    true_value=true_value)
+    meta: dict[str, object] = {
+        "source": str(directory),
+        "format": "rcv-twr",
+        "dataset": "RCV_uwb_dataset",
+        "t0_unix_us": int(t0),
+        "anchor_offset_m": offset.tolist(),
+        "anchor_addresses": addresses,
+        "dropped": dropped,
+    }
+    flight = Flight(name=f"rcv_twr-{directory.name}", anchors=anchors, uwb=uwb, truth=truth, imu=None, meta=meta)
+    try:
+        flight.validate()
+    except FlightError as exc:  # pragma: no cover - the checks above are stricter
+        raise RecordingError(str(exc), path=directory) from None
+    return flight
+
+
+def _require(table: CsvTable, columns: tuple[str, ...]) -> None:
+    if tuple(table.header) != columns:
+        raise RecordingError(f"expected the header {','.join(columns)}, got {','.join(table.header)}",
+                             path=table.path, line=1)
+
+
+def _datetimes(table: CsvTable) -> np.ndarray:
+    """`YYYY-MM-DD HH:MM:SS.ffffff` cells -> int64 microseconds since the Unix epoch (naive wall clock)."""
+    cells = [c.strip() for c in table.column("Time")]
+    try:
+        return np.array(cells, dtype="datetime64[us]").astype(np.int64)
+    except ValueError:
+        for k, c in enumerate(cells):
+            try:
+                np.datetime64(c, "us")
+                if not re.match(r"^\d{4}-\d\d-\d\d[ T]\d\d:\d\d:\d\d", c):
+                    raise ValueError(c)
+            except ValueError:
+                raise RecordingError(f"expected a date-time 'YYYY-MM-DD HH:MM:SS.ffffff', got {c!r}",
+                                     path=table.path, line=int(table.lines[k]), field="Time") from None
+        raise  # pragma: no cover
+
+
+def _truth(gt: CsvTable, t: np.ndarray, dropped: dict[str, int]) -> Truth:
+    check_not_backwards(t, gt, "Time")
+    pos = np.stack([gt.floats(c) for c in ("Position X", "Position Y", "Position Z")], axis=1)
+    q_xyzw = np.stack([gt.floats(c) for c in ("Orientation X", "Orientation Y", "Orientation Z",
+                                              "Orientation W")], axis=1)
+    quat = normalised_quats(q_xyzw[:, [3, 0, 1, 2]], gt, "Orientation W")
+    rep = repeated_rows(t, pos, quat)
+    keep = np.nonzero(~rep)[0]
+    same_t = np.nonzero(np.diff(t[keep]) == 0)[0]
+    if same_t.size:
+        k = int(keep[same_t[0] + 1])
+        raise RecordingError("two different poses with the same timestamp (expected strictly increasing Time)",
+                             path=gt.path, line=int(gt.lines[k]), field="Time")
+    if rep.any():
+        dropped["duplicate_gt_rows"] = int(rep.sum())
+    return Truth(t_us=t[keep], pos=pos[keep], quat=quat[keep])
