@@ -39,6 +39,7 @@ BUILD_PORTABLE = REPO_ROOT / "firmware_sim" / "build" / "stm32-portable"
 ELF_M4 = BUILD_M4 / "uwb-fw.elf"
 ELF_PORTABLE = BUILD_PORTABLE / "uwb-fw.elf"
 ELF_NNBENCH = BUILD_M4 / "uwb-nnbench.elf"
+BUILD_PROBE = REPO_ROOT / "firmware_sim" / "build" / "stm32-probe"   # nnbench with the probe model
 
 SYSCLK_HZ = 168e6
 CYCLES_PER_INSTRUCTION = 2.0          # assumption, see the module docstring
@@ -54,14 +55,14 @@ class BenchError(RuntimeError):
 
 
 # ------------------------------------------------------------------------------------------ build
-def build(timeout_s: float = 900.0) -> None:
-    """Both firmware builds and the network bench ELF (make is incremental)."""
-    cmds = [["make", "-s", "-C", str(STM32_DIR), "fw", "nnbench"],
-            ["make", "-s", "-C", str(STM32_DIR), "fw", "NN_IMPL=portable", f"BUILD={BUILD_PORTABLE}"]]
-    for cmd in cmds:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
-        if proc.returncode != 0:
-            raise BenchError(f"{' '.join(cmd)} failed:\n{proc.stdout[-3000:]}{proc.stderr[-3000:]}")
+def build() -> None:
+    """The toolchain (installed when missing), both firmware builds, and the network bench ELF with the
+    shipped model and with the probe model (make is incremental)."""
+    from harness.stm32_build import build_stm32, build_stm32_with_model, ensure_tools, probe_model
+    ensure_tools()
+    build_stm32(("fw", "nnbench"))
+    build_stm32(("fw",), BUILD_PORTABLE, nn_impl="portable")
+    build_stm32_with_model(probe_model(), ("nnbench",), BUILD_PROBE)
 
 
 def size_figures(build_dir: Path) -> dict[str, Any]:
@@ -183,12 +184,15 @@ def stage_costs(device: Any, build_name: str, duration_s: float, seed: int) -> l
 # ------------------------------------------------------------------------------------------ network
 @dataclass
 class KernelRow:
+    model: str                 # "shipped" (firmware_sim/models) | "probe" (harness/stm32_build.py)
     kernel: str
     kind: str
     n: int
     instructions: float        # median per call
     speedup: float             # portable / this
     max_err_torch: float       # max |y - PyTorch|
+    unclamped: float           # share of reference outputs strictly inside (out_min, out_max)
+    ref_std: float             # spread of the reference outputs [m]; 0 = constant network (check vacuous)
 
 
 KERNELS = ("portable (core bias_nn.c)", "C blocked (nn_m4.c)", "asm VLDM+VFMA (nn_m4_kernel.S)")
@@ -291,9 +295,11 @@ def _process_start(elf: Path, log_dir: Path | None) -> Any:
 
 
 def network_kernels(n_inputs: int, seed: int, log_dir: Path | None = None,
-                    elf: Path = ELF_NNBENCH) -> list[KernelRow]:
+                    elf: Path = ELF_NNBENCH, model: str = "shipped") -> list[KernelRow]:
     """The compiled-in networks through the three kernels on the same random inputs (uniform over each
-    input's scaling range), against PyTorch on the same weights (dumped from the device)."""
+    input's scaling range), against PyTorch on the same weights (dumped from the device). The comparison
+    only means something where the output is not clamped and not constant: `unclamped` and `ref_std` say
+    how much of it does (the probe model of harness/stm32_build.py is built for that)."""
     from harness.device.qemu import PtyLink
     rng = np.random.default_rng(seed)
     rows: list[KernelRow] = []
@@ -312,12 +318,14 @@ def network_kernels(n_inputs: int, seed: int, log_dir: Path | None = None,
                 y, c = client.predict(kind, feats[i])
                 ys[i], costs[i] = y, c
             ref = torch_reference(net, feats)
+            inside = float(np.mean((ref > net.out_min) & (ref < net.out_max)))
             base = float(np.median(costs[:, 0]))
             for k, name in enumerate(KERNELS):
                 med = float(np.median(costs[:, k]))
-                rows.append(KernelRow(kernel=name, kind=kind_name, n=n_inputs, instructions=med,
+                rows.append(KernelRow(model=model, kernel=name, kind=kind_name, n=n_inputs, instructions=med,
                                       speedup=base / med if med else float("inf"),
-                                      max_err_torch=float(np.max(np.abs(ys[:, k] - ref)))))
+                                      max_err_torch=float(np.max(np.abs(ys[:, k] - ref))),
+                                      unclamped=inside, ref_std=float(np.std(ref))))
     finally:
         proc.stop()
     return rows
@@ -351,10 +359,17 @@ def print_report(out: dict[str, Any]) -> None:
     print(f"goal: TDoA update incl. network <= {GOAL_TDOA_NN_INSTR:,} instructions: {g['tdoa_nn_instructions']:,.0f} "
           f"-> {'OK' if g['tdoa_nn_ok'] else 'MISSED'}")
     print("== bias network alone (uwb-nnbench.elf, same run, same inputs): instructions per call")
-    print(f"{'kernel':34} {'net':5} {'instr':>8} {'speed-up':>9} {'max |y - PyTorch|':>18}")
+    print("   shipped = firmware_sim/models/bias_model_default.h; probe = random network of the same shapes whose")
+    print("   outputs stay inside the clamp (harness/stm32_build.py), so the PyTorch check tests every output")
+    print(f"{'model':8} {'kernel':32} {'net':5} {'instr':>8} {'speed-up':>9} {'max |y - PyTorch|':>18}"
+          f" {'unclamped':>9} {'std(y) m':>9}")
     for r in out["network"]:
-        print(f"{r['kernel']:34} {r['kind']:5} {r['instructions']:8.0f} {r['speedup']:8.2f}x {r['max_err_torch']:18.2e}")
+        print(f"{r['model']:8} {r['kernel']:32} {r['kind']:5} {r['instructions']:8.0f} {r['speedup']:8.2f}x "
+              f"{r['max_err_torch']:18.2e} {100 * r['unclamped']:8.0f}% {r['ref_std']:9.3g}")
     print(f"all kernels within {NN_TOLERANCE:g} of PyTorch: {g['nn_within_tolerance']}")
+    if any(r["ref_std"] == 0.0 for r in out["network"] if r["model"] == "shipped"):
+        print("   note: the shipped model's output is constant (untrained output layer): its PyTorch check is"
+              " vacuous, the probe's is not")
     s = out["size"]
     print("== size (arm-none-eabi-size, uwb-fw.elf with the M4 kernel)")
     print(f"flash {s['flash']:,} B (goal <= 65,536: {'OK' if s['flash'] <= 65536 else 'OVER'}), "
@@ -364,7 +379,8 @@ def print_report(out: dict[str, Any]) -> None:
 
 
 def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_dir: Path | None,
-              build_m4: Path = BUILD_M4, build_portable: Path = BUILD_PORTABLE) -> dict[str, Any]:
+              build_m4: Path = BUILD_M4, build_portable: Path = BUILD_PORTABLE,
+              build_probe: Path = BUILD_PROBE) -> dict[str, Any]:
     if do_build:
         build()
     out: dict[str, Any] = {"cycles_per_instruction_assumed": CYCLES_PER_INSTRUCTION, "sysclk_hz": SYSCLK_HZ}
@@ -373,7 +389,9 @@ def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_
         with qemu_device(elf, log_dir) as dev:
             stages += stage_costs(dev, name, duration_s, seed)
     out["stages"] = [asdict(r) for r in stages]
-    out["network"] = [asdict(r) for r in network_kernels(nn_inputs, seed, log_dir, build_m4 / "uwb-nnbench.elf")]
+    kernels = network_kernels(nn_inputs, seed, log_dir, build_m4 / "uwb-nnbench.elf", "shipped")
+    kernels += network_kernels(nn_inputs, seed, log_dir, build_probe / "uwb-nnbench.elf", "probe")
+    out["network"] = [asdict(r) for r in kernels]
     out["size"] = size_figures(build_m4)
     out["size_portable"] = size_figures(build_portable)
     tdoa_nn = [r for r in stages if r.build == "m4" and r.mode == "tdoa" and r.network]
@@ -396,10 +414,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--build-dir", type=Path, default=BUILD_M4, help="where uwb-fw.elf/uwb-nnbench.elf are")
     ap.add_argument("--portable-build-dir", type=Path, default=BUILD_PORTABLE,
                     help="where the NN_IMPL=portable uwb-fw.elf is")
+    ap.add_argument("--probe-build-dir", type=Path, default=BUILD_PROBE,
+                    help="where the probe-model uwb-nnbench.elf is")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     out = run_bench(args.duration, args.seed, args.nn_inputs, not args.no_build, args.log_dir,
-                    args.build_dir, args.portable_build_dir)
+                    args.build_dir, args.portable_build_dir, args.probe_build_dir)
     if args.json:
         print(json.dumps(out, indent=2))
     else:
