@@ -17,6 +17,13 @@ typedef char check_status_geom[((int)EST_REJECTED_GEOMETRY == (int)UWB_STATUS_RE
 typedef char check_err_anchor[((int)EST_ERR_UNKNOWN_ANCHOR == (int)UWB_ERROR_CODE_UNKNOWN_ANCHOR) ? 1 : -1];
 typedef char check_err_time[((int)EST_ERR_TIME_BACKWARDS == (int)UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
 typedef char check_err_id[((int)EST_ERR_BAD_ANCHOR_ID == (int)UWB_ERROR_CODE_BAD_ANCHOR_ID) ? 1 : -1];
+typedef char check_ctl_time[((int)CTL_ERR_TIME_BACKWARDS == (int)UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
+typedef char check_ctl_off[((int)CTL_MODE_OFF == (int)UWB_CONTROL_MODE_OFF) ? 1 : -1];
+typedef char check_ctl_pos[((int)CTL_MODE_POSITION == (int)UWB_CONTROL_MODE_POSITION) ? 1 : -1];
+typedef char check_ctl_sat[((int)CTL_FLAG_THRUST_SATURATED == (int)UWB_CONTROL_FLAG_THRUST_SATURATED) ? 1 : -1];
+typedef char check_ctl_tilt[((int)CTL_FLAG_TILT_LIMITED == (int)UWB_CONTROL_FLAG_TILT_LIMITED) ? 1 : -1];
+typedef char check_ctl_rate[((int)CTL_FLAG_RATE_LIMITED == (int)UWB_CONTROL_FLAG_RATE_LIMITED) ? 1 : -1];
+typedef char check_ctl_int[((int)CTL_FLAG_INTEGRATOR_LIMITED == (int)UWB_CONTROL_FLAG_INTEGRATOR_LIMITED) ? 1 : -1];
 
 static void send_msg(firmware_t *fw, uwb_msg_t *msg)
 {
@@ -60,6 +67,11 @@ void firmware_init(firmware_t *fw, fw_write_fn write, void *write_ctx, const cha
 {
     memset(fw, 0, sizeof *fw);
     estimator_init(&fw->est, &bias_model_compiled);
+    {
+        ctl_params_t cp;
+        controller_default_params(&cp);
+        controller_init(&fw->ctl, &cp);
+    }
     frame_rx_init(&fw->rx);
     fw->write = write;
     fw->write_ctx = write_ctx;
@@ -224,6 +236,64 @@ static void on_measurement(firmware_t *fw, const uwb_msg_t *in)
     send_msg(fw, &out);
 }
 
+/* One control step on the current estimate; answered by CONTROL (or ERROR). */
+static void on_setpoint(firmware_t *fw, const uwb_msg_t *in)
+{
+    const uwb_setpoint_t *s = &in->u.setpoint;
+    ctl_setpoint_t sp;
+    ctl_estimate_t est;
+    ctl_output_t co;
+    uwb_msg_t out;
+    uint32_t t0, t1;
+    int rc;
+    if (s->mode > UWB_CONTROL_MODE_POSITION || s->reserved != 0) {
+        send_error(fw, UWB_ERROR_CODE_BAD_SETPOINT, in, s->mode);
+        return;
+    }
+    sp.mode = s->mode;
+    sp.pos[0] = s->x;
+    sp.pos[1] = s->y;
+    sp.pos[2] = s->z;
+    sp.vel[0] = s->vx;
+    sp.vel[1] = s->vy;
+    sp.vel[2] = s->vz;
+    sp.acc[0] = s->ax;
+    sp.acc[1] = s->ay;
+    sp.acc[2] = s->az;
+    sp.yaw = s->yaw;
+    t0 = platform_cost_now();
+    estimator_state(&fw->est, est.pos, est.vel, est.quat, NULL);
+    rc = controller_step(&fw->ctl, s->t_us, &sp, &est, &co);
+    t1 = platform_cost_now();
+    if (rc != CTL_OK) {
+        fw->stats.time_backwards++;
+        send_error(fw, (uint8_t)rc, in, 0);
+        return;
+    }
+    memset(&out, 0, sizeof out);
+    out.type = UWB_MSG_CONTROL;
+    out.u.control.setpoint_seq = in->seq;
+    out.u.control.mode = co.mode;
+    out.u.control.flags = co.flags;
+    out.u.control.t_us = s->t_us;
+    out.u.control.thrust = co.thrust;
+    out.u.control.rate_x = co.rate[0];
+    out.u.control.rate_y = co.rate[1];
+    out.u.control.rate_z = co.rate[2];
+    out.u.control.px = est.pos[0];
+    out.u.control.py = est.pos[1];
+    out.u.control.pz = est.pos[2];
+    out.u.control.vx = est.vel[0];
+    out.u.control.vy = est.vel[1];
+    out.u.control.vz = est.vel[2];
+    out.u.control.qw = est.quat[0];
+    out.u.control.qx = est.quat[1];
+    out.u.control.qy = est.quat[2];
+    out.u.control.qz = est.quat[3];
+    out.u.control.compute = t1 - t0;
+    send_msg(fw, &out);
+}
+
 static void track_seq(firmware_t *fw, uint16_t seq)
 {
     if (fw->rx_seq_valid && seq != fw->next_rx_seq) {
@@ -281,6 +351,9 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
         break;
     case UWB_MSG_STATS_REQ:
         on_stats_req(fw);
+        break;
+    case UWB_MSG_SETPOINT:
+        on_setpoint(fw, in);
         break;
     default:
         /* A device -> host type arriving at the device. */

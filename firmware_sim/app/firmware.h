@@ -6,6 +6,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "controller.h"
 #include "estimator.h"
 #include "frame_rx.h"
 #include "uwb_msgs.h"
@@ -25,6 +26,7 @@ typedef struct {
 
 typedef struct {
     estimator_t est;
+    controller_t ctl;         /* closed loop: SETPOINT -> CONTROL */
     frame_rx_t rx;
     fw_stats_t stats;
     uint16_t tx_seq;
