@@ -25,7 +25,7 @@ import struct
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Iterator
 from contextlib import contextmanager
@@ -86,13 +86,26 @@ def qemu_device(elf: Path, log_dir: Path | None = None, timeout_s: float = 10.0)
 
 
 # ------------------------------------------------------------------------------------------ flights
-def flight_for(mode: str, duration_s: float, seed: int) -> Any:
-    """A short simulated flight: the project's simulator when present, else a synthetic circle."""
+def flight_for(mode: str, duration_s: float, seed: int, uwb_hz: float = 100.0, imu_hz: float = 500.0) -> Any:
+    """A short simulated circle flight: the project's simulator when present, else a synthetic circle.
+
+    The emulated UART moves ~65 us per byte, so the stream is kept light: UWB at `uwb_hz` and the
+    simulator's 1 kHz IMU decimated to `imu_hz` (the estimator predicts every 10 ms either way). The
+    per-measurement instruction counts do not depend on these rates."""
     try:
         from harness.flight.scenarios import scenario_flight
     except ImportError:
-        return synthetic_flight(mode, duration_s, seed)
-    return scenario_flight("circle", mode=mode, duration_s=duration_s, seed=seed, noise="gaussian", noise_std=0.1)
+        return synthetic_flight(mode, duration_s, seed, uwb_hz, imu_hz)
+    from harness.flight.model import ImuStream
+    flight = scenario_flight("circle", mode=mode, duration_s=duration_s, seed=seed, noise="gaussian",
+                             noise_std=0.1, rate_hz=uwb_hz)
+    imu = flight.imu
+    if imu is not None and len(imu) > 1:
+        step = max(1, int(round(1e6 / imu_hz / float(np.median(np.diff(imu.t_us))))))
+        imu = ImuStream(t_us=imu.t_us[::step], acc=imu.acc[::step], gyro=imu.gyro[::step])
+        flight = replace(flight, imu=imu)
+        flight.validate()
+    return flight
 
 
 def synthetic_flight(mode: str, duration_s: float, seed: int, uwb_hz: float = 100.0, imu_hz: float = 500.0) -> Any:
