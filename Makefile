@@ -12,6 +12,8 @@ help:
 	@echo "make test      set up and run every test (C unit tests with sanitizers + pytest)"
 	@echo "make bench     speed figures (ratios against baselines measured in the same run)"
 	@echo "make firmware  build firmware_sim/build/uwb-fw (+ an ASan/UBSan build)"
+	@echo "make stm32     STM32F405 build for QEMU / a board (installs the ARM toolchain + QEMU if missing)"
+	@echo "make size      flash / RAM of the STM32F405 firmware, with the bias network's share"
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -31,13 +33,27 @@ demo: $(STAMP) firmware
 test-c:
 	$(MAKE) -C firmware_sim test
 
-test-py: $(STAMP) firmware
+test-py: $(STAMP) firmware stm32
 	$(PY) -m pytest -q
 
 test: test-c test-py
 
-bench: $(STAMP) firmware
+bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench
+	$(PY) -m harness.bench_qemu
+
+# STM32F405 (Crazyflie MCU) build, run under QEMU by tests/test_qemu.py and harness/bench_qemu.py
+# (docs/qemu.md). The ARM toolchain and QEMU come from Debian when missing: the script runs
+# apt-get update + install (root or password-less sudo; UWB_NO_INSTALL=1 only checks).
+.PHONY: arm-tools stm32 size
+arm-tools:
+	bash scripts/ensure_arm_tools.sh
+
+stm32: arm-tools
+	$(MAKE) -C firmware_sim/stm32 fw selftest nnbench
+
+size: stm32
+	@$(MAKE) -s -C firmware_sim/stm32 size
 
 clean:
 	$(MAKE) -C firmware_sim clean
