@@ -4,8 +4,8 @@ UWB measured value = true value + pose-dependent bias + multipath/NLOS error + G
 quantised to the DW1000 clock tick. Per measurement (TWR to anchor i, or TDoA of pair (A, B)):
 
 * Range bias of the link tag <-> anchor i (`AntennaConfig`), a smooth function of the relative pose:
-      b_i = o_i + k_bore (1 - u_a.x) + sum_k c_ik Y_k(u_a) + k_dough (u_t.z)^2 + sum_k t_k Y_k(u_t)
-            + k_range (r - r_ref)
+      b_i = o_i + k_bore (1 - u_a.x) + sum_k c_ik Y_k(u_a) + k_dough (u_t.z)^2 + k_elev u_t.z
+            + sum_k t_k Y_k(u_t) + k_range (r - r_ref)     (+ twr_offset for TWR)
   u_a = unit vector to the tag in the anchor antenna frame (anchor orientation), u_t = unit vector to
   the anchor in the tag body frame (so roll/pitch/yaw matter), Y_k = the 8 real degree-1/2 harmonics
   (x, y, z, xy, xz, yz, x^2 - y^2, 3z^2 - 1)/norm. o_i and c_ik are per anchor, t_k belong to the one
@@ -18,10 +18,11 @@ quantised to the DW1000 clock tick. Per measurement (TWR to anchor i, or TDoA of
 * TDoA bias of pair (A, B): b_B - b_A + o_AB + k_pair (u_t.z of B - u_t.z of A): the two range biases
   plus the pair's own term (antenna-delay/clock calibration residual o_AB = -o_BA, per pair from
   `hardware_seed`, and an attitude-dependent term).
-* Multipath/NLOS (`NlosConfig`): with probability
-      p = p_base + p_ground exp(-z / h_ground) + p_block [line of sight crosses an obstacle box]
-  a link gets a positive error: a fixed penetration delay (blocked links only) plus an exponential with
-  mean `mean_m`. For TDoA the errors of the two links enter with their signs (B minus A).
+* Multipath/NLOS (`NlosConfig`): with probability p = p_base + p_ground exp(-z / h_ground) a link gets
+  a positive excess path, exponential with mean `mean_m` (rare, large; more frequent near the ground).
+  A link whose line of sight crosses an obstacle box is, with probability p_block, delayed by
+  block_delay_m plus an exponential with mean block_mean_m (penetration: persistent while blocked).
+  For TDoA the excesses of the two links enter with their signs (B minus A).
 * Gaussian noise: std `twr_std` for TWR, `tdoa_std` for TDoA (TDoA is noisier, as the paper observes).
 * Clock quantisation: values are rounded to c / (499.2 MHz x 128) = 4.69 mm (DW1000 timestamp tick).
 * IMU (`ImuConfig`): white noise per sample, a turn-on bias and a bias random walk, accelerometer and
@@ -54,27 +55,29 @@ class AntennaConfig:
     """Pose-dependent range bias (see module doc). Lengths in metres."""
 
     hardware_seed: int = 2024
-    anchor_offset_std: float = 0.03     # o_i
-    anchor_pattern_std: float = 0.025   # c_ik, per harmonic
+    anchor_offset_std: float = 0.02     # o_i
+    anchor_pattern_std: float = 0.010   # c_ik, per harmonic
     boresight_k: float = 0.05           # k_bore
-    tag_pattern_std: float = 0.02       # t_k, per harmonic
-    doughnut_k: float = 0.10            # k_dough
+    tag_pattern_std: float = 0.008      # t_k, per harmonic
+    doughnut_k: float = 0.08            # k_dough
+    tag_elev_k: float = -0.06           # k_elev: anchor above the tag's horizon -> shorter (seen in rcv_twr)
     range_k: float = 0.006              # k_range [m per m]
     range_ref: float = 4.5              # r_ref [m]
-    pair_offset_std: float = 0.05       # o_AB (TDoA only)
-    pair_att_k: float = 0.04            # k_pair (TDoA only)
+    pair_offset_std: float = 0.025      # o_AB (TDoA only)
+    pair_att_k: float = 0.02            # k_pair (TDoA only)
 
 
 @dataclass(frozen=True)
 class NlosConfig:
     """Multipath / non-line-of-sight errors (rare, large, positive on a link)."""
 
-    p_base: float = 0.004
-    p_ground: float = 0.03
-    h_ground: float = 0.3          # [m] e-folding height of the ground effect
-    p_block: float = 0.0           # extra probability when the line of sight crosses an obstacle
-    block_delay_m: float = 0.0     # fixed extra path when blocked [m]
-    mean_m: float = 0.4            # exponential mean of the multipath excess [m]
+    p_base: float = 0.0005
+    p_ground: float = 0.01
+    h_ground: float = 0.2          # [m] e-folding height of the ground effect
+    mean_m: float = 0.3            # exponential mean of the multipath excess [m]
+    p_block: float = 0.0           # probability that a link whose line of sight crosses an obstacle is delayed
+    block_delay_m: float = 0.0     # fixed extra path of a delayed blocked link [m]
+    block_mean_m: float = 0.1      # plus an exponential with this mean [m]
 
 
 @dataclass(frozen=True)
@@ -95,8 +98,9 @@ class SimConfig:
     antenna: AntennaConfig = field(default_factory=AntennaConfig)
     nlos: NlosConfig = field(default_factory=NlosConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
-    twr_std: float = 0.035         # [m] Gaussian noise of a TWR range
-    tdoa_std: float = 0.06         # [m] Gaussian noise of a TDoA value
+    twr_std: float = 0.04          # [m] Gaussian noise of a TWR range
+    tdoa_std: float = 0.055        # [m] Gaussian noise of a TDoA value
+    twr_offset: float = 0.0        # [m] constant TWR offset (antenna-delay residual; rcv_twr radios: ~0.25)
     quantum_m: float = DW1000_TICK_M
     obstacles: bool = False        # place the NLOS boxes (harness/flight/arena.py) in the arena
     schedule_jitter: float = 0.1   # measurement time jitter as a fraction of the period
@@ -110,9 +114,9 @@ def sim_config(profile: str = "los") -> SimConfig:
     if profile == "los":
         return SimConfig()
     if profile == "nlos":
-        return SimConfig(name="nlos", nlos=NlosConfig(p_base=0.02, p_ground=0.05, p_block=0.6, block_delay_m=0.25,
-                                                      mean_m=0.5),
-                         tdoa_std=0.08, twr_std=0.045, obstacles=True)
+        return SimConfig(name="nlos", nlos=NlosConfig(p_base=0.005, p_ground=0.02, mean_m=0.3, p_block=1.0,
+                                                      block_delay_m=0.15, block_mean_m=0.15),
+                         tdoa_std=0.06, twr_std=0.045, obstacles=True)
     raise ValueError(f"unknown simulator profile {profile!r}; choose one of {', '.join(PROFILES)}")
 
 
@@ -176,7 +180,7 @@ def range_bias(cfg: AntennaConfig, hw: HardwareParams, anchor_ids: np.ndarray, a
     coef = np.stack([hw.anchor_coef[int(i)] for i in anchor_ids]) if len(anchor_ids) else np.zeros((0, 8))
     off = np.array([hw.anchor_offset[int(i)] for i in anchor_ids])
     return (off + cfg.boresight_k * (1.0 - u_a[:, 0]) + np.sum(coef * harmonics(u_a), axis=1)
-            + cfg.doughnut_k * u_t[:, 2] ** 2 + harmonics(u_t) @ hw.tag_coef + cfg.range_k * (r - cfg.range_ref))
+            + cfg.doughnut_k * u_t[:, 2] ** 2 + cfg.tag_elev_k * u_t[:, 2] + harmonics(u_t) @ hw.tag_coef + cfg.range_k * (r - cfg.range_ref))
 
 
 @dataclass(frozen=True)
@@ -190,12 +194,16 @@ class UwbErrors:
 
 def _link_nlos(cfg: NlosConfig, arena: Arena, anchor_pos: np.ndarray, tag_pos: np.ndarray,
                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Excess path of each link: multipath events (rare, more likely near the ground) and obstacle
+    penetration delays (a blocked line of sight: a fixed delay plus an exponential spread)."""
     n = tag_pos.shape[0]
     blocked = arena.blocked(tag_pos, anchor_pos) if arena.boxes else np.zeros(n, dtype=bool)
-    p = cfg.p_base + cfg.p_ground * np.exp(-np.maximum(tag_pos[:, 2], 0.0) / cfg.h_ground) + cfg.p_block * blocked
-    hit = rng.random(n) < np.clip(p, 0.0, 1.0)
-    excess = rng.exponential(cfg.mean_m, size=n) + cfg.block_delay_m * blocked
-    return np.where(hit, excess, 0.0), hit
+    p = cfg.p_base + cfg.p_ground * np.exp(-np.maximum(tag_pos[:, 2], 0.0) / cfg.h_ground)
+    multipath = rng.random(n) < np.clip(p, 0.0, 1.0)
+    delayed = blocked & (rng.random(n) < cfg.p_block)
+    excess = (np.where(multipath, rng.exponential(cfg.mean_m, size=n), 0.0)
+              + np.where(delayed, cfg.block_delay_m + rng.exponential(cfg.block_mean_m, size=n), 0.0))
+    return excess, multipath | delayed
 
 
 def uwb_errors(cfg: SimConfig, kind: int, arena: Arena, tag_pos: np.ndarray, tag_quat: np.ndarray,
@@ -212,7 +220,7 @@ def uwb_errors(cfg: SimConfig, kind: int, arena: Arena, tag_pos: np.ndarray, tag
     na, ha = _link_nlos(cfg.nlos, arena, pa, tag_pos, rng)
     n = tag_pos.shape[0]
     if kind == KIND_TWR:
-        bias, nlos, flag = ba, na, ha
+        bias, nlos, flag = ba + cfg.twr_offset, na, ha
         noise = rng.normal(0.0, cfg.twr_std, size=n)
     elif kind == KIND_TDOA:
         kb = np.array([idx[int(i)] for i in b_ids], dtype=np.int64)
@@ -221,7 +229,9 @@ def uwb_errors(cfg: SimConfig, kind: int, arena: Arena, tag_pos: np.ndarray, tag
         nb, hb = _link_nlos(cfg.nlos, arena, pb, tag_pos, rng)
         _, ut_a, _ = link_directions(pa, qa, tag_pos, tag_quat)
         _, ut_b, _ = link_directions(pb, qb, tag_pos, tag_quat)
-        pair = np.array([hw.pair_offset(int(a), int(b), cfg.antenna) for a, b in zip(a_ids, b_ids)])
+        pair = np.zeros(n)
+        for a, b in set(zip(a_ids.tolist(), b_ids.tolist())):
+            pair[(a_ids == a) & (b_ids == b)] = hw.pair_offset(a, b, cfg.antenna)
         bias = bb - ba + pair + cfg.antenna.pair_att_k * (ut_b[:, 2] - ut_a[:, 2])
         nlos, flag = nb - na, ha | hb
         noise = rng.normal(0.0, cfg.tdoa_std, size=n)

@@ -165,15 +165,18 @@ def scenario_flight(name: str, mode: str = "twr", duration_s: float = 30.0, seed
 
     kind_mode = "twr" if mode == "twr" else ("tdoa3" if mode == "tdoa3" else "tdoa2")
     t_us, a_ids, b_ids = _schedule(kind_mode, arena.anchors, total_s, rate_hz, rng_sched, cfg.schedule_jitter)
-    ms = sample(traj, t_us * 1e-6)
-    pa = np.stack([arena.anchors.position(int(i)) for i in a_ids]) if len(a_ids) else np.zeros((0, 3))
-    da = np.linalg.norm(ms.pos - pa, axis=1)
+    # Measurement-time truth: exact positions; attitude interpolated from the 1 kHz truth (1 ms apart).
+    truth = Truth(t_us=t_imu_us, pos=s.pos, quat=s.quat, vel=s.vel)
+    m_pos = traj.pos(t_us * 1e-6)
+    index = {int(i): k for k, i in enumerate(arena.anchors.ids)}
+    pa = arena.anchors.positions[np.array([index[int(i)] for i in a_ids], dtype=np.int64)].reshape(-1, 3)
+    da = np.linalg.norm(m_pos - pa, axis=1)
     if kind_mode == "twr":
         true_value = da
         kind = KIND_TWR
     else:
-        pb = np.stack([arena.anchors.position(int(i)) for i in b_ids]) if len(b_ids) else np.zeros((0, 3))
-        true_value = np.linalg.norm(ms.pos - pb, axis=1) - da
+        pb = arena.anchors.positions[np.array([index[int(i)] for i in b_ids], dtype=np.int64)].reshape(-1, 3)
+        true_value = np.linalg.norm(m_pos - pb, axis=1) - da
         kind = KIND_TDOA
 
     if noise == "none":
@@ -183,7 +186,7 @@ def scenario_flight(name: str, mode: str = "twr", duration_s: float = 30.0, seed
         value = true_value + rng_uwb.normal(0.0, noise_std, size=true_value.shape)
         acc, gyro = apply_imu_errors(s.f_body, s.omega, 1.0 / IMU_RATE_HZ, cfg.imu, rng_imu)
     else:
-        err = uwb_errors(cfg, kind, arena, ms.pos, ms.quat, a_ids, b_ids, rng_uwb)
+        err = uwb_errors(cfg, kind, arena, m_pos, truth.quat_at(t_us), a_ids, b_ids, rng_uwb)
         value = quantise(true_value + err.total, cfg.quantum_m)
         acc, gyro = apply_imu_errors(s.f_body, s.omega, 1.0 / IMU_RATE_HZ, cfg.imu, rng_imu)
 
@@ -201,7 +204,7 @@ def scenario_flight(name: str, mode: str = "twr", duration_s: float = 30.0, seed
         name=f"sim-{name}-{kind_mode}-{noise}-s{seed}",
         anchors=arena.anchors,
         uwb=UwbStream(kind=kind, t_us=t_us, anchor_a=a_ids, anchor_b=b_ids, value=value, true_value=true_value),
-        truth=Truth(t_us=t_imu_us, pos=s.pos, quat=s.quat, vel=s.vel),
+        truth=truth,
         imu=ImuStream(t_us=t_imu_us, acc=acc, gyro=gyro),
         meta=meta,
     )

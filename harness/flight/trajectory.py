@@ -81,13 +81,6 @@ class TrajectorySample:
     f_body: np.ndarray   # (N, 3) specific force in the body frame [m/s^2]
 
 
-def _vel_acc(fn: PosFn, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    p0 = fn(t)
-    pp = fn(t + _H)
-    pm = fn(t - _H)
-    return p0, (pp - pm) / (2.0 * _H), (pp - 2.0 * p0 + pm) / (_H * _H)
-
-
 def _rotation(acc: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Body->world rotation (N, 3, 3) of a quadrotor producing `acc` with heading `yaw`."""
     thrust = acc + np.array([0.0, 0.0, GRAVITY])
@@ -154,10 +147,14 @@ def quat_to_euler(q: np.ndarray) -> np.ndarray:
 def sample(traj: Trajectory, t: np.ndarray) -> TrajectorySample:
     """Position, velocity, acceleration, attitude, body rates and specific force at times t [s]."""
     t = np.asarray(t, dtype=np.float64)
-    pos, vel, acc = _vel_acc(traj.pos, t)
+    p = [traj.pos(t + k * _H) for k in (-2, -1, 0, 1, 2)]   # 5 evaluations give a(t-H), a(t), a(t+H)
+    h2 = _H * _H
+    acc_m, acc, acc_p = ((p[k - 1] - 2.0 * p[k] + p[k + 1]) / h2 for k in (1, 2, 3))
+    pos = p[2]
+    vel = (p[3] - p[1]) / (2.0 * _H)
     r0 = _rotation(acc, traj.yaw(t))
-    rp = _rotation(_vel_acc(traj.pos, t + _H)[2], traj.yaw(t + _H))
-    rm = _rotation(_vel_acc(traj.pos, t - _H)[2], traj.yaw(t - _H))
+    rp = _rotation(acc_p, traj.yaw(t + _H))
+    rm = _rotation(acc_m, traj.yaw(t - _H))
     rdot = (rp - rm) / (2.0 * _H)
     w_hat = np.einsum("nji,njk->nik", r0, rdot)      # R^T Rdot = [omega]x
     omega = np.stack([w_hat[:, 2, 1] - w_hat[:, 1, 2], w_hat[:, 0, 2] - w_hat[:, 2, 0],
