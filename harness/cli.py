@@ -4,6 +4,7 @@
     uwb-hil run --recording FILE --anchors anchors.csv     # a recorded flight
     uwb-hil run --port /dev/ttyACM0 ...                    # a real board
     uwb-hil demo                                           # TWR and TDoA x three configurations
+    uwb-hil calibrate --out DIR                            # simulator vs real UWB error statistics
 """
 
 from __future__ import annotations
@@ -197,6 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_device_options(demo)
     demo.add_argument("--json", action="store_true")
     demo.set_defaults(func=cmd_demo, duration=20.0)
+    from harness.calibrate import add_parser as add_calibrate_parser
+    add_calibrate_parser(sub)
     return ap
 
 
