@@ -84,7 +84,7 @@ def error_stats(err: np.ndarray, a: np.ndarray, b: np.ndarray | None = None, cli
             pair_means[f"{int(pa)}-{int(pb)}" if pb >= 0 else f"{int(pa)}"] = float(e_c[m].mean())
     pm = np.array(list(pair_means.values()))
     # White-noise part: successive differences within a pair (time-ordered), |d| < 0.5 m, std / sqrt(2).
-    diffs = [np.diff(err[inv == k]) for k in range(len(uniq))]
+    diffs = [np.diff(e_c[inv == k]) for k in range(len(uniq))]
     d = np.concatenate(diffs) if diffs else np.zeros(0)
     d = d[np.abs(d) < 0.5]
     return ErrorStats(noise=float(d.std() / np.sqrt(2.0)) if d.size > 1 else math.nan,
