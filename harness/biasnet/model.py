@@ -12,8 +12,9 @@ the same hash in Python and in the generated C header.
 from __future__ import annotations
 
 import hashlib
+import json
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -135,6 +136,8 @@ class BiasModel:
     twr: BiasNetwork | None = None
     tdoa: BiasNetwork | None = None
     name: str = "unnamed"
+    #: Provenance (training data, config, figures): saved with the model, not part of the hash.
+    meta: dict[str, object] = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         if self.twr is not None and self.twr.layout not in _TWR_LAYOUTS:
@@ -164,14 +167,15 @@ class BiasModel:
 
     def replace(self, kind: str, net: BiasNetwork | None) -> "BiasModel":
         return BiasModel(twr=net if kind == "twr" else self.twr, tdoa=net if kind == "tdoa" else self.tdoa,
-                         name=self.name)
+                         name=self.name, meta=dict(self.meta))
 
     # ------------------------------------------------------------------------------------------ files
     def save(self, path: Path) -> Path:
         path = Path(path)
         arrays: dict[str, np.ndarray] = {"format_version": np.array(FORMAT_VERSION, dtype=np.int64),
                                          "name": np.array(self.name),
-                                         "hash": np.array(self.hash_hex)}
+                                         "hash": np.array(self.hash_hex),
+                                         "meta_json": np.array(json.dumps(self.meta, sort_keys=True, default=str))}
         for kind in _KINDS:
             net = self.network(kind)
             if net is not None:
@@ -196,7 +200,11 @@ class BiasModel:
             raise ModelFormatError(f"{path}: format_version {version}, expected {FORMAT_VERSION}")
         nets = {kind: BiasNetwork.from_arrays(arrays, kind, str(path)) if f"{kind}_layout" in arrays else None
                 for kind in _KINDS}
-        model = cls(twr=nets["twr"], tdoa=nets["tdoa"], name=str(arrays.get("name", path.stem)))
+        try:
+            meta = json.loads(str(arrays.get("meta_json", "{}")))
+        except json.JSONDecodeError as exc:
+            raise ModelFormatError(f"{path}: meta_json is not JSON ({exc})") from None
+        model = cls(twr=nets["twr"], tdoa=nets["tdoa"], name=str(arrays.get("name", path.stem)), meta=meta)
         stored = str(arrays.get("hash", ""))
         if stored and stored != model.hash_hex:
             raise ModelFormatError(f"{path}: stored hash {stored} does not match its weights ({model.hash_hex})")

@@ -1,0 +1,262 @@
+"""`uwb-hil train`, `uwb-hil export-c`, `uwb-hil eval-bias`, `uwb-hil models` (the subcommands of the bias network)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+from harness.biasnet.baselines import PairConstant, VoxelTable
+from harness.biasnet.dataset import XI_DEFAULT, Samples, build_samples
+from harness.biasnet.evaluate import Evaluation, evaluate
+from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
+from harness.biasnet.model import BiasModel
+from harness.biasnet.recipes import SimRecipe, load_recordings
+from harness.biasnet.train import TrainConfig, TrainReport, train_network
+from harness.flight.model import KIND_TWR, Flight
+from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
+
+LAYOUTS = {("twr", "pose"): LAYOUT_TWR_POSE, ("twr", "pos"): LAYOUT_TWR_POS,
+           ("tdoa", "pose"): LAYOUT_TDOA_POSE, ("tdoa", "pos"): LAYOUT_TDOA_POS}
+
+
+# ---------------------------------------------------------------------------------------------- progress
+def _progress(label: str) -> tuple[Callable[[int, float, float], None], Callable[[], None]]:
+    """A rich bar with the losses when stderr is a terminal; one line per epoch otherwise."""
+    if not sys.stderr.isatty():
+        def plain(epoch: int, tr: float, va: float) -> None:
+            print(f"  {label} epoch {epoch:3d}  train {tr:.3e}  val {va:.3e}", file=sys.stderr, flush=True)
+        return plain, (lambda: None)
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    prog = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[losses]}"),
+                    TimeElapsedColumn(), transient=True)
+    prog.start()
+    task = prog.add_task(label, total=None, losses="")
+
+    def update(epoch: int, tr: float, va: float) -> None:
+        prog.update(task, completed=epoch, losses=f"epoch {epoch} train {tr:.2e} val {va:.2e}")
+    return update, prog.stop
+
+
+def _flights_progress(label: str) -> Callable[[int, int], None]:
+    def show(done: int, total: int) -> None:
+        print(f"\r  {label}: {done}/{total} flights", end="\n" if done == total else "", file=sys.stderr, flush=True)
+    return show
+
+
+# ------------------------------------------------------------------------------------------------- train
+def train_kind(flights: list[Flight], layout: int | None, cfg: TrainConfig, label: str,
+               val_flights: list[Flight] | None = None, xi: float = XI_DEFAULT) -> tuple[Any, TrainReport, Samples]:
+    samples = build_samples(flights, layout, xi)
+    val = build_samples(val_flights, samples.layout, xi) if val_flights else None
+    update, stop = _progress(f"training {label}")
+    try:
+        net, report = train_network(samples, cfg, val=val, progress=update)
+    finally:
+        stop()
+    return net, report, samples
+
+
+def _report_dict(report: TrainReport) -> dict[str, Any]:
+    return {"epochs": report.epochs, "best_epoch": report.best_epoch, "n_train": report.n_train,
+            "n_val": report.n_val, "seconds": round(report.seconds, 2), "stopped_by": report.stopped_by,
+            "val_rmse_before_m": report.val_rmse_before_m, "val_rmse_after_m": report.val_rmse_after_m}
+
+
+def _train_config(args: argparse.Namespace) -> TrainConfig:
+    lr = args.lr if args.lr is not None else (3e-3 if args.optimizer == "adam" else 0.05)
+    return TrainConfig(optimizer=args.optimizer, lr=lr, batch_size=args.batch_size, max_epochs=args.epochs,
+                       patience=args.patience, val_fraction=args.val_fraction, seed=args.seed,
+                       time_budget_s=args.time_budget)
+
+
+def _training_flights(args: argparse.Namespace) -> tuple[list[Flight], str, list[str]]:
+    if args.recording:
+        flights = load_recordings([Path(p) for p in args.recording], Path(args.anchors) if args.anchors else None)
+        kinds = {f.uwb.kind for f in flights}
+        if len(kinds) != 1:
+            raise ValueError("all training recordings must have the same measurement kind")
+        return flights, "twr" if kinds.pop() == KIND_TWR else "tdoa", [str(p) for p in args.recording]
+    recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
+                       profile=args.profile)
+    flights = recipe.build(_flights_progress(f"simulating {args.mode}"))
+    return flights, args.mode, [f"sim:{args.mode}:{args.profile}:seeds {recipe.seed0}-{recipe.seed0 + recipe.flights - 1}"]
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    flights, kind, sources = _training_flights(args)
+    layout = LAYOUTS[(kind, args.layout)] if args.layout else None
+    net, report, samples = train_kind(flights, layout, _train_config(args), kind, xi=args.xi)
+    base = BiasModel.load(Path(args.into)) if args.into else BiasModel(name=args.name or Path(args.out).stem)
+    meta = dict(base.meta)
+    meta[f"{kind}_trained_on"] = sources
+    meta[f"{kind}_training"] = _report_dict(report) | {"layout": samples.layout, "optimizer": args.optimizer,
+                                                        "seed": args.seed, "xi": args.xi}
+    model = BiasModel(twr=net if kind == "twr" else base.twr, tdoa=net if kind == "tdoa" else base.tdoa,
+                      name=args.name or base.name, meta=meta)
+    model.save(Path(args.out))
+    if args.header:
+        export_c(model, Path(args.header))
+    out = {"model": str(args.out), "hash": model.hash_hex, "kind": kind, **meta[f"{kind}_training"]}
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        print(f"trained {kind} network (layout {samples.layout}) on {report.n_train} samples, validated on "
+              f"{report.n_val} from other flights: {report.epochs} epochs ({report.stopped_by}, best {report.best_epoch}), "
+              f"{report.seconds:.1f} s")
+        print(f"validation bias RMSE {report.val_rmse_before_m:.4f} m -> residual {report.val_rmse_after_m:.4f} m")
+        print(f"wrote {args.out} (hash {model.hash_hex})" + (f" and {args.header}" if args.header else ""))
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    model = BiasModel.load(Path(args.model))
+    export_c(model, Path(args.out))
+    print(f"wrote {args.out} (hash {model.hash_hex})")
+    return 0
+
+
+# --------------------------------------------------------------------------------------------- evaluation
+def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float = XI_DEFAULT) -> dict[str, Any]:
+    """The network and the two baselines (fitted on ``train``) on the measurements of ``test``."""
+    kind = "twr" if test[0].uwb.kind == KIND_TWR else "tdoa"
+    net = model.network(kind)
+    if net is None:
+        raise ValueError(f"the model has no {kind} network")
+    ts = build_samples(test, net.layout, xi)
+    out: dict[str, Any] = {"kind": kind, "layout": net.layout, "model_hash": model.hash_hex,
+                           "test": [f.name for f in test]}
+    evals: list[Evaluation] = [evaluate("network", ts, lambda s: net.predict_batch(s.x))]
+    if train:
+        tr = build_samples(train, net.layout, xi)
+        out["baseline_train"] = [f.name for f in train]
+        for baseline in (PairConstant(), VoxelTable()):
+            fitted = baseline.fit(tr)
+            evals.append(evaluate(baseline.name, ts, fitted.predict))
+    out["methods"] = {e.method: e.as_dict() for e in evals}
+    net_eval = evals[0].overall
+    out.update(n=net_eval.n, rmse_raw=net_eval.rmse_raw, rmse_corrected=net_eval.rmse_corrected,
+               mae_raw=net_eval.mae_raw, mae_corrected=net_eval.mae_corrected, reduction=net_eval.reduction)
+    return out
+
+
+def _print_compare(res: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+    table = Table(title=f"{res['kind'].upper()} measurement error on {', '.join(Path(t).name for t in res['test'])} "
+                        f"(|e| < {XI_DEFAULT} m, model {res['model_hash']})")
+    for col in ("method", "n", "RMSE raw", "RMSE corr.", "MAE raw", "MAE corr.", "reduction"):
+        table.add_column(col, justify="left" if col == "method" else "right")
+    for name, m in res["methods"].items():
+        table.add_row(name, str(m["n"]), f"{m['rmse_raw']:.4f}", f"{m['rmse_corrected']:.4f}", f"{m['mae_raw']:.4f}",
+                      f"{m['mae_corrected']:.4f}", f"{100 * m['reduction']:.1f} %")
+    pairs = Table(title="network, per anchor pair")
+    for col in ("pair", "n", "RMSE raw", "RMSE corr.", "MAE raw", "MAE corr."):
+        pairs.add_column(col, justify="right")
+    for pair, m in res["methods"]["network"]["per_pair"].items():
+        pairs.add_row(pair, str(m["n"]), f"{m['rmse_raw']:.4f}", f"{m['rmse_corrected']:.4f}", f"{m['mae_raw']:.4f}",
+                      f"{m['mae_corrected']:.4f}")
+    console = Console(width=120)
+    console.print(table)
+    console.print(pairs)
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    model = BiasModel.load(Path(args.model))
+    anchors = Path(args.anchors) if args.anchors else None
+    test = load_recordings([Path(p) for p in args.recording], anchors)
+    kinds = {f.uwb.kind for f in test}
+    if len(kinds) != 1:
+        raise ValueError("all evaluated recordings must have the same measurement kind")
+    kind = "twr" if kinds.pop() == KIND_TWR else "tdoa"
+    train_paths = args.train
+    if train_paths is None:  # the recordings the model was trained on, when they are recordings
+        train_paths = [p for p in model.meta.get(f"{kind}_trained_on", []) if not str(p).startswith("sim:")]
+    missing = [p for p in train_paths if not Path(p).exists()]
+    if missing:
+        raise FileNotFoundError(f"baseline training recordings not found: {missing}")
+    train = load_recordings([Path(p) for p in train_paths], anchors) if train_paths else []
+    res = compare(model, test, train, args.xi)
+    if args.plot:
+        from harness.biasnet.plots import bias_vs_azimuth
+        bias_vs_azimuth(model, test[0], Path(args.plot))
+        res["plot"] = args.plot
+    if args.json:
+        print(json.dumps(res, indent=2, default=float))
+    else:
+        _print_compare(res)
+        if not train:
+            print("(no baseline: the model names no training recordings; pass --train)")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------ shipped models
+def cmd_models(args: argparse.Namespace) -> int:
+    from harness.biasnet.shipped import build_shipped_models
+    summary = build_shipped_models(Path(args.data), quick=args.quick, only=args.only)
+    if args.json:
+        print(json.dumps(summary, indent=2, default=float))
+    return 0
+
+
+# ------------------------------------------------------------------------------------------------ parser
+def _add_train_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("training")
+    g.add_argument("--optimizer", choices=("adam", "sgd"), default="adam",
+                   help="adam (default) or sgd: mini-batch gradient descent with Nesterov momentum")
+    g.add_argument("--lr", type=float, default=None, help="learning rate (default 3e-3 adam, 0.05 sgd)")
+    g.add_argument("--batch-size", type=int, default=512)
+    g.add_argument("--epochs", type=int, default=60, help="at most this many epochs")
+    g.add_argument("--patience", type=int, default=6, help="early stopping: epochs without improvement")
+    g.add_argument("--val-fraction", type=float, default=0.15, help="share of FLIGHTS held out for validation")
+    g.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds of training")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--xi", type=float, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")
+
+
+def add_commands(sub: Any) -> None:
+    tr = sub.add_parser("train", help="train a bias network (simulated flights or recordings)")
+    src = tr.add_argument_group("data")
+    src.add_argument("--recording", nargs="+", help="recorded flights (UTIL CSV, rcv_twr directory, native .npz)")
+    src.add_argument("--anchors", help="anchor file for the recordings")
+    src.add_argument("--mode", choices=("twr", "tdoa"), default="twr", help="simulated: measurement kind")
+    src.add_argument("--flights", type=int, default=24, help="simulated: number of training flights")
+    src.add_argument("--duration", type=float, default=120.0, help="simulated: seconds per flight")
+    src.add_argument("--seed0", type=int, default=0, help="simulated: first flight seed (< 1000)")
+    src.add_argument("--profile", default="los", help="simulated: error profile (los, nlos)")
+    src.add_argument("--layout", choices=("pose", "pos"), help="features: pose (dp + roll/pitch/yaw) or pos "
+                                                                 "(dp only); default: pose when attitude is known")
+    _add_train_options(tr)
+    out = tr.add_argument_group("output")
+    out.add_argument("--out", required=True, help="model file (.npz)")
+    out.add_argument("--into", help="start from this model (keeps its network of the other kind)")
+    out.add_argument("--header", help="also export the C header here")
+    out.add_argument("--name", help="model name")
+    tr.add_argument("--json", action="store_true")
+    tr.set_defaults(func=cmd_train)
+
+    ex = sub.add_parser("export-c", help="write a model as the C header the firmware build takes")
+    ex.add_argument("model", help="model .npz")
+    ex.add_argument("--out", default=str(DEFAULT_HEADER), help=f"header path (default {DEFAULT_HEADER})")
+    ex.set_defaults(func=cmd_export)
+
+    ev = sub.add_parser("eval-bias", help="measurement error before/after correction, vs simple baselines")
+    ev.add_argument("--model", default=str(DEFAULT_NPZ))
+    ev.add_argument("--recording", nargs="+", required=True, help="held-out recording(s)")
+    ev.add_argument("--anchors", help="anchor file for the recordings")
+    ev.add_argument("--train", nargs="*", default=None,
+                    help="recordings to fit the baselines on (default: those the model was trained on)")
+    ev.add_argument("--xi", type=float, default=XI_DEFAULT)
+    ev.add_argument("--plot", help="save measured error and predicted bias vs azimuth (paper Fig. 5) here")
+    ev.add_argument("--json", action="store_true")
+    ev.set_defaults(func=cmd_eval)
+
+    mo = sub.add_parser("models", help="train the shipped default networks (what `make models` runs)")
+    mo.add_argument("--data", default=str(Path(__file__).resolve().parents[2].parent / "shared" / "data"))
+    mo.add_argument("--quick", action="store_true", help="small data sets (smoke test)")
+    mo.add_argument("--only", choices=("sim", "util", "rcv"), help="build only one of the models")
+    mo.add_argument("--json", action="store_true")
+    mo.set_defaults(func=cmd_models)
+

@@ -1,0 +1,87 @@
+"""Where training flights come from: simulated recipes and the shared recordings, split by flight.
+
+Simulated training flights use seeds below :data:`FIRST_EVAL_SEED`; evaluation flights (campaign,
+closed loop) use seeds from it upwards, so the network is always judged on flights it never saw.
+UTIL: train on const1/const2 trials 1-4 (tdoa2 and tdoa3 files), hold out trial 5 and const3.
+rcv_twr: train on sequences 1-4, hold out sequence 5.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from harness.flight.model import Flight
+
+FIRST_EVAL_SEED = 1000
+
+
+@dataclass(frozen=True)
+class SimRecipe:
+    """Simulated training data: random 3-D flights plus spins in place (yaw coverage), LOS profile."""
+
+    mode: str = "twr"            # twr | tdoa
+    flights: int = 24
+    duration_s: float = 120.0
+    spins: int = 4               # of the flights, how many are spins in place
+    seed0: int = 0
+    profile: str = "los"
+
+    def seeds(self) -> range:
+        if self.seed0 + self.flights > FIRST_EVAL_SEED:
+            raise ValueError(f"training seeds must stay below {FIRST_EVAL_SEED} (evaluation seeds)")
+        return range(self.seed0, self.seed0 + self.flights)
+
+    def flight(self, seed: int) -> Flight:
+        from harness.flight.scenarios import scenario_flight
+        name = "spin" if (seed - self.seed0) < self.spins else "random"
+        duration = min(self.duration_s, 40.0) if name == "spin" else self.duration_s
+        return scenario_flight(name, mode=self.mode, duration_s=duration, seed=seed, profile=self.profile)
+
+    def build(self, progress: Callable[[int, int], None] | None = None) -> list[Flight]:
+        out = []
+        seeds = list(self.seeds())
+        for k, s in enumerate(seeds):
+            out.append(self.flight(s))
+            if progress is not None:
+                progress(k + 1, len(seeds))
+        return out
+
+
+def util_files(data: Path, trials: tuple[int, ...], constellations: tuple[int, ...] = (1, 2),
+               variants: tuple[str, ...] = ("tdoa2", "tdoa3")) -> list[Path]:
+    """UTIL reduced CSVs of the given trials that exist under ``data``/util."""
+    out = []
+    for c in constellations:
+        for t in trials:
+            for v in variants:
+                p = data / "util" / f"const{c}" / f"const{c}-trial{t}-{v}-extracted.csv"
+                if p.is_file():
+                    out.append(p)
+    return out
+
+
+def util_train_files(data: Path) -> list[Path]:
+    return util_files(data, (1, 2, 3, 4))
+
+
+def util_heldout_files(data: Path) -> list[Path]:
+    return util_files(data, (5,)) + util_files(data, (1, 2), constellations=(3,), variants=("tdoa2",))
+
+
+def rcv_sequences(data: Path, numbers: tuple[int, ...]) -> list[Path]:
+    return [p for p in (data / "rcv_twr" / f"sequence{n}" for n in numbers) if p.is_dir()]
+
+
+def rcv_train_dirs(data: Path) -> list[Path]:
+    return rcv_sequences(data, (1, 2, 3, 4))
+
+
+def rcv_heldout_dirs(data: Path) -> list[Path]:
+    return rcv_sequences(data, (5,))
+
+
+def load_recordings(paths: list[Path], anchors: Path | None = None) -> list[Flight]:
+    from harness.flight.loaders import load_recording
+    return [load_recording(p, anchors) for p in paths]

@@ -1,0 +1,115 @@
+"""`make models`: train the networks the project ships, reproducibly, and record how well they do.
+
+* ``sim``  -> firmware_sim/models/bias_model_default.{npz,h}: TWR and TDoA pose networks trained on
+  simulated flights (seeds < 1000), compiled into the firmware that `make demo` builds.
+* ``util`` -> firmware_sim/models/util_tdoa_pos.npz: position-only TDoA network on UTIL const1/const2
+  trials 1-4 (the reduced data has no attitude); evaluated on trial 5 and const3.
+* ``rcv``  -> firmware_sim/models/rcv_twr.npz: TWR pose network on rcv_twr sequences 1-4, evaluated on 5.
+Each model's file carries its provenance and held-out figures (``meta``); firmware_sim/models/models.json
+collects them with the command, so the docs can quote them.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from harness.biasnet.cli import compare, train_kind
+from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
+from harness.biasnet.model import BiasModel
+from harness.biasnet.recipes import (FIRST_EVAL_SEED, SimRecipe, load_recordings, rcv_heldout_dirs, rcv_train_dirs,
+                                     util_heldout_files, util_train_files)
+from harness.biasnet.train import TrainConfig
+from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TWR_POSE
+
+MODELS_DIR = DEFAULT_NPZ.parent
+SUMMARY = MODELS_DIR / "models.json"
+
+
+def _log(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def _train_cfg(quick: bool, budget_s: float) -> TrainConfig:
+    return TrainConfig(max_epochs=4 if quick else 80, patience=8, time_budget_s=20.0 if quick else budget_s)
+
+
+def build_sim(quick: bool) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    nets = {}
+    meta: dict[str, Any] = {}
+    for mode in ("twr", "tdoa"):
+        recipe = SimRecipe(mode=mode, flights=4 if quick else 24, duration_s=30.0 if quick else 120.0,
+                           spins=1 if quick else 4)
+        t0 = time.perf_counter()
+        flights = recipe.build()
+        sim_s = time.perf_counter() - t0
+        net, report, samples = train_kind(flights, None, _train_cfg(quick, 240.0), f"sim {mode}")
+        nets[mode] = net
+        from harness.flight.scenarios import scenario_flight
+        test = [scenario_flight(name, mode=mode, duration_s=70.0, seed=FIRST_EVAL_SEED + k)
+                for k, name in enumerate(("circle", "circle-z", "random", "spin"))]
+        res = compare(BiasModel(**{mode: net}), test, flights)  # type: ignore[arg-type]
+        meta[f"{mode}_trained_on"] = [f"sim:{mode}:los:seeds {recipe.seed0}-{recipe.seed0 + recipe.flights - 1}"]
+        meta[f"{mode}_training"] = {"samples": report.n_train, "val_samples": report.n_val, "epochs": report.epochs,
+                                    "seconds": round(report.seconds, 1), "simulate_seconds": round(sim_s, 1),
+                                    "stopped_by": report.stopped_by}
+        meta[f"{mode}_heldout"] = {k: res["methods"][k] | {"per_pair": None} for k in res["methods"]}
+        out[mode] = {"training": meta[f"{mode}_training"],
+                     "heldout": {k: _short(v) for k, v in res["methods"].items()},
+                     "heldout_flights": res["test"]}
+        _log(f"sim {mode}: held-out RMSE {res['rmse_raw']:.4f} -> {res['rmse_corrected']:.4f} m "
+             f"({100 * res['reduction']:.1f} %), trained in {report.seconds:.1f} s")
+    model = BiasModel(twr=nets["twr"], tdoa=nets["tdoa"], name="default-sim", meta=meta)
+    npz = model.save(DEFAULT_NPZ) if not quick else model.save(MODELS_DIR / "quick" / "bias_model_default.npz")
+    if not quick:
+        export_c(model, DEFAULT_HEADER)
+    out["file"], out["hash"] = str(npz), model.hash_hex
+    return out
+
+
+def _short(m: dict[str, Any]) -> dict[str, Any]:
+    return {k: m[k] for k in ("n", "rmse_raw", "rmse_corrected", "mae_raw", "mae_corrected", "reduction")}
+
+
+def _build_recorded(name: str, train_paths: list[Path], test_paths: list[Path], layout: int, quick: bool,
+                    kind: str) -> dict[str, Any]:
+    if not train_paths or not test_paths:
+        return {"skipped": "the shared recordings are not there"}
+    train = load_recordings(train_paths[:2] if quick else train_paths)
+    net, report, _ = train_kind(train, layout, _train_cfg(quick, 180.0), name)
+    model = BiasModel(**{kind: net}, name=name,  # type: ignore[arg-type]
+                      meta={f"{kind}_trained_on": [str(p) for p in (train_paths[:2] if quick else train_paths)],
+                            f"{kind}_training": {"samples": report.n_train, "val_samples": report.n_val,
+                                                 "epochs": report.epochs, "seconds": round(report.seconds, 1)}})
+    results = {}
+    for p in test_paths:
+        res = compare(model, load_recordings([p]), train)
+        results[p.name if p.is_file() else p.parent.name + "/" + p.name] = \
+            {k: _short(v) for k, v in res["methods"].items()}
+        _log(f"{name} on {p.name}: " + ", ".join(f"{k} {100 * v['reduction']:.1f} %" for k, v in res["methods"].items()))
+    model.meta[f"{kind}_heldout"] = results
+    path = model.save((MODELS_DIR / "quick" if quick else MODELS_DIR) / f"{name}.npz")
+    return {"file": str(path), "hash": model.hash_hex, "training": model.meta[f"{kind}_training"],
+            "heldout": results}
+
+
+def build_shipped_models(data: Path, quick: bool = False, only: str | None = None) -> dict[str, Any]:
+    summary: dict[str, Any] = {"command": "make models" if not quick else "uwb-hil models --quick",
+                               "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+                               "python": platform.python_version()}
+    if only in (None, "sim"):
+        summary["sim"] = build_sim(quick)
+    if only in (None, "util"):
+        summary["util_tdoa_pos"] = _build_recorded("util_tdoa_pos", util_train_files(data), util_heldout_files(data),
+                                                   LAYOUT_TDOA_POS, quick, "tdoa")
+    if only in (None, "rcv"):
+        summary["rcv_twr"] = _build_recorded("rcv_twr", rcv_train_dirs(data), rcv_heldout_dirs(data),
+                                             LAYOUT_TWR_POSE, quick, "twr")
+    if not quick and only is None:
+        SUMMARY.write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    return summary
