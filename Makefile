@@ -14,6 +14,8 @@ help:
 	@echo "make firmware  build firmware_sim/build/uwb-fw (+ an ASan/UBSan build)"
 	@echo "make stm32     STM32F405 build for QEMU / a board (installs the ARM toolchain + QEMU if missing)"
 	@echo "make size      flash / RAM of the STM32F405 firmware, with the bias network's share"
+	@echo "make fuzz      libFuzzer over the frame parser and firmware input path (FUZZ_SECONDS=600)"
+	@echo "make longflight  1-hour simulated flight with faults through the firmware"
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,7 +38,23 @@ test-c:
 test-py: $(STAMP) firmware stm32
 	$(PY) -m pytest -q
 
-test: test-c test-py
+# Fuzzing (clang + libFuzzer, installed when missing): `make test` runs a bounded fuzz (TEST_FUZZ_SECONDS
+# in total across the targets); `make fuzz FUZZ_SECONDS=600` fuzzes longer. Any crash, leak or
+# sanitizer report fails. See docs/robustness.md.
+FUZZ_SECONDS      ?= 600
+TEST_FUZZ_SECONDS ?= 60
+.PHONY: fuzz test-fuzz longflight
+fuzz:
+	$(MAKE) -C firmware_sim/fuzz run FUZZ_SECONDS=$(FUZZ_SECONDS)
+
+test-fuzz:
+	$(MAKE) -C firmware_sim/fuzz run FUZZ_SECONDS=$(TEST_FUZZ_SECONDS)
+
+# The full 1-hour simulated flight through the firmware (NLOS, IMU glitches, UWB outage).
+longflight: $(STAMP) firmware
+	UWB_LONGFLIGHT_S=3600 $(PY) -m pytest -q -s tests/test_long_flight.py --timeout=3600
+
+test: test-c test-fuzz test-py
 
 bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench

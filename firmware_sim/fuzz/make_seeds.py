@@ -1,0 +1,113 @@
+#!/usr/bin/env python3
+"""Seed corpora for the fuzz targets, from the golden vectors (protocol/golden/vectors.txt).
+
+    python3 make_seeds.py VECTORS OUTDIR      -> OUTDIR/frame_rx/*, OUTDIR/firmware/*
+
+Standard library only (runs before the venv exists). frame_rx seeds: every golden frame alone, all of
+them back to back, and a few with garbage around them. firmware seeds: a chunking byte followed by
+golden frames, plus short sessions (CONFIG, ANCHORs, IMU and TWR/TDoA around a hovering tag) so that
+the fuzzer starts deep inside the estimator rather than at the CRC check.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import sys
+from pathlib import Path
+
+_POLY = 0x82F63B78
+_TABLE = []
+for _i in range(256):
+    _c = _i
+    for _ in range(8):
+        _c = (_c >> 1) ^ _POLY if _c & 1 else _c >> 1
+    _TABLE.append(_c)
+
+
+def crc32c(data: bytes) -> int:
+    crc = 0xFFFFFFFF
+    for b in data:
+        crc = _TABLE[(crc ^ b) & 0xFF] ^ (crc >> 8)
+    return crc ^ 0xFFFFFFFF
+
+
+def cobs(data: bytes) -> bytes:
+    out, block = bytearray(), bytearray()
+    for b in data:
+        if b == 0:
+            out += bytes([len(block) + 1]) + block
+            block.clear()
+        else:
+            block.append(b)
+            if len(block) == 254:
+                out += b"\xff" + block
+                block.clear()
+    return bytes(out + bytes([len(block) + 1]) + block)
+
+
+def frame(msg_id: int, seq: int, payload: bytes) -> bytes:
+    body = struct.pack("<BH", msg_id, seq & 0xFFFF) + payload
+    return cobs(body + struct.pack("<I", crc32c(body))) + b"\x00"
+
+
+ANCHORS = [(-3.0, -3.0, 0.2), (3.0, -3.0, 2.5), (3.0, 3.0, 0.2), (-3.0, 3.0, 2.5)]
+
+
+def session(golden: dict[str, bytes], tdoa: bool, uwb_only: bool) -> bytes:
+    """CONFIG (golden, IMU mode with all stages, or UWB-only) + anchors + 0.3 s of hover data."""
+    out = bytearray(golden["config_uwb_only" if uwb_only else "config_defaults"])
+    seq = 100
+    for i, (x, y, z) in enumerate(ANCHORS):
+        out += frame(0x03, seq, struct.pack("<Bfff", i, x, y, z))
+        seq += 1
+    tag = (0.3, -0.2, 1.0)
+    for k in range(30):
+        t = 1000 + 10_000 * k
+        out += frame(0x04, seq, struct.pack("<Qffffff", t, 0.01, -0.02, 9.81, 0.001, 0.0, -0.002))
+        seq += 1
+        if k % 2:
+            a = k % 4
+            if tdoa:
+                b = (a + 1) % 4
+                d = math.dist(tag, ANCHORS[b]) - math.dist(tag, ANCHORS[a])
+                out += frame(0x06, seq, struct.pack("<QBBf", t + 500, a, b, d))
+            else:
+                out += frame(0x05, seq, struct.pack("<QBf", t + 500, a, math.dist(tag, ANCHORS[a])))
+            seq += 1
+    out += golden["stats_req"]
+    return bytes(out)
+
+
+def main(vectors: Path, outdir: Path) -> int:
+    golden: dict[str, bytes] = {}
+    for line in vectors.read_text().splitlines():
+        if not line.strip() or line.startswith("#"):
+            continue
+        name, _seq, hexframe = line.split()[:3]
+        golden[name] = bytes.fromhex(hexframe)
+    if not golden:
+        print(f"make_seeds: no vectors in {vectors}", file=sys.stderr)
+        return 1
+    fr = outdir / "frame_rx"
+    fw = outdir / "firmware"
+    for d in (fr, fw):
+        d.mkdir(parents=True, exist_ok=True)
+    everything = b"".join(golden.values())
+    for name, data in golden.items():
+        (fr / name).write_bytes(data)
+        (fw / name).write_bytes(b"\x00" + data)
+    (fr / "all").write_bytes(everything)
+    (fr / "garbage_around").write_bytes(b"\x13\x37" * 40 + b"\x00" + everything + b"\xff" * 300)
+    (fw / "all_chunked").write_bytes(b"\x05" + everything)
+    for i, (tdoa, uwb_only) in enumerate([(False, False), (True, False), (False, True), (True, True)]):
+        (fw / f"session_{'tdoa' if tdoa else 'twr'}_{'cv' if uwb_only else 'imu'}").write_bytes(
+            bytes([i * 3]) + session(golden, tdoa, uwb_only))
+    return 0
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 3:
+        print(__doc__, file=sys.stderr)
+        sys.exit(2)
+    sys.exit(main(Path(sys.argv[1]), Path(sys.argv[2])))
