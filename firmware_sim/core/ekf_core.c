@@ -90,6 +90,11 @@ void ekf_sym_clamp(float P[EKF_N][EKF_N])
     }
 }
 
+static float clamp_var(float v)
+{
+    return v > EKF_P_MAX ? EKF_P_MAX : (v < EKF_P_MIN ? EKF_P_MIN : v);
+}
+
 void ekf_init(ekf_t *ekf, const float pos[3], float std_xy, float std_z)
 {
     int i;
@@ -99,9 +104,11 @@ void ekf_init(ekf_t *ekf, const float pos[3], float std_xy, float std_z)
     ekf->S[EKF_Z] = pos[2];
     ekf->q[0] = 1.0f;
     quat_to_rot(ekf->q, ekf->R);
-    ekf->P[EKF_X][EKF_X] = std_xy * std_xy;
-    ekf->P[EKF_Y][EKF_Y] = std_xy * std_xy;
-    ekf->P[EKF_Z][EKF_Z] = std_z * std_z;
+    /* Within the covariance bounds from the start: a huge (valid) init std would otherwise square
+     * to inf, and the divergence guard would re-initialise into the same inf forever. */
+    ekf->P[EKF_X][EKF_X] = clamp_var(std_xy * std_xy);
+    ekf->P[EKF_Y][EKF_Y] = clamp_var(std_xy * std_xy);
+    ekf->P[EKF_Z][EKF_Z] = clamp_var(std_z * std_z);
     for (i = EKF_PX; i <= EKF_PZ; i++) {
         ekf->P[i][i] = EKF_INIT_STD_VEL * EKF_INIT_STD_VEL;
     }

@@ -12,8 +12,10 @@ int mm_tdoa(const float p[3], const float anchor_a[3], const float anchor_b[3], 
     const float da = sqrtf(ax * ax + ay * ay + az * az);
     const float db = sqrtf(bx * bx + by * by + bz * bz);
     const float dab = sqrtf(abx * abx + aby * aby + abz * abz);
-    /* Negated comparisons also reject NaN distances. */
-    if (!(da >= MM_MIN_DISTANCE) || !(db >= MM_MIN_DISTANCE) || !(dab >= MM_MIN_DISTANCE)) {
+    /* Negated comparisons also reject NaN distances; overflowing ones (absurd but finite
+     * coordinates) would give h = inf - inf. */
+    if (!(da >= MM_MIN_DISTANCE) || !(db >= MM_MIN_DISTANCE) || !(dab >= MM_MIN_DISTANCE) ||
+        !isfinite(da) || !isfinite(db) || !isfinite(dab)) {
         *h = 0.0f;
         H[0] = H[1] = H[2] = 0.0f;
         return MM_DEGENERATE;

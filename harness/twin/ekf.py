@@ -178,7 +178,8 @@ class ErrorStateEkf:
         x[POS] = pos
         q = np.array([1.0, 0.0, 0.0, 0.0])
         var = [std_xy**2, std_xy**2, std_z**2] + [INIT_STD_VEL**2] * 3 + [INIT_STD_ATT**2] * 3
-        return cls(x=x, q=q, R=quat_to_rot(q), P=np.diag(var))
+        # clamped like every other covariance (as ekf_init does): a huge init std stays bounded
+        return cls(x=x, q=q, R=quat_to_rot(q), P=sym_clamp(np.diag(var)))
 
     # ------------------------------------------------------------------------------- prediction
     def imu_sample(self, t_us: int, acc: np.ndarray, gyro: np.ndarray, acc_xy: float, acc_z: float) -> bool:
