@@ -152,6 +152,10 @@ static void on_config(firmware_t *fw, const uwb_msg_t *in)
         return;
     }
     estimator_configure(&fw->est, &cfg, c->reset);
+    if (c->reset) {
+        /* A new flight may restart its clock: the controller forgets its time and integrals too. */
+        controller_init(&fw->ctl, &fw->ctl.p);
+    }
 }
 
 static void fill_result(firmware_t *fw, uwb_result_t *r, const estimator_result_t *er)

@@ -53,8 +53,9 @@ int controller_params_valid(const ctl_params_t *p)
 
 void controller_init(controller_t *c, const ctl_params_t *p)
 {
+    const ctl_params_t keep = *p; /* p may point into c (re-initialisation with its own parameters) */
     memset(c, 0, sizeof *c);
-    c->p = *p;
+    c->p = keep;
 }
 
 static float clampf(float x, float lo, float hi)

@@ -575,9 +575,34 @@ static void test_firmware_setpoint_control(void)
     m.u.setpoint.yaw = 0.0f;
     send_msg(UWB_MSG_SETPOINT, 47, &m);
     CHECK(one_reply(&r) && r.type == UWB_MSG_CONTROL && r.u.control.setpoint_seq == 47);
+    /* CONFIG with reset: the controller forgets its time (a new flight restarts its clock) but keeps
+     * its parameters */
+    CHECK(fw.ctl.has_time && fw.ctl.t_us == 40000);
+    memset(&m, 0, sizeof m);
+    m.u.config.mode = UWB_EKF_MODE_IMU;
+    m.u.config.reset = 1;
+    m.u.config.std_twr = m.u.config.std_tdoa = 0.1f;
+    m.u.config.a_max_twr = m.u.config.a_max_tdoa = 100.0f;
+    m.u.config.gate_dt_min = 0.01f;
+    m.u.config.chi2_twr = m.u.config.chi2_tdoa = 4.0f;
+    m.u.config.proc_cv_acc = 1.0f;
+    m.u.config.init_std_xy = m.u.config.init_std_z = 1.0f;
+    send_msg(UWB_MSG_CONFIG, 49, &m);
+    CHECK(sink.len == 0);   /* accepted: no reply */
+    CHECK(!fw.ctl.has_time && fw.ctl.p.mass > 0.0f);
+    {
+        ctl_params_t d;
+        controller_default_params(&d);
+        CHECK(memcmp(&d, &fw.ctl.p, sizeof d) == 0);
+    }
+    memset(&m, 0, sizeof m);
+    m.u.setpoint.t_us = 0;
+    m.u.setpoint.mode = UWB_CONTROL_MODE_POSITION;
+    send_msg(UWB_MSG_SETPOINT, 50, &m);
+    CHECK(one_reply(&r) && r.type == UWB_MSG_CONTROL && r.u.control.setpoint_seq == 50);
     /* a CONTROL (device -> host type) sent to the device is refused as UNKNOWN_TYPE */
     memset(&m, 0, sizeof m);
-    send_msg(UWB_MSG_CONTROL, 48, &m);
+    send_msg(UWB_MSG_CONTROL, 51, &m);
     CHECK(one_reply(&r) && r.type == UWB_MSG_ERROR && r.u.error.code == UWB_ERROR_CODE_UNKNOWN_TYPE);
 }
 

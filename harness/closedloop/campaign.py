@@ -1,0 +1,202 @@
+"""`uwb-hil fly`: closed-loop campaigns (modes x missions x configurations x seeds) through one device.
+
+    uwb-hil fly                                   # TWR + TDoA, circle + circle-z, 3 configurations, 10 seeds
+    uwb-hil fly --mode tdoa --mission circle --config outlier+nn --seeds 3 --json
+    uwb-hil fly --port /dev/ttyACM0 --baud 1000000 --pacing realtime   # a real board at flight speed
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from harness.closedloop.cosim import PACINGS, ClosedLoop, FlightLog, LoopConfig
+from harness.closedloop.metrics import aggregate, flight_metrics
+from harness.closedloop.mission import MISSIONS, Mission, plan
+from harness.closedloop.sensors import NOISE_KINDS, SensorConfig
+from harness.closedloop.vehicle import VehicleParams
+from harness.config import MODE_IMU, PRESETS, EstimatorConfig
+from harness.flight.arena import NLOS_BOXES, Arena
+from harness.flight.errors_model import PROFILES, sim_config
+
+
+@dataclass(frozen=True)
+class CampaignSpec:
+    modes: tuple[str, ...] = ("twr", "tdoa")
+    missions: tuple[str, ...] = ("circle", "circle-z")
+    configs: tuple[str, ...] = ("none", "outlier", "outlier+nn")
+    seeds: tuple[int, ...] = tuple(range(1, 11))
+    laps: float = 1.0
+    hover_s: float = 10.0
+    profile: str = "los"
+    noise: str = "realistic"
+    mass: float = 0.032
+    loop: LoopConfig = LoopConfig()
+    estimator: EstimatorConfig = EstimatorConfig()
+
+
+Progress = Callable[[str], None]
+
+
+def run_campaign(device: Any, spec: CampaignSpec, progress: Progress | None = None,
+                 keep_logs: bool = False) -> dict[str, Any]:
+    """Fly every cell; returns {"cells": [...]} with aggregates and per-flight metrics."""
+    sim = sim_config(spec.profile)
+    arena = Arena(boxes=NLOS_BOXES if sim.obstacles else ())
+    vehicle = VehicleParams(mass=spec.mass)
+    loop = ClosedLoop(device, spec.loop)
+    cells = []
+    for mode in spec.modes:
+        for mission_name in spec.missions:
+            pl = plan(Mission(name=mission_name, laps=spec.laps, hover_s=spec.hover_s), arena, spec.loop.control_dt)
+            for config in spec.configs:
+                est = replace(spec.estimator, mode=MODE_IMU).with_stages(PRESETS[config])
+                logs: list[FlightLog] = []
+                per: list[dict[str, Any]] = []
+                for seed in spec.seeds:
+                    log = loop.fly(pl, est, SensorConfig(mode=mode, noise=spec.noise), sim, arena, vehicle, seed)
+                    fm = flight_metrics(log)
+                    fm["seed"] = seed
+                    per.append(fm)
+                    logs.append(log)
+                    if progress is not None:
+                        progress(f"{mode:4s} {mission_name:8s} {config:10s} seed {seed:3d}: "
+                                 f"take-off {'ok ' if fm['takeoff']['success'] else 'FAIL'} "
+                                 f"tracking {fm['tracking_rmse']:.3f} m, estimation {fm['estimation_rmse']:.3f} m"
+                                 + (f", aborted: {fm['aborted']}" if fm["aborted"] else "")
+                                 + f" ({fm['wall_s']:.1f} s)")
+                cell = {"mode": mode, "mission": mission_name, "config": config, **aggregate(logs, per),
+                        "per_flight": per}
+                if keep_logs:
+                    cell["logs"] = logs
+                cells.append(cell)
+    return {"cells": cells, "spec": _spec_dict(spec), "mission_duration_s": {
+        name: plan(Mission(name=name, laps=spec.laps, hover_s=spec.hover_s), arena).duration for name in spec.missions}}
+
+
+def _spec_dict(spec: CampaignSpec) -> dict[str, Any]:
+    from dataclasses import asdict
+    d = asdict(spec)
+    d["seeds"] = list(spec.seeds)
+    return d
+
+
+# ------------------------------------------------------------------------------------------ output
+def _fmt(x: float, d: int = 3) -> str:
+    return "-" if x is None or x != x else f"{x:.{d}f}"
+
+
+def table_rows(result: dict[str, Any]) -> list[list[str]]:
+    rows = []
+    for c in result["cells"]:
+        rows.append([c["mode"], c["mission"], c["config"], f"{c['takeoff_success']}/{c['flights']}",
+                     f"{c['completed']}/{c['flights']}",
+                     f"{_fmt(c['tracking_rmse_mean'])} +- {_fmt(c['tracking_rmse_std'])}",
+                     _fmt(c["tracking_rmse_max"]),
+                     f"{_fmt(c['estimation_rmse_mean'])} +- {_fmt(c['estimation_rmse_std'])}"])
+    return rows
+
+
+HEADERS = ["mode", "mission", "config", "take-off", "completed", "tracking RMSE [m]", "worst seed [m]",
+           "estimation RMSE [m]"]
+
+
+def markdown_table(result: dict[str, Any]) -> str:
+    lines = ["| " + " | ".join(HEADERS) + " |", "|" + "---|" * len(HEADERS)]
+    lines += ["| " + " | ".join(r) + " |" for r in table_rows(result)]
+    return "\n".join(lines)
+
+
+def print_table(result: dict[str, Any], device: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+    spec = result["spec"]
+    table = Table(title=f"uwb-hil fly - {len(spec['seeds'])} seeds, profile {spec['profile']}, device "
+                        f"{device.get('target', '?')} model {device.get('model_hash', '?')}")
+    for h in HEADERS:
+        table.add_column(h, justify="left" if h in ("mode", "mission", "config") else "right")
+    for r in table_rows(result):
+        table.add_row(*r)
+    Console(width=160).print(table)
+    for c in result["cells"]:
+        for why in c["takeoff_failures"]:
+            print(f"  {c['mode']} {c['mission']} {c['config']}: take-off failed: {why}")
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+# ------------------------------------------------------------------------------------------- CLI
+def _csv(choices: Sequence[str], what: str) -> Callable[[str], tuple[str, ...]]:
+    def parse(text: str) -> tuple[str, ...]:
+        items = tuple(s.strip() for s in text.split(",") if s.strip())
+        bad = [s for s in items if s not in choices]
+        if bad or not items:
+            raise argparse.ArgumentTypeError(f"{what} must be a comma list of {', '.join(choices)}; got {text!r}")
+        return items
+    return parse
+
+
+def add_fly_parser(sub: Any, add_device_options: Callable[[argparse.ArgumentParser], None]) -> None:
+    p = sub.add_parser("fly", help="closed loop: the device flies a simulated Crazyflie on UWB alone",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--mode", type=_csv(("twr", "tdoa"), "--mode"), default=("twr", "tdoa"),
+                   help="twr, tdoa or both (comma list)")
+    p.add_argument("--mission", type=_csv(MISSIONS, "--mission"), default=("circle", "circle-z"),
+                   help=f"comma list of {', '.join(MISSIONS)} (default circle,circle-z)")
+    p.add_argument("--config", type=_csv(tuple(PRESETS), "--config"), default=tuple(PRESETS),
+                   help="comma list of none, outlier, outlier+nn (default all three)")
+    p.add_argument("--seeds", type=int, default=10, help="flights per cell (seeds seed0 .. seed0+N-1)")
+    p.add_argument("--seed0", type=int, default=1)
+    p.add_argument("--laps", type=float, default=1.0, help="circle laps (2 m radius at 0.375 m/s: 33.5 s each)")
+    p.add_argument("--hover-s", type=float, default=10.0, help="length of the hover mission's main segment")
+    p.add_argument("--profile", choices=PROFILES, default="los", help="simulator error profile")
+    p.add_argument("--noise", choices=NOISE_KINDS, default="realistic")
+    p.add_argument("--mass", type=float, default=0.032, help="simulated vehicle mass [kg] (controller assumes 0.032)")
+    p.add_argument("--pacing", choices=PACINGS, default="lockstep",
+                   help="lockstep (deterministic, as fast as possible) or realtime (flight speed, for boards)")
+    p.add_argument("--speed", type=float, default=1.0, help="realtime pacing speed factor")
+    p.add_argument("--imu-every", type=int, default=1, help="physics steps (2 ms) per IMU frame (averaged)")
+    p.add_argument("--json", action="store_true", help="print everything (incl. per-flight figures) as JSON")
+    p.add_argument("--out", help="also write the JSON result to this file")
+    p.add_argument("--markdown", action="store_true", help="print the table as Markdown (for docs)")
+    p.add_argument("--quiet", action="store_true", help="no per-flight progress lines on stderr")
+    add_device_options(p)
+    p.set_defaults(func=cmd_fly)
+
+
+def cmd_fly(args: argparse.Namespace) -> int:
+    from harness.cli import _device_spec, _hello_dict
+    from harness.session import open_device
+    if args.seeds < 1:
+        raise ValueError("--seeds must be >= 1")
+    loop = LoopConfig(pacing=args.pacing, speed=args.speed, timeout_s=args.timeout, imu_every=args.imu_every)
+    spec = CampaignSpec(modes=args.mode, missions=args.mission, configs=args.config,
+                        seeds=tuple(range(args.seed0, args.seed0 + args.seeds)), laps=args.laps,
+                        hover_s=args.hover_s, profile=args.profile, noise=args.noise, mass=args.mass, loop=loop)
+    progress = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    with open_device(_device_spec(args)) as device:
+        hello = _hello_dict(device.last_hello or device.hello(timeout=args.timeout))
+        result = run_campaign(device, spec, progress)
+    result["device"] = hello
+    result["command"] = "uwb-hil " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("uwb-hil") else None
+    if args.out:
+        Path(args.out).write_text(json.dumps(result, indent=1, default=_json_default))
+    if args.json:
+        print(json.dumps(result, indent=1, default=_json_default))
+    elif args.markdown:
+        print(markdown_table(result))
+    else:
+        print_table(result, hello)
+    return 0
