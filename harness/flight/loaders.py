@@ -15,9 +15,11 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from harness.flight.formats.anchors import (load_anchor_yaml, load_anchors, load_anchors_csv, load_survey_npz,
                                             load_survey_txt)
-from harness.flight.formats.common import RecordingError, read_csv_table
+from harness.flight.formats.common import RecordingError
 from harness.flight.formats.rcv_twr import (ANCHOR_COLUMNS, DEFAULT_ANCHOR_OFFSET, GT_COLUMNS, is_rcv_twr_dir,
                                             load_rcv_twr)
 from harness.flight.formats.util import constellation_from_name, load_util_csv, util_layout
@@ -26,7 +28,7 @@ from harness.flight.native import is_native, load_flight, save_flight
 
 __all__ = ["RecordingError", "load_recording", "load_anchors", "load_anchors_csv", "load_survey_npz",
            "load_survey_txt", "load_anchor_yaml", "load_util_csv", "load_rcv_twr", "load_flight", "save_flight",
-           "find_anchor_file", "DEFAULT_ANCHOR_OFFSET"]
+           "find_anchor_file", "time_slice", "DEFAULT_ANCHOR_OFFSET"]
 
 AnchorsArg = Anchors | Path | str | None
 
@@ -73,6 +75,35 @@ def load_recording(path: Path | str, anchors: AnchorsArg = None, *, constellatio
         raise RecordingError("this is an anchor file: pass it as the anchors, with a recording", path=path)
     raise RecordingError("unknown recording format: expected a UTIL flight CSV (8 or 27 columns), an rcv_twr "
                          f"sequence directory or a native .npz; the header is {','.join(header)}", path=path, line=1)
+
+
+def time_slice(flight: Flight, start_s: float, end_s: float) -> Flight:
+    """The part of a flight between start_s and end_s seconds after its first UWB measurement
+    (short test replays, train/evaluation splits). Truth keeps one sample beyond each end so it still
+    interpolates over the whole slice."""
+    if not end_s > start_s:
+        raise ValueError(f"time_slice needs end_s > start_s, got {start_s}, {end_s}")
+    t0 = int(flight.uwb.t_us[0]) if len(flight.uwb) else 0
+    lo, hi = t0 + int(round(start_s * 1e6)), t0 + int(round(end_s * 1e6))
+    u = flight.uwb
+    m = (u.t_us >= lo) & (u.t_us < hi)
+    if not m.any():
+        raise ValueError(f"{flight.name}: no UWB measurement between {start_s} s and {end_s} s")
+    uwb = replace(u, t_us=u.t_us[m], anchor_a=u.anchor_a[m], anchor_b=u.anchor_b[m], value=u.value[m],
+                  true_value=u.true_value[m] if u.true_value is not None else None)
+    tr = flight.truth
+    i0 = max(int(np.searchsorted(tr.t_us, lo, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(tr.t_us, hi, side="left")) + 1, len(tr.t_us))
+    truth = replace(tr, t_us=tr.t_us[i0:i1], pos=tr.pos[i0:i1],
+                    quat=tr.quat[i0:i1] if tr.quat is not None else None,
+                    vel=tr.vel[i0:i1] if tr.vel is not None else None)
+    imu = flight.imu
+    if imu is not None:
+        k = (imu.t_us >= lo) & (imu.t_us < hi)
+        imu = replace(imu, t_us=imu.t_us[k], acc=imu.acc[k], gyro=imu.gyro[k])
+    meta = dict(flight.meta, slice_s=[float(start_s), float(end_s)])
+    return Flight(name=f"{flight.name}[{start_s:g}-{end_s:g}s]", anchors=flight.anchors, uwb=uwb, truth=truth,
+                  imu=imu, meta=meta)
 
 
 def find_anchor_file(recording: Path) -> Path | None:
@@ -123,6 +154,3 @@ def _has_members(path: Path, names: set[str]) -> bool:
     except (zipfile.BadZipFile, OSError):
         return False
 
-
-# read_csv_table is re-exported for tools that want the same strict CSV reading.
-read_csv_table = read_csv_table
