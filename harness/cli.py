@@ -5,6 +5,8 @@
     uwb-hil run --port /dev/ttyACM0 ...                    # a real board
     uwb-hil demo                                           # TWR and TDoA x three configurations
     uwb-hil calibrate --out DIR                            # simulator vs real UWB error statistics
+    uwb-hil campaign --out DIR                             # the paper's experiments, in parallel, resumable
+    uwb-hil report DIR                                     # DIR/report.html, report.md, report.json
 """
 
 from __future__ import annotations
@@ -78,12 +80,27 @@ def _device_spec(args: argparse.Namespace) -> DeviceSpec:
                       timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None)
 
 
+def _model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None]:
+    """The device spec, and the model hash the device must report when --model is given. On the emulator
+    the firmware is (re)built with that model; a board or QEMU image must already carry it."""
+    spec = _device_spec(args)
+    if not getattr(args, "model", None):
+        return spec, None
+    from harness.biasnet.model import BiasModel
+    model = BiasModel.load(Path(args.model))
+    if spec.resolved_target() == "emulator" and Path(args.firmware) == DEFAULT_FIRMWARE:
+        from harness.biasnet.cbuild import firmware_for
+        spec = replace(spec, firmware=firmware_for(model))
+    return spec, model.hash
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     flight = make_flight(args)
     cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[args.stages], uwb_only=args.uwb_only)
     pacing = Pacing(mode=args.pacing, window=args.window, speed=args.speed)
     results_path = Path(args.results) if args.results else None
-    with open_device(_device_spec(args)) as device:
+    spec, want_hash = _model_device_spec(args)
+    with open_device(spec, expected_model_hash=want_hash) as device:
         hello = device.hello(timeout=args.timeout)
         update, stop = _progress_bar(f"{flight.name} ({args.stages})")
         try:
@@ -189,6 +206,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--stages", choices=tuple(PRESETS), default="outlier+nn",
                      help="none | outlier (kinematic + chi-square gates) | outlier+nn (plus bias network)")
     run.add_argument("--uwb-only", action="store_true", help="ignore the IMU (constant-velocity model)")
+    run.add_argument("--model", help="bias model (.npz) the device must carry; the emulator firmware is built "
+                                     "with it, any other device is refused if its HELLO reports another model")
     run.add_argument("--results", help="write per-measurement results as JSON Lines here")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
     run.set_defaults(func=cmd_run)
@@ -202,6 +221,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_fly_parser(sub, _add_device_options)
     from harness.calibrate import add_parser as add_calibrate_parser
     add_calibrate_parser(sub)
+    from harness.campaign import cli as campaign_cli
+    from harness.report import cli as report_cli
+    campaign_cli.add_parser(sub)
+    report_cli.add_parser(sub)
+    from harness.biasnet.cli import add_commands as add_biasnet_commands
+    add_biasnet_commands(sub)
     return ap
 
 
