@@ -1,0 +1,67 @@
+"""`uwb-hil campaign`: plan, run (in parallel, resumable) and optionally report the paper's experiments."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from harness.campaign.plan import CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, plan_campaign
+from harness.campaign.runner import ExecOptions, run_campaign
+from harness.session import DEFAULT_FIRMWARE, shared_data_dir
+from harness.stream.streamer import PACING_MODES
+
+
+def _csv(text: str) -> tuple[str, ...]:
+    return tuple(x.strip() for x in text.split(",") if x.strip())
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser("campaign", help="run the paper's experiments (simulated + recorded) in parallel",
+                       description="Simulated {TWR, TDoA} x {none, outlier, outlier+nn} x trajectories x seeds "
+                                   "and held-out recorded flights, each run through the firmware on its own "
+                                   "emulator. Re-running the same command resumes (complete runs are skipped).")
+    p.add_argument("--out", required=True, help="campaign directory (created; resumed if it exists)")
+    p.add_argument("--seeds", type=int, default=10, help="simulated flights per mode and trajectory")
+    p.add_argument("--first-seed", type=int, default=FIRST_EVAL_SEED,
+                   help="first seed (training uses seeds below 1000: keep >= 1000 for unseen flights)")
+    p.add_argument("--duration", type=float, default=70.0, help="simulated flight length incl. take-off [s]")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="flights in parallel")
+    p.add_argument("--modes", type=_csv, default=MODES, help="twr,tdoa")
+    p.add_argument("--trajectories", type=_csv, default=TRAJECTORIES, help="circle,circle-z")
+    p.add_argument("--configs", type=_csv, default=CONFIGS, help="none,outlier,outlier+nn")
+    p.add_argument("--recorded", action=argparse.BooleanOptionalAction, default=True,
+                   help="also replay the held-out recorded flights of the shared data")
+    p.add_argument("--data-dir", default=None, help="recorded data (default ../shared/data or $UWB_HIL_DATA)")
+    p.add_argument("--firmware", default=str(DEFAULT_FIRMWARE), help="host firmware binary")
+    p.add_argument("--pacing", choices=PACING_MODES, default="windowed",
+                   help="pacing of the accuracy runs (windowed: same estimates as lockstep, much faster)")
+    p.add_argument("--latency-runs", action=argparse.BooleanOptionalAction, default=True,
+                   help="per mode, one extra real-time run for end-to-end latency")
+    p.add_argument("--timeout", type=float, default=10.0, help="device silence before a run fails [s]")
+    p.add_argument("--report", action=argparse.BooleanOptionalAction, default=True,
+                   help="write the report when the runs are done")
+    p.set_defaults(func=cmd_campaign)
+
+
+def cmd_campaign(args: argparse.Namespace) -> int:
+    opts = CampaignOptions(seeds=args.seeds, first_seed=args.first_seed, duration_s=args.duration,
+                           modes=tuple(args.modes), trajectories=tuple(args.trajectories), configs=tuple(args.configs),
+                           recorded=args.recorded,
+                           data_dir=Path(args.data_dir) if args.data_dir else shared_data_dir(),
+                           firmware=Path(args.firmware).resolve(), pacing=args.pacing,
+                           latency_runs=args.latency_runs)
+    if not opts.firmware.exists():
+        raise FileNotFoundError(f"firmware binary {opts.firmware} not found: run `make firmware`")
+    runs, notes = plan_campaign(opts)
+    ex = ExecOptions(jobs=max(1, args.jobs), timeout_s=args.timeout)
+    outcome = run_campaign(Path(args.out), runs, ex, options=opts, notes=notes,
+                           log=lambda s: print(s, file=sys.stderr, flush=True))
+    print(f"campaign: {outcome.total} runs: {outcome.skipped} resumed, {outcome.ok} ran ok, "
+          f"{len(outcome.failed)} failed", file=sys.stderr)
+    if args.report:
+        from harness.report.cli import write_report
+        write_report(Path(args.out), as_json=False)
+    return 0 if outcome.all_ok else 1

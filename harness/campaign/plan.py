@@ -1,0 +1,187 @@
+"""What a campaign runs: one RunSpec per (flight, configuration), grouped by flight.
+
+Simulated flights: {twr, tdoa} x trajectories x seeds, each flown in the three configurations of the paper
+(none, outlier, outlier+nn). Seeds start at 1000 so they are disjoint from the seeds the bias network was
+trained on (training uses seeds < 1000; recorded in every run's summary as ``seed_disjoint_from_training``).
+
+Recorded flights: the held-out UTIL TDoA trials (trial 5 of const1/const2 and all of const3: the default
+network is trained on const1/const2 trials 1-4) and the rcv_twr sequences, replayed in UWB-only mode.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from harness.config import PRESETS
+from harness.session import DEFAULT_FIRMWARE, shared_data_dir
+from harness.stream.streamer import PACING_MODES
+
+MODES = ("twr", "tdoa")
+TRAJECTORIES = ("circle", "circle-z")
+CONFIGS = tuple(PRESETS)            # ("none", "outlier", "outlier+nn")
+FIRST_EVAL_SEED = 1000              # training seeds are below this
+# Held out from training (see the module docstring). Paths relative to the shared data directory.
+UTIL_HELD_OUT = (
+    "util/const1/const1-trial5-tdoa2-extracted.csv",
+    "util/const1/const1-trial5-tdoa3-extracted.csv",
+    "util/const2/const2-trial5-tdoa2-extracted.csv",
+    "util/const3/const3-trial1-tdoa2-extracted.csv",
+    "util/const3/const3-trial2-tdoa2-extracted.csv",
+)
+UTIL_ANCHORS = "util/anchors.csv"
+RCV_TWR_SEQUENCES = tuple(f"rcv_twr/sequence{k}" for k in range(1, 6))
+
+
+class PlanError(ValueError):
+    """A campaign option is invalid (names the option)."""
+
+
+@dataclass(frozen=True)
+class FlightSpec:
+    """How to obtain one flight. ``source`` is "sim" (scenario_flight) or "recorded" (load_recording)."""
+
+    source: str
+    mode: str                      # "twr" | "tdoa"
+    trajectory: str                # scenario name, or a label of the recording
+    seed: int | None = None
+    duration_s: float | None = None
+    path: str | None = None        # recording (file or sequence directory)
+    anchors: str | None = None     # anchor file of the recording, if separate
+    uwb_only: bool = False
+    takeoff: bool = True           # simulated: ground wait, take-off and landing inside duration_s
+    profile: str = "los"           # simulated: error-model profile of harness/flight/scenarios.py
+
+    @property
+    def flight_id(self) -> str:
+        if self.source == "sim":
+            return f"sim-{self.mode}-{self.trajectory}-s{self.seed}"
+        return f"rec-{self.mode}-{self.trajectory}"
+
+
+ROLE_ACCURACY = "accuracy"
+ROLE_LATENCY = "latency"
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One flight in one configuration. Accuracy runs stream as fast as the device answers (windowed: the
+    same estimates as lockstep); latency runs replay at the data's own clock (realtime), so their end-to-end
+    latency is what a sensor-paced board would see, without queueing behind a window."""
+
+    flight: FlightSpec
+    config: str                    # a key of harness.config.PRESETS
+    firmware: str = str(DEFAULT_FIRMWARE)
+    pacing: str = "windowed"
+    role: str = ROLE_ACCURACY
+
+    @property
+    def run_id(self) -> str:
+        suffix = "-latency" if self.role == ROLE_LATENCY else ""
+        return f"{self.flight.flight_id}-{self.config.replace('+', '-')}{suffix}"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"run_id": self.run_id, "flight_id": self.flight.flight_id, "config": self.config,
+                "firmware": self.firmware, "pacing": self.pacing, "role": self.role, "flight": asdict(self.flight)}
+
+    def fingerprint(self) -> str:
+        """Changes whenever anything that decides the run's outcome changes (resume compares it)."""
+        text = json.dumps(self.as_dict(), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> RunSpec:
+        return RunSpec(flight=FlightSpec(**d["flight"]), config=str(d["config"]), firmware=str(d["firmware"]),
+                       pacing=str(d.get("pacing", "windowed")), role=str(d.get("role", ROLE_ACCURACY)))
+
+
+@dataclass(frozen=True)
+class CampaignOptions:
+    seeds: int = 10
+    first_seed: int = FIRST_EVAL_SEED
+    duration_s: float = 70.0
+    modes: tuple[str, ...] = MODES
+    trajectories: tuple[str, ...] = TRAJECTORIES
+    configs: tuple[str, ...] = CONFIGS
+    recorded: bool = True
+    data_dir: Path = field(default_factory=shared_data_dir)
+    firmware: Path = DEFAULT_FIRMWARE
+    pacing: str = "windowed"       # of the accuracy runs
+    latency_runs: bool = True      # per mode, one extra real-time run (outlier+nn) of the first flight
+
+    def validate(self) -> None:
+        if self.seeds < 0:
+            raise PlanError(f"--seeds must be >= 0, got {self.seeds}")
+        if not self.duration_s > 0:
+            raise PlanError(f"--duration must be > 0, got {self.duration_s}")
+        for mode in self.modes:
+            if mode not in MODES:
+                raise PlanError(f"unknown mode {mode!r} in --modes; choose from {MODES}")
+        for cfg in self.configs:
+            if cfg not in PRESETS:
+                raise PlanError(f"unknown configuration {cfg!r}; choose from {tuple(PRESETS)}")
+        if self.pacing not in PACING_MODES:
+            raise PlanError(f"unknown pacing {self.pacing!r}; choose from {PACING_MODES}")
+        if not self.trajectories and self.seeds:
+            raise PlanError("--trajectories is empty")
+
+
+def recorded_flights(data_dir: Path, modes: tuple[str, ...]) -> tuple[list[FlightSpec], list[str]]:
+    """The held-out recordings present under data_dir, and notes on those that are missing."""
+    flights: list[FlightSpec] = []
+    notes: list[str] = []
+    if "tdoa" in modes:
+        anchors = data_dir / UTIL_ANCHORS
+        for rel in UTIL_HELD_OUT:
+            path = data_dir / rel
+            if not path.is_file() or not anchors.is_file():
+                notes.append(f"recorded flight {path} (or {anchors}) not found: skipped")
+                continue
+            label = "util-" + path.name.replace("-extracted.csv", "")
+            flights.append(FlightSpec(source="recorded", mode="tdoa", trajectory=label, path=str(path),
+                                      anchors=str(anchors), uwb_only=True))
+    if "twr" in modes:
+        for rel in RCV_TWR_SEQUENCES:
+            path = data_dir / rel
+            if not path.is_dir():
+                notes.append(f"recorded sequence {path} not found: skipped")
+                continue
+            flights.append(FlightSpec(source="recorded", mode="twr", trajectory="rcv-" + path.name,
+                                      path=str(path), uwb_only=True))
+    return flights, notes
+
+
+def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
+    """Every run of the campaign (simulated first), plus notes on what was left out and why."""
+    opts.validate()
+    flights: list[FlightSpec] = []
+    for mode in opts.modes:
+        for traj in opts.trajectories:
+            for k in range(opts.seeds):
+                flights.append(FlightSpec(source="sim", mode=mode, trajectory=traj, seed=opts.first_seed + k,
+                                          duration_s=float(opts.duration_s)))
+    notes: list[str] = []
+    if opts.recorded:
+        rec, notes = recorded_flights(Path(opts.data_dir), opts.modes)
+        flights += rec
+    runs = [RunSpec(flight=f, config=c, firmware=str(opts.firmware), pacing=opts.pacing)
+            for f in flights for c in opts.configs]
+    if opts.latency_runs:
+        for mode in opts.modes:
+            first = next((f for f in flights if f.source == "sim" and f.mode == mode), None)
+            if first is not None:
+                cfg = "outlier+nn" if "outlier+nn" in opts.configs else opts.configs[-1]
+                runs.append(RunSpec(flight=first, config=cfg, firmware=str(opts.firmware), pacing="realtime",
+                                    role=ROLE_LATENCY))
+    return runs, notes
+
+
+def group_by_flight(runs: list[RunSpec]) -> list[list[RunSpec]]:
+    """Runs that share a flight and a firmware run one after another on one device (the flight is built once)."""
+    groups: dict[tuple[FlightSpec, str], list[RunSpec]] = {}
+    for r in runs:
+        groups.setdefault((r.flight, r.firmware), []).append(r)
+    return list(groups.values())

@@ -1,0 +1,212 @@
+"""Run a planned campaign: one worker process per flight, up to `jobs` at once, each with its own emulator.
+
+Resume: runs whose summary says "ok" for the same RunSpec fingerprint are skipped, so re-running the
+same command continues an interrupted campaign. A failing run (or a crashed or hung worker) is written
+as "failed" with its reason and the rest go on. Workers are separate interpreters started with
+subprocess: a crash in one (even a segfault) cannot take the others or the runner down.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import os
+import platform
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from harness.campaign.plan import CampaignOptions, RunSpec, group_by_flight
+from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, read_json, write_json_atomic
+from harness.campaign.worker import WorkerJob
+from harness.session import REPO_ROOT
+
+
+@dataclass(frozen=True)
+class ExecOptions:
+    jobs: int = max(1, os.cpu_count() or 1)
+    window: int = 64               # measurements in flight (windowed pacing)
+    timeout_s: float = 10.0        # device silence before a run fails
+    # Wall-clock limit of one worker (a flight in three configurations); None: derived from the flight
+    # length, generously (a loaded 2-core machine replays far slower than the unloaded figure).
+    group_timeout_s: float | None = None
+    python: str = sys.executable
+
+
+@dataclass
+class CampaignOutcome:
+    total: int
+    skipped: int                                   # complete before this invocation (resumed)
+    ok: int = 0
+    failed: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def all_ok(self) -> bool:
+        return not self.failed
+
+
+def host_provenance(firmware: Path | None = None) -> dict[str, Any]:
+    """Where and from what the campaign ran (the device's own identity is in every run summary)."""
+    def git(*args: str) -> str:
+        try:
+            out = subprocess.run(["git", *args], cwd=REPO_ROOT, capture_output=True, text=True, timeout=10)
+            return out.stdout.strip() if out.returncode == 0 else "unknown"
+        except (OSError, subprocess.SubprocessError):
+            return "unknown"
+
+    prov: dict[str, Any] = {
+        "git_commit": git("rev-parse", "HEAD"),
+        "git_dirty": git("status", "--porcelain", "--untracked-files=no") not in ("", "unknown"),
+        "machine": platform.node(), "platform": platform.platform(), "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    }
+    if firmware is not None:
+        try:
+            prov["firmware_path"] = str(firmware)
+            prov["firmware_sha256"] = hashlib.sha256(Path(firmware).read_bytes()).hexdigest()[:16]
+        except OSError:
+            prov["firmware_sha256"] = "missing"
+    return prov
+
+
+def _group_timeout(runs: list[RunSpec], opts: ExecOptions) -> float:
+    if opts.group_timeout_s is not None:
+        return opts.group_timeout_s
+    dur = max((r.flight.duration_s or 300.0) for r in runs)
+    return 120.0 + 4.0 * dur * len(runs)
+
+
+def _tail(path: Path, n: int = 20) -> str:
+    try:
+        return "\n".join(path.read_text(encoding="utf-8", errors="replace").splitlines()[-n:])
+    except OSError:
+        return ""
+
+
+@dataclass
+class _Active:
+    proc: subprocess.Popen[bytes]
+    runs: list[RunSpec]
+    log: Path
+    deadline: float
+    limit_s: float
+    term_sent: float | None = None
+
+
+def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, options: CampaignOptions | None = None,
+                 notes: list[str] | None = None, log: Callable[[str], None] = print) -> CampaignOutcome:
+    cdir = CampaignDir(Path(root).resolve())
+    cdir.make()
+    firmware = Path(runs[0].firmware) if runs else (options.firmware if options else None)
+    manifest = {"options": _options_dict(options), "exec": {k: v for k, v in asdict(exec_opts).items()
+                                                            if k != "python"},
+                "notes": list(notes or []), "runs": [r.as_dict() for r in runs],
+                "provenance": host_provenance(firmware)}
+    write_json_atomic(cdir.manifest, manifest)
+    for n in notes or []:
+        log(f"note: {n}")
+
+    pending_groups: list[list[RunSpec]] = []
+    skipped = 0
+    for group in group_by_flight(runs):
+        todo = [r for r in group if not cdir.is_complete(r.run_id, r.fingerprint())]
+        skipped += len(group) - len(todo)
+        if todo:
+            pending_groups.append(todo)
+    outcome = CampaignOutcome(total=len(runs), skipped=skipped)
+    n_pending = sum(len(g) for g in pending_groups)
+    log(f"campaign {cdir.root}: {len(runs)} runs, {skipped} already complete, {n_pending} to run "
+        f"({len(pending_groups)} flights, {exec_opts.jobs} at a time)")
+
+    env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+               MPLBACKEND="Agg")
+    active: list[_Active] = []
+    queue = list(pending_groups)
+    done_groups = 0
+    try:
+        while queue or active:
+            while queue and len(active) < max(1, exec_opts.jobs):
+                group = queue.pop(0)
+                active.append(_start(cdir, group, exec_opts, env))
+            time.sleep(0.1)
+            for a in list(active):
+                code = a.proc.poll()
+                now = time.monotonic()
+                if code is None:
+                    if now > a.deadline and a.term_sent is None:
+                        a.proc.send_signal(signal.SIGTERM)      # the worker stops its device on SIGTERM
+                        a.term_sent = now
+                    elif a.term_sent is not None and now - a.term_sent > 10.0:
+                        a.proc.kill()
+                    continue
+                active.remove(a)
+                done_groups += 1
+                _collect(cdir, a, code, outcome, log, timed_out=a.term_sent is not None)
+                log(f"[{done_groups}/{len(pending_groups)}] {a.runs[0].flight.flight_id}: "
+                    f"{outcome.ok} ok, {len(outcome.failed)} failed so far")
+    finally:
+        for a in active:           # interrupted: stop our workers (they stop their devices)
+            if a.proc.poll() is None:
+                a.proc.send_signal(signal.SIGTERM)
+        for a in active:
+            try:
+                a.proc.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                a.proc.kill()
+                a.proc.wait()
+    return outcome
+
+
+def _options_dict(options: CampaignOptions | None) -> dict[str, Any] | None:
+    if options is None:
+        return None
+    d = asdict(options)
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in d.items()}
+
+
+def _start(cdir: CampaignDir, group: list[RunSpec], opts: ExecOptions, env: dict[str, str]) -> _Active:
+    fid = group[0].flight.flight_id
+    job = WorkerJob(root=str(cdir.root), runs=tuple(group), window=opts.window,
+                    timeout_s=opts.timeout_s)
+    for run in group:      # a summary left from an earlier attempt must not be mistaken for this one's
+        cdir.summary_path(run.run_id).unlink(missing_ok=True)
+    job_path = cdir.logs / f"{fid}.job.json"
+    job_path.write_text(job.to_json(), encoding="utf-8")
+    log_path = cdir.logs / f"{fid}.worker.log"
+    with open(log_path, "wb") as fh:
+        proc = subprocess.Popen([opts.python, "-m", "harness.campaign.worker", str(job_path)], cwd=REPO_ROOT,
+                                stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT, env=env)
+    limit = _group_timeout(group, opts)
+    return _Active(proc=proc, runs=group, log=log_path, deadline=time.monotonic() + limit, limit_s=limit)
+
+
+def _collect(cdir: CampaignDir, a: _Active, code: int, outcome: CampaignOutcome, log: Callable[[str], None],
+             timed_out: bool) -> None:
+    """Count the worker's runs; any run it left without a summary failed with the worker itself."""
+    for run in a.runs:
+        summary: dict[str, Any] | None = None
+        if cdir.summary_path(run.run_id).exists():
+            try:
+                summary = read_json(cdir.summary_path(run.run_id))
+            except ValueError:
+                summary = None
+        if summary is not None and summary.get("fingerprint") != run.fingerprint():
+            summary = None
+        if summary is not None and summary.get("status") == STATUS_OK:
+            outcome.ok += 1
+            continue
+        if summary is None or summary.get("status") != STATUS_FAILED:
+            why = (f"worker timed out after {a.limit_s:.0f} s" if timed_out
+                   else f"worker exited with code {code} before finishing this run")
+            summary = {"status": STATUS_FAILED, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
+                       "error_type": "WorkerFailed", "error": why,
+                       "traceback": _tail(a.log), "worker_log": str(a.log)}
+            write_json_atomic(cdir.summary_path(run.run_id), summary)
+        outcome.failed.append({"run_id": run.run_id, "error": summary.get("error", "")})
+        first_line = str(summary.get("error", "")).splitlines()[0] if summary.get("error") else ""
+        log(f"  FAILED {run.run_id}: {summary.get('error_type', '')}: {first_line}")

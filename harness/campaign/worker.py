@@ -1,0 +1,171 @@
+"""One campaign worker process: builds one flight and streams it, once per configuration, through its own
+emulator (on its own pty). Started by the runner as ``python -m harness.campaign.worker GROUP.json``.
+
+Every run ends with a summary file, "ok" or "failed" (with the reason); a failing run does not stop the
+next one (a dead device is restarted). The results JSONL is written by the streamer as results arrive.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import signal
+import sys
+import time
+import traceback
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from harness.campaign.plan import FIRST_EVAL_SEED, FlightSpec, RunSpec
+from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, save_flight, write_json_atomic
+from harness.config import PRESETS, EstimatorConfig
+from harness.flight.model import Flight
+from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
+from harness.session import DeviceSpec, config_for, open_device
+from harness.stream.streamer import Pacing, Streamer
+
+
+@dataclass(frozen=True)
+class WorkerJob:
+    """What the runner hands a worker (as JSON)."""
+
+    root: str
+    runs: tuple[RunSpec, ...]
+    window: int = 64
+    timeout_s: float = 10.0
+
+    def to_json(self) -> str:
+        return json.dumps({"root": self.root, "runs": [r.as_dict() for r in self.runs],
+                           "window": self.window, "timeout_s": self.timeout_s}, indent=1)
+
+    @staticmethod
+    def from_json(text: str) -> WorkerJob:
+        d = json.loads(text)
+        return WorkerJob(root=d["root"], runs=tuple(RunSpec.from_dict(r) for r in d["runs"]),
+                         window=int(d["window"]), timeout_s=float(d["timeout_s"]))
+
+
+def build_flight(spec: FlightSpec) -> Flight:
+    if spec.source == "sim":
+        from harness.flight.scenarios import scenario_flight
+        return scenario_flight(spec.trajectory, mode=spec.mode, duration_s=float(spec.duration_s or 70.0),
+                               seed=int(spec.seed if spec.seed is not None else FIRST_EVAL_SEED),
+                               takeoff=spec.takeoff, profile=spec.profile)
+    if spec.source == "recorded":
+        from harness.flight.loaders import load_recording
+        if spec.path is None:
+            raise ValueError(f"{spec.flight_id}: a recorded flight needs a path")
+        return load_recording(Path(spec.path), anchors=Path(spec.anchors) if spec.anchors else None)
+    raise ValueError(f"unknown flight source {spec.source!r}")
+
+
+def flight_meta(spec: FlightSpec, flight: Flight) -> dict[str, Any]:
+    """What the report says about the flight, including why the network has not seen it."""
+    meta: dict[str, Any] = {"flight_id": spec.flight_id, "name": flight.name, "source": spec.source,
+                            "mode": spec.mode, "trajectory": spec.trajectory, "seed": spec.seed,
+                            "measurements": len(flight.uwb), "duration_s": flight.duration_s,
+                            "has_imu": flight.has_imu, "uwb_only": spec.uwb_only or not flight.has_imu}
+    if spec.source == "sim":
+        meta["seed_disjoint_from_training"] = spec.seed is not None and spec.seed >= FIRST_EVAL_SEED
+    else:
+        meta["held_out_from_training"] = True
+        meta["path"] = spec.path
+    meta["flight_meta"] = {k: v for k, v in flight.meta.items() if isinstance(v, (str, int, float, bool))}
+    return meta
+
+
+def _hello_dict(hello: Any) -> dict[str, Any]:
+    return {"proto_version": hello.proto_version,
+            "firmware": f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}",
+            "build_id": hello.build_id.rstrip(b"\x00").decode(errors="replace"),
+            "target": hello.target.rstrip(b"\x00").decode(errors="replace"),
+            "model_hash": f"{hello.model_hash:016x}", "layout_twr": hello.layout_twr,
+            "layout_tdoa": hello.layout_tdoa, "cost_unit": hello.cost_unit}
+
+
+def _failure(run: RunSpec, exc: BaseException, started: float) -> dict[str, Any]:
+    return {"status": STATUS_FAILED, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
+            "error_type": type(exc).__name__, "error": str(exc) or repr(exc),
+            "traceback": "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))[-4000:],
+            "wall_s": time.time() - started, "host": platform.node()}
+
+
+def run_group(job: WorkerJob) -> int:
+    """Run every RunSpec of the job (they share one flight). Returns the number of failed runs."""
+    cdir = CampaignDir(Path(job.root))
+    cdir.make()
+    first = job.runs[0]
+    t0 = time.time()
+    try:
+        flight = build_flight(first.flight)
+        flight.validate()
+        meta = flight_meta(first.flight, flight)
+        save_flight(cdir.flight_path(first.flight.flight_id), flight, meta)
+    except Exception as exc:  # noqa: BLE001 - every run of this flight is reported as failed, with the reason
+        for run in job.runs:
+            write_json_atomic(cdir.summary_path(run.run_id), _failure(run, exc, t0))
+        return len(job.runs)
+    failed = 0
+    device_cm = None
+    device = None
+    hello = None
+    try:
+        for run in job.runs:
+            started = time.time()
+            try:
+                pacing = Pacing(mode=run.pacing, window=job.window)
+                if device is None:
+                    spec = DeviceSpec(firmware=Path(run.firmware), timeout_s=job.timeout_s, log_dir=cdir.logs)
+                    device_cm = open_device(spec)
+                    device = device_cm.__enter__()
+                    hello = device.last_hello or device.hello(timeout=job.timeout_s)  # type: ignore[attr-defined]
+                cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[run.config], uwb_only=run.flight.uwb_only)
+                result = Streamer(device, timeout_s=job.timeout_s).run(  # type: ignore[arg-type]
+                    flight, cfg, pacing, results_path=cdir.results_path(run.run_id))
+                summary = run_summary(result, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+                write_json_atomic(cdir.summary_path(run.run_id), {
+                    "status": STATUS_OK, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
+                    "flight": meta, "device": _hello_dict(hello), "pacing": asdict(pacing),
+                    "estimator_config": asdict(cfg), "summary": summary, "wall_s": time.time() - started,
+                    "host": platform.node()})
+            except Exception as exc:  # noqa: BLE001 - reported in the run's summary; the next run goes on
+                failed += 1
+                write_json_atomic(cdir.summary_path(run.run_id), _failure(run, exc, started))
+                # The device may be dead or confused: the next run gets a fresh one.
+                if device_cm is not None:
+                    _close(device_cm)
+                device_cm, device = None, None
+    finally:
+        if device_cm is not None:
+            _close(device_cm)
+    return failed
+
+
+def _close(cm: Any) -> None:
+    try:
+        cm.__exit__(None, None, None)
+    except Exception:  # noqa: BLE001 - stopping a broken device must not hide the run's own error
+        pass
+
+
+def _terminate(signum: int, frame: FrameType | None) -> None:  # noqa: ARG001
+    # SIGTERM from the runner (timeout, Ctrl-C): unwind so the device is stopped by the finally blocks.
+    raise SystemExit(128 + signum)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m harness.campaign.worker GROUP.json", file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, _terminate)
+    job = WorkerJob.from_json(Path(args[0]).read_text(encoding="utf-8"))
+    failed = run_group(job)
+    print(f"{job.runs[0].flight.flight_id}: {len(job.runs) - failed} ok, {failed} failed")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

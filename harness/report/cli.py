@@ -1,0 +1,55 @@
+"""`uwb-hil report DIR`: the campaign report (HTML, Markdown, PNGs, JSON)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser("report", help="turn a campaign directory into report.html / report.md / report.json")
+    p.add_argument("dir", help="campaign directory (uwb-hil campaign --out DIR)")
+    p.add_argument("--json", action="store_true", help="print the summary JSON on stdout")
+    p.set_defaults(func=cmd_report)
+
+
+def write_report(root: Path, as_json: bool) -> dict[str, Any]:
+    from harness.report.build import build_report
+    files, summary = build_report(root)
+    if as_json:
+        print(json.dumps(summary, indent=1))
+    else:
+        _print_headline(summary)
+        print(f"report: {files.html} ({len(files.figures)} figures), {files.markdown}, {files.json}",
+              file=sys.stderr)
+    return summary
+
+
+def _print_headline(summary: dict[str, Any]) -> None:
+    def f(x: Any) -> str:
+        return "-" if x is None else f"{x:.3f}"
+
+    for mode in ("twr", "tdoa"):
+        m = summary.get(mode)
+        if m:
+            red = m.get("reduction_pct")
+            print(f"{mode.upper():5s} RMSE [m]: none {f(m.get('rmse_raw'))}, outlier {f(m.get('rmse_outlier'))}, "
+                  f"outlier+nn {f(m.get('rmse_outlier_nn'))}; NN vs outlier: "
+                  f"{'-' if red is None else f'{-red:+.1f} %'} (paper {-m['paper']['reduction_pct']:+.1f} %)")
+    for mode, m in (summary.get("recorded") or {}).items():
+        if mode in ("twr", "tdoa"):
+            red = m.get("reduction_pct")
+            print(f"recorded {mode.upper():5s}: none {f(m.get('rmse_raw'))}, outlier {f(m.get('rmse_outlier'))}, "
+                  f"outlier+nn {f(m.get('rmse_outlier_nn'))}; NN vs outlier: "
+                  f"{'-' if red is None else f'{-red:+.1f} %'}")
+    runs = summary.get("runs") or {}
+    if runs.get("failed") or runs.get("missing"):
+        print(f"runs: {runs.get('failed')} failed, {runs.get('missing')} not run (see the report)")
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    write_report(Path(args.dir), as_json=args.json)
+    return 0

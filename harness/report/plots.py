@@ -1,0 +1,259 @@
+"""The report's figures (matplotlib, Agg; Figure objects, no pyplot state). Each returns None when the
+campaign has nothing to show for it. Colours follow the paper: outlier rejection orange, + network blue."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from harness.report.data import CampaignData, RunMetrics
+from harness.stream.streamer import OUTCOME_RESULT
+
+COLORS = {"none": "#8c8c8c", "outlier": "#ff7f0e", "outlier+nn": "#1f77b4"}
+LABELS = {"none": "no rejection", "outlier": "outlier rejection", "outlier+nn": "outlier rejection + NN"}
+MODES = ("twr", "tdoa")
+
+
+def save(fig: Figure, path: Path, dpi: int = 110) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    return path
+
+
+def _sim(data: CampaignData) -> list[RunMetrics]:
+    return [r for r in data.accuracy_runs if r.source == "sim"]
+
+
+def _configs(runs: list[RunMetrics]) -> list[str]:
+    return [c for c in COLORS if any(r.config == c for r in runs)]
+
+
+def rmse_boxes(data: CampaignData) -> Figure | None:
+    """Paper Fig. 9: RMSE distribution over seeds, per mode, trajectory and configuration."""
+    sim = _sim(data)
+    modes = [m for m in MODES if any(r.mode == m for r in sim)]
+    if not modes:
+        return None
+    fig = Figure(figsize=(5.2 * len(modes), 4.0))
+    axes = fig.subplots(1, len(modes), squeeze=False)[0]
+    for ax, mode in zip(axes, modes):
+        runs = [r for r in sim if r.mode == mode]
+        trajs = sorted({r.trajectory for r in runs})
+        cfgs = _configs(runs)
+        width = 0.8 / max(1, len(cfgs))
+        for ti, traj in enumerate(trajs):
+            for ci, cfg in enumerate(cfgs):
+                vals = [r.rmse for r in runs if r.trajectory == traj and r.config == cfg and math.isfinite(r.rmse)]
+                if not vals:
+                    continue
+                pos = ti + (ci - (len(cfgs) - 1) / 2) * width
+                bp = ax.boxplot([vals], positions=[pos], widths=width * 0.85, patch_artist=True,
+                                showfliers=True, manage_ticks=False)
+                for patch in bp["boxes"]:
+                    patch.set_facecolor(COLORS[cfg])
+                    patch.set_alpha(0.75)
+                for med in bp["medians"]:
+                    med.set_color("black")
+        ax.set_xticks(range(len(trajs)))
+        ax.set_xticklabels(trajs)
+        ax.set_title(f"{mode.upper()}: position RMSE per flight")
+        ax.set_ylabel("RMSE [m]")
+        ax.grid(axis="y", alpha=0.3)
+        for cfg in cfgs:
+            ax.plot([], [], color=COLORS[cfg], lw=8, alpha=0.75, label=LABELS[cfg])
+        ax.legend(fontsize=8)
+    return fig
+
+
+def error_over_time(data: CampaignData) -> Figure | None:
+    """Paper Fig. 7: estimation error over time, mean over seeds with a +-1 std band."""
+    sim = _sim(data)
+    modes = [m for m in MODES if any(r.mode == m for r in sim)]
+    if not modes:
+        return None
+    trajs = sorted({r.trajectory for r in sim})
+    fig = Figure(figsize=(5.5 * len(trajs), 3.2 * len(modes)))
+    axes = fig.subplots(len(modes), len(trajs), squeeze=False)
+    for i, mode in enumerate(modes):
+        for j, traj in enumerate(trajs):
+            ax = axes[i][j]
+            runs = [r for r in sim if r.mode == mode and r.trajectory == traj]
+            for cfg in _configs(runs):
+                curves = [r for r in runs if r.config == cfg and len(r.err_mean)]
+                if not curves:
+                    continue
+                n = max(len(r.err_mean) for r in curves)
+                stack = np.full((len(curves), n), np.nan)
+                for k, r in enumerate(curves):
+                    stack[k, :len(r.err_mean)] = r.err_mean
+                t = curves[int(np.argmax([len(r.err_t_s) for r in curves]))].err_t_s
+                with np.errstate(invalid="ignore"), _quiet():
+                    mean = np.nanmean(stack, axis=0)
+                    std = np.nanstd(stack, axis=0)
+                ax.plot(t, mean, color=COLORS[cfg], lw=1.3, label=f"{LABELS[cfg]} (n={len(curves)})")
+                ax.fill_between(t, mean - std, mean + std, color=COLORS[cfg], alpha=0.2, lw=0)
+            ax.set_title(f"{mode.upper()} {traj}")
+            ax.set_xlabel("time [s]")
+            ax.set_ylabel("error |p - p_true| [m]")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+class _quiet:
+    """Silence numpy's 'mean of empty slice' for bins where every seed has no sample."""
+
+    def __enter__(self) -> None:
+        import warnings
+        self._w = warnings.catch_warnings()
+        self._w.__enter__()
+        warnings.simplefilter("ignore", RuntimeWarning)
+
+    def __exit__(self, *exc: object) -> None:
+        self._w.__exit__(*exc)
+
+
+def _first_seed_run(runs: list[RunMetrics], mode: str, traj: str, cfg: str) -> RunMetrics | None:
+    cands = [r for r in runs if r.mode == mode and r.trajectory == traj and r.config == cfg]
+    return min(cands, key=lambda r: (r.seed if r.seed is not None else 0), default=None)
+
+
+def paths_3d(data: CampaignData, max_points: int = 3000) -> Figure | None:
+    """Paper Fig. 8 (top): estimated vs true 3-D paths of one flight per mode and trajectory."""
+    sim = _sim(data)
+    modes = [m for m in MODES if any(r.mode == m for r in sim)]
+    if not modes:
+        return None
+    trajs = sorted({r.trajectory for r in sim})
+    fig = Figure(figsize=(5.0 * len(trajs), 4.6 * len(modes)))
+    for i, mode in enumerate(modes):
+        for j, traj in enumerate(trajs):
+            ax = fig.add_subplot(len(modes), len(trajs), i * len(trajs) + j + 1, projection="3d")
+            truth_drawn = False
+            title = f"{mode.upper()} {traj}"
+            for cfg in ("outlier", "outlier+nn"):
+                run = _first_seed_run(sim, mode, traj, cfg)
+                if run is None:
+                    continue
+                flight = data.flight(run.flight_id)
+                if not truth_drawn:
+                    step = max(1, len(flight.truth_t_us) // max_points)
+                    p = flight.truth_pos[::step]
+                    ax.plot(p[:, 0], p[:, 1], p[:, 2], color="#d62728", lw=1.6, label="true")
+                    truth_drawn = True
+                    title += f" (seed {run.seed})"
+                c = data.results(run.run_id).columns
+                ok = c["outcome"] == OUTCOME_RESULT
+                step = max(1, int(np.count_nonzero(ok)) // max_points)
+                ax.plot(c["px"][ok][::step], c["py"][ok][::step], c["pz"][ok][::step], color=COLORS[cfg],
+                        lw=0.8, label=LABELS[cfg])
+            ax.set_title(title, fontsize=9)
+            ax.set_xlabel("x [m]")
+            ax.set_ylabel("y [m]")
+            ax.set_zlabel("z [m]")
+            ax.legend(fontsize=7)
+    return fig
+
+
+def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
+    """Paper Fig. 4: one flight's measurement errors, the network's predicted bias (RESULT.bias of the
+    outlier+nn run) and the measurements each gate rejected, coloured by gate."""
+    sim = _sim(data)
+    runs = [r for r in sim if r.mode == mode]
+    if not runs:
+        return None
+    traj = sorted({r.trajectory for r in runs})[0]
+    nn = _first_seed_run(runs, mode, traj, "outlier+nn") or _first_seed_run(runs, mode, traj, "outlier")
+    if nn is None:
+        return None
+    flight = data.flight(nn.flight_id)
+    c = data.results(nn.run_id).columns
+    idx = c["index"]
+    t = (flight.uwb_t_us[idx] - flight.uwb_t_us[0]) * 1e-6
+    err = (flight.value - flight.true_value)[idx]
+    ok = c["outcome"] == OUTCOME_RESULT
+    fig = Figure(figsize=(11, 3.8))
+    ax = fig.subplots()
+    ax.scatter(t[ok], err[ok], s=2, color="#b0b0b0", label="measurement error (z - h(p_true))", rasterized=True)
+    if nn.config == "outlier+nn":
+        ax.scatter(t[ok], c["bias"][ok], s=2, color=COLORS["outlier+nn"], label="predicted bias (NN)",
+                   rasterized=True)
+    for status, name, color in ((1, "rejected: kinematic gate", "#ff7f0e"), (2, "rejected: chi-square gate", "#d62728"),
+                                (3, "rejected: geometry", "#9467bd")):
+        sel = ok & (c["status"] == status)
+        if np.any(sel):
+            ax.scatter(t[sel], err[sel], s=9, marker="x", color=color, label=f"{name} ({int(sel.sum())})")
+    finite = err[np.isfinite(err)]
+    if finite.size:
+        lo, hi = np.percentile(finite, [0.5, 99.5])
+        pad = 0.25 * (hi - lo + 1e-3)
+        ax.set_ylim(lo - pad, hi + pad)
+    ax.set_title(f"{mode.upper()} measurement stream: {nn.flight_id} ({nn.config}); y-axis clipped to the "
+                 "0.5-99.5 % range", fontsize=9)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("[m]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, markerscale=3, loc="upper right")
+    return fig
+
+
+def latency_histograms(data: CampaignData, budget_us: float) -> Figure | None:
+    """Device compute time and end-to-end latency per message type, log-spaced bins, 5 ms budget marked."""
+    kinds = [(1, "TWR"), (2, "TDoA")]
+    present = [(k, n) for k, n in kinds if any(r.kind == k for r in data.runs)]
+    if not present:
+        return None
+    fig = Figure(figsize=(11, 3.4 * len(present)))
+    axes = fig.subplots(len(present), 2, squeeze=False)
+    for i, (kind, name) in enumerate(present):
+        runs = [r for r in data.runs if r.kind == kind]
+        e2e, e2e_pacing = data.e2e_runs(kind)
+        for j, (label, arr) in enumerate((("device compute", np.concatenate([r.compute_us for r in runs])),
+                                          (f"end to end, {e2e_pacing} pacing",
+                                           np.concatenate([r.rtt_us for r in e2e])))):
+            ax = axes[i][j]
+            v = arr[np.isfinite(arr) & (arr > 0)]
+            if v.size:
+                lo, hi = max(v.min(), 1e-2), max(v.max(), budget_us * 1.5 if j == 1 else v.max()) * 1.05
+                bins = np.logspace(math.log10(lo), math.log10(hi), 60)
+                ax.hist(v, bins=bins, color="#1f77b4" if j == 0 else "#2ca02c", alpha=0.8)
+                ax.set_xscale("log")
+                ax.set_yscale("log")
+                p50, p99 = np.percentile(v, [50, 99])
+                ax.axvline(p50, color="black", lw=0.8, ls="--", label=f"p50 {p50:.1f} us")
+                ax.axvline(p99, color="black", lw=0.8, ls=":", label=f"p99 {p99:.1f} us")
+            if j == 1 or (v.size and v.max() > budget_us):
+                ax.axvline(budget_us, color="#d62728", lw=1.2, label=f"budget {budget_us / 1e3:.0f} ms")
+            ax.set_title(f"{name}: {label} (n={v.size})", fontsize=9)
+            ax.set_xlabel("[us]")
+            ax.set_ylabel("count")
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def recorded_bars(data: CampaignData) -> Figure | None:
+    """RMSE per recorded (held-out) flight and configuration."""
+    rec = [r for r in data.accuracy_runs if r.source == "recorded"]
+    if not rec:
+        return None
+    fids = sorted({r.flight_id for r in rec})
+    cfgs = _configs(rec)
+    fig = Figure(figsize=(max(6.0, 1.1 * len(fids) + 2), 4.2))
+    ax = fig.subplots()
+    width = 0.8 / max(1, len(cfgs))
+    for ci, cfg in enumerate(cfgs):
+        vals = [next((r.rmse for r in rec if r.flight_id == f and r.config == cfg), np.nan) for f in fids]
+        ax.bar(np.arange(len(fids)) + (ci - (len(cfgs) - 1) / 2) * width, vals, width * 0.9, color=COLORS[cfg],
+               label=LABELS[cfg])
+    ax.set_xticks(range(len(fids)))
+    ax.set_xticklabels([f.removeprefix("rec-") for f in fids], rotation=30, ha="right", fontsize=8)
+    ax.set_ylabel("RMSE [m]")
+    ax.set_title("Recorded flights held out from training (UWB-only replay)")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig

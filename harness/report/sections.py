@@ -1,0 +1,215 @@
+"""The sections of the campaign report. A section is a function ``(ReportContext) -> Section | None``;
+``DEFAULT_SECTIONS`` is the order of the page. Other parts of the project (filter consistency / NEES,
+closed-loop tracking) add theirs by appending a function here or passing ``extra_sections`` to
+``harness.report.build.build_report``; their ``Section.data`` lands in report.json under "sections"."""
+
+from __future__ import annotations
+
+import math
+import platform
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from matplotlib.figure import Figure
+
+from harness.report import plots
+from harness.report.data import TIME_BIN_S, CampaignData
+from harness.report.html import FigureRef, Section, Table
+from harness.report.summary import CONFIG_KEYS, PAPER
+
+
+@dataclass
+class ReportContext:
+    data: CampaignData
+    summary: dict[str, Any]           # harness.report.summary.campaign_summary(data)
+    fig_dir: Path
+
+    def figure(self, fig: Figure | None, name: str, caption: str) -> list[FigureRef]:
+        """Save a figure as <fig_dir>/<name>.png (nothing if fig is None)."""
+        if fig is None:
+            return []
+        return [FigureRef(plots.save(fig, self.fig_dir / f"{name}.png"), caption)]
+
+
+SectionFn = Callable[[ReportContext], "Section | None"]
+
+
+def _f(x: Any, digits: int = 3) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return f"{x:.{digits}f}" if isinstance(x, float) else str(x)
+
+
+def _pct(x: Any) -> str:
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:+.1f} %"
+
+
+def _ms(m: dict[str, Any], key: str) -> str:
+    return f"{_f(m.get('rmse_' + key))} ± {_f(m.get('std_' + key))} (n={m.get('n_' + key, 0)})"
+
+
+# ----------------------------------------------------------------------------------------- sections
+def headline(ctx: ReportContext) -> Section | None:
+    s = ctx.summary
+    sec = Section("summary", "Accuracy: the paper's table")
+    rows = []
+    for mode in ("twr", "tdoa"):
+        m = s.get(mode)
+        if not m:
+            continue
+        paper = PAPER[mode]
+        rows.append([mode.upper(), _ms(m, "raw"), _ms(m, "outlier"), _ms(m, "outlier_nn"),
+                     _pct(-m["reduction_pct"]), _pct(-m["reduction_paired_pct"]),
+                     f"{paper['rmse_outlier_nn']:.2f} m, {-paper['reduction_pct']:+.1f} %"])
+    if not rows:
+        sec.paragraphs.append("Note: no simulated run completed; nothing to tabulate.")
+        return sec
+    seeds = sorted({x for mode in ("twr", "tdoa") for x in (s.get(mode) or {}).get("seeds", [])})
+    sec.paragraphs.append(
+        "Position RMSE [m] of simulated flights, mean ± std over flights (seeds x trajectories), through the "
+        f"firmware over the serial link. Seeds {seeds[0] if seeds else '-'}..{seeds[-1] if seeds else '-'} are "
+        "disjoint from the training seeds (the network never saw these flights). Change = RMSE change of "
+        "outlier rejection + NN versus outlier rejection alone: from the means, and the mean of the "
+        "per-flight changes.")
+    sec.tables.append(Table(["mode", "no rejection", "outlier rejection", "outlier rejection + NN",
+                             "change (means)", "change (per flight)", "paper (+NN, change)"], rows,
+                            "Simulated campaign"))
+    traj_rows = []
+    for mode in ("twr", "tdoa"):
+        for traj, m in ((s.get(mode) or {}).get("by_trajectory") or {}).items():
+            traj_rows.append([f"{mode.upper()} {traj}", _ms(m, "raw"), _ms(m, "outlier"), _ms(m, "outlier_nn"),
+                              _pct(-m["reduction_pct"])])
+    if traj_rows:
+        sec.tables.append(Table(["flight set", "no rejection", "outlier rejection", "outlier rejection + NN",
+                                 "change (means)"], traj_rows, "Per trajectory"))
+    sec.data = {mode: s[mode] for mode in ("twr", "tdoa") if mode in s}
+    return sec
+
+
+def rmse_boxes(ctx: ReportContext) -> Section | None:
+    figs = ctx.figure(plots.rmse_boxes(ctx.data), "rmse_boxes",
+                      "Position RMSE per flight, per trajectory and configuration (paper Fig. 9).")
+    return Section("rmse-boxes", "RMSE distribution (Fig. 9)", figures=figs) if figs else None
+
+
+def error_time(ctx: ReportContext) -> Section | None:
+    figs = ctx.figure(plots.error_over_time(ctx.data), "error_over_time",
+                      f"Estimation error over time, mean over seeds (in {TIME_BIN_S} s bins) with a ±1 std band "
+                      "(paper Fig. 7). Take-off and landing included.")
+    return Section("error-time", "Error over time (Fig. 7)", figures=figs) if figs else None
+
+
+def paths(ctx: ReportContext) -> Section | None:
+    figs = ctx.figure(plots.paths_3d(ctx.data), "paths_3d",
+                      "Estimated vs true 3-D paths of the lowest seed (paper Fig. 8, top).")
+    return Section("paths", "Flight paths (Fig. 8)", figures=figs) if figs else None
+
+
+def measurement_streams(ctx: ReportContext) -> Section | None:
+    figs: list[FigureRef] = []
+    for mode in ("twr", "tdoa"):
+        figs += ctx.figure(plots.measurement_stream(ctx.data, mode), f"stream_{mode}",
+                           f"{mode.upper()}: measurement error, the bias the firmware's network subtracted "
+                           "(RESULT.bias) and the measurements each gate rejected (paper Fig. 4).")
+    return Section("stream", "Measurement stream of one flight (Fig. 4)", figures=figs) if figs else None
+
+
+def recorded(ctx: ReportContext) -> Section | None:
+    rec = ctx.summary.get("recorded")
+    if not rec:
+        return None
+    sec = Section("recorded", "Recorded flights (held out from training)")
+    sec.paragraphs.append(
+        "Real flights replayed through the firmware in UWB-only mode (constant-velocity model): UTIL TDoA "
+        "trials not used for training (trial 5 of constellations 1 and 2, and constellation 3 with obstacles) "
+        "and the rcv_twr drone sequences. RMSE against motion capture [m].")
+    rows = [[mode.upper(), _ms(m, "raw"), _ms(m, "outlier"), _ms(m, "outlier_nn"), _pct(-m["reduction_pct"]),
+             _pct(-m["reduction_paired_pct"])] for mode, m in rec.items() if mode in ("twr", "tdoa")]
+    sec.tables.append(Table(["mode", "no rejection", "outlier rejection", "outlier rejection + NN",
+                             "change (means)", "change (per flight)"], rows, "Mean over recorded flights"))
+    frows = [[f["flight_id"], _f(f.get("rmse_raw")), _f(f.get("rmse_outlier")), _f(f.get("rmse_outlier_nn")),
+              _pct(-100.0 * (f["rmse_outlier"] - f["rmse_outlier_nn"]) / f["rmse_outlier"])
+              if f.get("rmse_outlier") and f.get("rmse_outlier_nn") is not None else "-"]
+             for f in rec.get("flights", [])]
+    sec.tables.append(Table(["flight", "no rejection", "outlier rejection", "outlier rejection + NN",
+                             "change"], frows, "Per flight"))
+    sec.figures += ctx.figure(plots.recorded_bars(ctx.data), "recorded_rmse", "RMSE per recorded flight.")
+    sec.data = rec
+    return sec
+
+
+def latency(ctx: ReportContext) -> Section | None:
+    lat = ctx.summary.get("latency") or {}
+    budget = float(lat.get("budget_us", 5000.0))
+    sec = Section("latency", "Latency")
+    sec.paragraphs.append(
+        "Device compute: the firmware's own cost of each measurement (RESULT.compute), over every run. End to "
+        "end: host write of the measurement frame to receipt of its RESULT over the pty. It is taken from the "
+        "real-time runs (frames sent at the data's own clock, as a sensor delivers them) when the campaign has "
+        "them; with windowed pacing it would include queueing behind up to a window of measurements. "
+        f"Deadline misses count samples above the {budget / 1e3:.0f} ms budget (one UWB slot at 200 Hz). "
+        "Jitter is the p99 of |x - median|. Lost: measurements without a RESULT or ERROR.")
+    rows = []
+    for name in ("twr", "tdoa"):
+        k = lat.get(name)
+        if not k:
+            continue
+        for label, st in ((f"compute [{k['compute_unit']}]", k["compute"]),
+                          (f"end to end [us] ({k['end_to_end_pacing']})", k["end_to_end_us"])):
+            rows.append([f"{name.upper()} {label}", str(st["n"]), _f(st["p50"], 1), _f(st["p90"], 1), _f(st["p99"], 1),
+                         _f(st["p999"], 1), _f(st["max"], 1), _f(st["jitter_p99"], 1), str(st["deadline_misses"])])
+    sec.tables.append(Table(["message type", "n", "p50", "p90", "p99", "p99.9", "max", "jitter p99",
+                             "deadline misses"], rows, "Per message type"))
+    counters = lat.get("device_counters", {})
+    loss_rows = [[name.upper(), str(lat[name]["measurements"]), str(lat[name]["results"]), str(lat[name]["lost"]),
+                  str(lat[name]["refused"])] for name in ("twr", "tdoa") if name in lat]
+    sec.tables.append(Table(["message type", "measurements sent", "RESULTs", "lost", "refused"], loss_rows,
+                            "Frames"))
+    sec.paragraphs.append("Device counters summed over runs: " + ", ".join(f"{k} {v}" for k, v in counters.items()))
+    sec.figures += ctx.figure(plots.latency_histograms(ctx.data, budget), "latency",
+                              "Device compute time and end-to-end latency per message type (log axes).")
+    sec.data = lat
+    return sec
+
+
+def failures(ctx: ReportContext) -> Section | None:
+    runs = ctx.summary.get("runs") or {}
+    sec = Section("runs", "Runs")
+    sec.paragraphs.append(f"{runs.get('planned', 0)} planned, {runs.get('ok', 0)} complete, "
+                          f"{runs.get('failed', 0)} failed, {runs.get('missing', 0)} not run.")
+    for n in ctx.summary.get("notes", []):
+        sec.paragraphs.append(f"Note: {n}")
+    if runs.get("failed_runs"):
+        sec.tables.append(Table(["run", "error"], [[f["run_id"], f"{f['error_type']}: "
+                                                    f"{str(f['error']).splitlines()[0] if f['error'] else ''}"]
+                                                   for f in runs["failed_runs"]], "Failed runs"))
+    if runs.get("missing_runs"):
+        sec.paragraphs.append("Not run (interrupted?): " + ", ".join(runs["missing_runs"][:50])
+                              + (" ..." if len(runs["missing_runs"]) > 50 else ""))
+    sec.data = runs
+    return sec
+
+
+def provenance(ctx: ReportContext) -> Section | None:
+    p = ctx.summary.get("provenance") or {}
+    sec = Section("provenance", "Provenance")
+    rows = [["firmware build id(s)", ", ".join(p.get("build_ids", []))],
+            ["bias model hash(es)", ", ".join(p.get("model_hashes", []))],
+            ["protocol version(s)", ", ".join(str(v) for v in p.get("protocol_versions", []))],
+            ["firmware binary", f"{p.get('firmware_path', '-')} (sha256 {p.get('firmware_sha256', '-')})"],
+            ["git commit", f"{p.get('git_commit', '-')}{' (uncommitted changes)' if p.get('git_dirty') else ''}"],
+            ["machine", f"{p.get('machine', '-')}: {p.get('platform', '-')}, {p.get('cpu_count', '-')} CPUs, "
+                        f"Python {p.get('python', '-')}"],
+            ["campaign date (UTC)", str(p.get("date_utc", "-"))],
+            ["report generated on", platform.node()],
+            ["pacing", str(p.get("pacing", "-"))]]
+    sec.tables.append(Table(["what", "value"], rows))
+    sec.data = p
+    return sec
+
+
+DEFAULT_SECTIONS: tuple[SectionFn, ...] = (headline, rmse_boxes, error_time, paths, measurement_streams, recorded,
+                                           latency, failures, provenance)
+
+__all__ = ["CONFIG_KEYS", "DEFAULT_SECTIONS", "ReportContext", "SectionFn"]

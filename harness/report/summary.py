@@ -1,0 +1,137 @@
+"""The campaign's numbers: the paper's table (RMSE per configuration, reduction of the bias network versus
+outlier rejection alone), per trajectory, on recorded flights, and latency per message type."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from harness.report.data import CampaignData, RunMetrics
+from harness.report.metrics import DEFAULT_BUDGET_S, latency_summary
+
+#: Configuration -> JSON key suffix (rmse_raw, rmse_outlier, rmse_outlier_nn).
+CONFIG_KEYS = {"none": "raw", "outlier": "outlier", "outlier+nn": "outlier_nn"}
+#: The paper's figures (Zhao et al., Sec. V): RMSE with outlier rejection + network, and its reduction
+#: versus outlier rejection alone.
+PAPER = {"twr": {"rmse_outlier_nn": 0.19, "reduction_pct": 18.5},
+         "tdoa": {"rmse_outlier_nn": 0.21, "reduction_pct": 48.0}}
+KIND_NAMES = {1: "twr", 2: "tdoa"}
+
+
+def _mean_std(values: list[float]) -> tuple[float, float, int]:
+    v = np.asarray([x for x in values if math.isfinite(x)], dtype=np.float64)
+    if v.size == 0:
+        return float("nan"), float("nan"), 0
+    return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else 0.0, int(v.size)
+
+
+def rmse_table(runs: list[RunMetrics]) -> dict[str, Any]:
+    """rmse_<cfg> (mean over flights), std_<cfg>, n_<cfg>, and the network's reduction vs outlier rejection:
+    reduction_pct from the means, reduction_paired_pct the mean of per-flight reductions."""
+    out: dict[str, Any] = {}
+    by_cfg: dict[str, dict[str, float]] = {}
+    for cfg, key in CONFIG_KEYS.items():
+        rs = [r for r in runs if r.config == cfg]
+        mean, std, n = _mean_std([r.rmse for r in rs])
+        out[f"rmse_{key}"], out[f"std_{key}"], out[f"n_{key}"] = mean, std, n
+        by_cfg[cfg] = {r.flight_id: r.rmse for r in rs}
+    a, b = out["rmse_outlier"], out["rmse_outlier_nn"]
+    out["reduction_pct"] = 100.0 * (a - b) / a if math.isfinite(a) and math.isfinite(b) and a > 0 else float("nan")
+    paired = [100.0 * (by_cfg["outlier"][f] - v) / by_cfg["outlier"][f]
+              for f, v in by_cfg["outlier+nn"].items()
+              if f in by_cfg["outlier"] and by_cfg["outlier"][f] > 0 and math.isfinite(v)]
+    out["reduction_paired_pct"], out["reduction_paired_std_pct"], out["n_paired"] = _mean_std(paired)
+    return out
+
+
+def accuracy_section(data: CampaignData) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    sim = [r for r in data.accuracy_runs if r.source == "sim"]
+    for mode in ("twr", "tdoa"):
+        runs = [r for r in sim if r.mode == mode]
+        if not runs:
+            continue
+        entry = rmse_table(runs)
+        entry["paper"] = PAPER[mode]
+        entry["by_trajectory"] = {t: rmse_table([r for r in runs if r.trajectory == t])
+                                  for t in sorted({r.trajectory for r in runs})}
+        entry["seeds"] = sorted({int(r.seed) for r in runs if r.seed is not None})
+        out[mode] = entry
+    rec = [r for r in data.accuracy_runs if r.source == "recorded"]
+    if rec:
+        recorded: dict[str, Any] = {}
+        for mode in ("twr", "tdoa"):
+            runs = [r for r in rec if r.mode == mode]
+            if runs:
+                recorded[mode] = rmse_table(runs)
+        flights = []
+        for fid in sorted({r.flight_id for r in rec}):
+            rs = [r for r in rec if r.flight_id == fid]
+            row: dict[str, Any] = {"flight_id": fid, "mode": rs[0].mode, "trajectory": rs[0].trajectory}
+            row.update({f"rmse_{CONFIG_KEYS[r.config]}": r.rmse for r in rs})
+            flights.append(row)
+        recorded["flights"] = flights
+        out["recorded"] = recorded
+    return out
+
+
+def latency_section(data: CampaignData, budget_s: float = DEFAULT_BUDGET_S) -> dict[str, Any]:
+    """Per message type: device compute and end-to-end (host send -> RESULT received) percentiles, jitter,
+    deadline misses against the budget; lost and refused measurements; device-side counters."""
+    out: dict[str, Any] = {"budget_us": budget_s * 1e6}
+    for kind, name in KIND_NAMES.items():
+        runs = [r for r in data.runs if r.kind == kind]
+        if not runs:
+            continue
+        units = {r.cost_unit for r in runs}
+        compute = np.concatenate([r.compute_us for r in runs]).astype(np.float64)
+        e2e_runs, e2e_pacing = data.e2e_runs(kind)
+        rtt = np.concatenate([r.rtt_us for r in e2e_runs]).astype(np.float64)
+        out[name] = {
+            "runs": len(runs),
+            "measurements": int(sum(r.measurements for r in runs)),
+            "results": int(sum(r.results for r in runs)),
+            "lost": int(sum(r.lost for r in runs)),
+            "refused": int(sum(r.refused for r in runs)),
+            "compute_unit": "us" if units == {0} else "instructions",
+            "compute": latency_summary(compute, budget_s * 1e6).as_dict() if units == {0} else
+            latency_summary(compute, budget_s * 168e6 / 2.0).as_dict(),
+            "end_to_end_us": latency_summary(rtt, budget_s * 1e6).as_dict(),
+            "end_to_end_pacing": e2e_pacing,
+            "end_to_end_runs": [r.run_id for r in e2e_runs] if e2e_pacing == "realtime" else len(e2e_runs),
+        }
+    counters = ("crc_errors", "framing_errors", "seq_gaps", "dropped_meas", "non_finite", "unknown_anchors",
+                "time_backwards")
+    totals = {c: 0 for c in counters}
+    for r in data.runs:
+        for c in counters:
+            totals[c] += int((r.device_stats or {}).get(c, 0))
+    out["device_counters"] = totals
+    out["lost_total"] = int(sum(r.lost for r in data.runs))
+    return out
+
+
+def provenance_section(data: CampaignData) -> dict[str, Any]:
+    prov = dict(data.manifest.get("provenance") or {})
+    prov["devices"] = data.devices
+    prov["model_hashes"] = sorted({str(d.get("model_hash")) for d in data.devices})
+    prov["build_ids"] = sorted({str(d.get("build_id")) for d in data.devices})
+    prov["protocol_versions"] = sorted({int(d.get("proto_version", -1)) for d in data.devices})
+    prov["pacing"] = (data.manifest.get("exec") or {}).get("pacing")
+    return prov
+
+
+def campaign_summary(data: CampaignData) -> dict[str, Any]:
+    """The machine-readable summary (``uwb-hil report --json``)."""
+    out = accuracy_section(data)
+    out["latency"] = latency_section(data)
+    out["runs"] = {"planned": len(data.manifest.get("runs", [])), "ok": len(data.runs),
+                   "failed": len(data.failures), "missing": len(data.missing),
+                   "failed_runs": [{"run_id": f.run_id, "error_type": f.error_type, "error": f.error}
+                                   for f in data.failures],
+                   "missing_runs": data.missing}
+    out["provenance"] = provenance_section(data)
+    out["notes"] = list(data.manifest.get("notes") or [])
+    return out
