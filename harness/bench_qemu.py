@@ -389,6 +389,7 @@ def print_report(out: dict[str, Any]) -> None:
           f"RAM {s['ram']:,} B incl. {s['stack_reserved']:,} B stack (goal <= 32,768: {'OK' if s['ram'] <= 32768 else 'OVER'}); "
           f"network {s['network_flash']:,} B flash = {100.0 * s['network_flash'] / s['flash']:.1f}% "
           f"(weights {s['network_weights']:,} B)")
+    print(f"stack high-water mark after the flights: {s['stack_high_water']:,} B of {s['stack_reserved']:,} B reserved")
 
 
 def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_dir: Path | None,
@@ -398,14 +399,17 @@ def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_
         build()
     out: dict[str, Any] = {"cycles_per_instruction_assumed": CYCLES_PER_INSTRUCTION, "sysclk_hz": SYSCLK_HZ}
     stages: list[StageRow] = []
+    stack_used: dict[str, int] = {}
     for name, elf in (("m4", build_m4 / "uwb-fw.elf"), ("portable", build_portable / "uwb-fw.elf")):
         with qemu_device(elf, log_dir) as dev:
             stages += stage_costs(dev, name, duration_s, seed)
+            stack_used[name] = dev.stack_high_water()   # the deepest the flights took the painted stack
     out["stages"] = [asdict(r) for r in stages]
     kernels = network_kernels(nn_inputs, seed, log_dir, build_m4 / "uwb-nnbench.elf", "shipped")
     kernels += network_kernels(nn_inputs, seed, log_dir, build_probe / "uwb-nnbench.elf", "probe")
     out["network"] = [asdict(r) for r in kernels]
     out["size"] = size_figures(build_m4)
+    out["size"]["stack_high_water"] = stack_used["m4"]
     out["size_portable"] = size_figures(build_portable)
     tdoa_nn = [r for r in stages if r.build == "m4" and r.mode == "tdoa" and r.network]
     tdoa_instr = tdoa_nn[0].compute if tdoa_nn else float("nan")

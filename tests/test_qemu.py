@@ -85,10 +85,14 @@ def test_board_layer_boots_with_fpu_and_instruction_clock(stm32_selftest: Path, 
         assert m.group(4) == "0x40580000"                     # 1.5f * 2.25f = 3.375f in the FPU
         # busy(1000) executes exactly 2000 loop instructions: TIM2 counts instructions under -icount.
         assert 2000 <= int(m.group(5)) <= 2050
-        data = bytes(b for b in range(256) if b != ord("B")) * 16   # 4 KiB, more than the RX ring
+        # 80 KiB of every byte value in one write, nothing read meanwhile: more than the firmware's RX ring
+        # and more than the pty buffers of the echo direction (~64 KiB). QEMU's USART transmits
+        # synchronously, so the guest stalls while the host is not reading; the link drains the echo
+        # while its write waits, otherwise host and guest would wait for each other.
+        data = bytes(b for b in range(256) if b != ord("B")) * 320
         link.write(data)
-        echo = _read_until(link, lambda b: len(b) >= len(data), 10.0)
-        assert echo == data
+        echo = _read_until(link, lambda b: len(b) >= len(data), 60.0)
+        assert len(echo) == len(data) and echo == data
         # Costs exclude interrupt time: a busy loop costs the same with link bytes arriving meanwhile.
         link.write(b"B")
         quiet = _read_until(link, lambda b: b.endswith(b"\n"), 5.0)

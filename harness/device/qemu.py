@@ -259,12 +259,19 @@ def _open_raw(path: str) -> int:
 
 
 class QemuPtyLink(Link):
-    """The host end of QEMU's pty (the guest's USART). QEMU owns the master; we hold the slave."""
+    """The host end of QEMU's pty (the guest's USART). QEMU owns the master; we hold the slave.
 
-    def __init__(self, fd: int, path: str, write_timeout_s: float = 10.0) -> None:
+    QEMU's USART transmits synchronously: a guest byte written while the host side of the pty is full
+    stalls the guest CPU until the host reads. A host blocked in write() (the guest is not taking its
+    input) would then wait for a guest that waits for the host. So while a write cannot progress, it
+    drains what the guest sent into a buffer that read() returns first; the buffer is bounded."""
+
+    def __init__(self, fd: int, path: str, write_timeout_s: float = 10.0, max_buffered: int = 64 << 20) -> None:
         self._fd: int | None = fd
         self._path = path
         self.write_timeout_s = write_timeout_s
+        self.max_buffered = max_buffered
+        self._rx = bytearray()
 
     @property
     def name(self) -> str:
@@ -298,13 +305,19 @@ class QemuPtyLink(Link):
             if waited >= self.write_timeout_s:
                 raise LinkTimeout(f"{self.name}: no byte accepted for {waited:.1f} s ({len(view)} pending): "
                                   "the guest stopped reading", pending_bytes=len(view), waited_s=waited)
-            select.select([], [fd], [], min(0.05, self.write_timeout_s - waited))
+            r, _, _ = select.select([fd], [fd], [], min(0.05, self.write_timeout_s - waited))
+            if r:
+                self._drain(fd)
 
-    def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.0) -> bytes:
-        fd = self._require()
-        r, _, _ = select.select([fd], [], [], max(0.0, timeout))
-        if not r:
-            return b""
+    def _drain(self, fd: int) -> None:
+        """Move what the guest sent into the buffer (called while a write waits)."""
+        if len(self._rx) >= self.max_buffered:
+            raise LinkTimeout(f"{self.name}: {len(self._rx)} bytes from the guest unread while writing: "
+                              "the host is not reading its replies", pending_bytes=len(self._rx), waited_s=0.0)
+        chunk = self._read_fd(fd, DEFAULT_READ_SIZE)
+        self._rx += chunk
+
+    def _read_fd(self, fd: int, max_bytes: int) -> bytes:
         try:
             return os.read(fd, max_bytes)
         except BlockingIOError:
@@ -313,6 +326,17 @@ class QemuPtyLink(Link):
             if exc.errno == errno.EIO:
                 raise LinkClosed(f"{self.name}: closed (QEMU exited)") from exc
             raise LinkClosed(f"{self.name}: read failed: {exc}") from exc
+
+    def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.0) -> bytes:
+        fd = self._require()
+        if self._rx:
+            out = bytes(self._rx[:max_bytes])
+            del self._rx[:max_bytes]
+            return out
+        r, _, _ = select.select([fd], [], [], max(0.0, timeout))
+        if not r:
+            return b""
+        return self._read_fd(fd, max_bytes)
 
     def close(self) -> None:
         self._fd = None  # the fd itself belongs to QemuProcess
