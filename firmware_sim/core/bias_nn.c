@@ -68,16 +68,24 @@ uint8_t bias_nn_features(uint8_t layout, const float tag[3], const float rpy[3],
     return n;
 }
 
-/* out[j] = relu(b[j] + sum_i x[i] w[i * 50 + j]) */
+/* out[j] = relu(b[j] + sum_i x[i] w[i * 50 + j]). The input loop is outside: each pass reads one
+ * contiguous weight row and updates all 50 sums (the compiler vectorises it), while every sum still
+ * adds its terms in input order, bias first: the same rounding as a sequential dot product. */
 static void dense_relu(const float *x, uint8_t n_in, const float *w, const float *b, float *out)
 {
     int i, j;
     for (j = 0; j < BIAS_NN_HIDDEN; j++) {
-        float acc = b[j];
-        for (i = 0; i < (int)n_in; i++) {
-            acc += x[i] * w[i * BIAS_NN_HIDDEN + j];
+        out[j] = b[j];
+    }
+    for (i = 0; i < (int)n_in; i++) {
+        const float xi = x[i];
+        const float *row = w + i * BIAS_NN_HIDDEN;
+        for (j = 0; j < BIAS_NN_HIDDEN; j++) {
+            out[j] += xi * row[j];
         }
-        out[j] = acc > 0.0f ? acc : 0.0f;
+    }
+    for (j = 0; j < BIAS_NN_HIDDEN; j++) {
+        out[j] = out[j] > 0.0f ? out[j] : 0.0f;
     }
 }
 

@@ -110,6 +110,7 @@ def build_shipped_models(data: Path, quick: bool = False, only: str | None = Non
     if only in (None, "rcv"):
         summary["rcv_twr"] = _build_recorded("rcv_twr", rcv_train_dirs(data), rcv_heldout_dirs(data),
                                              LAYOUT_TWR_POSE, quick, "twr")
-    if not quick and only is None:
-        SUMMARY.write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    if not quick:  # merge: `--only X` refreshes X's entry and keeps the others
+        old = json.loads(SUMMARY.read_text()) if SUMMARY.is_file() else {}
+        SUMMARY.write_text(json.dumps(old | summary, indent=2, default=float) + "\n")
     return summary
