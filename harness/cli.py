@@ -96,7 +96,7 @@ def _model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None
 
 def cmd_run(args: argparse.Namespace) -> int:
     flight = make_flight(args)
-    cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[args.stages], uwb_only=args.uwb_only)
+    cfg = config_for(flight, _config_with(args.set), stages=PRESETS[args.stages], uwb_only=args.uwb_only)
     pacing = Pacing(mode=args.pacing, window=args.window, speed=args.speed)
     results_path = Path(args.results) if args.results else None
     spec, want_hash = _model_device_spec(args)
@@ -116,6 +116,25 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         print_run(summary)
     return 0
+
+
+def _config_with(settings: Sequence[str]) -> EstimatorConfig:
+    """EstimatorConfig() with `--set FIELD=VALUE` overrides (numeric fields; mode, stages and the initial
+    position come from their own options and the flight)."""
+    fields = {k: v for k, v in vars(EstimatorConfig()).items()
+              if k not in ("mode", "stages", "init_x", "init_y", "init_z")}
+    overrides: dict[str, float] = {}
+    for item in settings:
+        name, sep, text = item.partition("=")
+        if not sep or name.strip() not in fields:
+            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(fields)}")
+        try:
+            overrides[name.strip()] = float(text)
+        except ValueError:
+            raise ValueError(f"--set {item!r}: {text!r} is not a number") from None
+    cfg = replace(EstimatorConfig(), **overrides)
+    cfg.validate()
+    return cfg
 
 
 def _hello_dict(hello: Any) -> dict[str, Any]:
@@ -208,6 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--uwb-only", action="store_true", help="ignore the IMU (constant-velocity model)")
     run.add_argument("--model", help="bias model (.npz) the device must carry; the emulator firmware is built "
                                      "with it, any other device is refused if its HELLO reports another model")
+    run.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                     help="override an estimator setting, e.g. --set std_tdoa=0.1 (repeatable)")
     run.add_argument("--results", help="write per-measurement results as JSON Lines here")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
     run.set_defaults(func=cmd_run)

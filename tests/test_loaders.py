@@ -363,3 +363,8 @@ def test_cli_replays_a_recording(uwb_firmware: Path, capsys: pytest.CaptureFixtu
     assert "flight const1-fixture-tdoa2: 40 measurements, 40 results" in out and "position RMSE" in out
     assert main(["run", "--recording", str(FIX / "const1-bad-nan.csv"), "--firmware", str(uwb_firmware)]) == 2
     assert "line 12" in capsys.readouterr().err
+    assert main(["run", "--recording", str(REDUCED), "--stages", "none", "--set", "std_tdoa=0.1", "--json",
+                 "--firmware", str(uwb_firmware)]) == 0
+    assert '"measurements": 40' in capsys.readouterr().out
+    assert main(["run", "--recording", str(REDUCED), "--set", "std_tdao=0.1", "--firmware", str(uwb_firmware)]) == 2
+    assert "expected FIELD=VALUE" in capsys.readouterr().err
