@@ -88,19 +88,18 @@ class LinkModel:
         c = self.coef[anchor]
         t = self.tag_coef
         b = (self.hw.anchor_offset[anchor] + ant.boresight_k * (1.0 - uax)
-             + sum(c[k] * ha[k] for k in range(8)) + ant.doughnut_k * utz * utz
+             + sum(c[k] * ha[k] for k in range(8)) + ant.doughnut_k * utz * utz + ant.tag_elev_k * utz
              + sum(t[k] * ht[k] for k in range(8)) + ant.range_k * (r - ant.range_ref))
         return b, r, utz
 
-    def nlos_probability(self, anchor: int, tag: tuple[float, float, float], arena: Arena) -> float:
+    def multipath_probability(self, tag: tuple[float, float, float]) -> float:
+        """Probability of a multipath event on a link (more likely near the ground)."""
         n = self.cfg.nlos
-        p = n.p_base + n.p_ground * math.exp(-max(tag[2], 0.0) / n.h_ground)
-        if arena.boxes and n.p_block > 0.0 and self._blocked(anchor, tag, arena):
-            p += n.p_block
-        return min(1.0, max(0.0, p))
+        return min(1.0, max(0.0, n.p_base + n.p_ground * math.exp(-max(tag[2], 0.0) / n.h_ground)))
 
-    def _blocked(self, anchor: int, tag: tuple[float, float, float], arena: Arena) -> bool:
-        return bool(arena.blocked(np.array([tag]), np.array([self.pos[anchor]]))[0])
+    def blocked(self, anchor: int, tag: tuple[float, float, float], arena: Arena) -> bool:
+        """Does the line of sight tag -> anchor cross an obstacle box?"""
+        return bool(arena.boxes) and bool(arena.blocked(np.array([tag]), np.array([self.pos[anchor]]))[0])
 
 
 @dataclass(frozen=True)
@@ -203,14 +202,16 @@ class Sensors:
         return UwbSample(t_us=t_us, anchor_a=a, anchor_b=b, value=value, true_value=true, nlos=nlos)
 
     def _link_nlos(self, anchor: int, tag: tuple[float, float, float]) -> float:
+        """Excess path of one link: a multipath event, plus a penetration delay if an obstacle blocks it."""
         assert self.links is not None
         cfg = self.sim.nlos
-        p = self.links.nlos_probability(anchor, tag, self.arena)
-        hit = float(self._r_uwb.random()) < p
-        if not hit:
-            return 0.0
-        blocked = self.arena.boxes and self.links._blocked(anchor, tag, self.arena)
-        return float(self._r_uwb.exponential(cfg.mean_m)) + (cfg.block_delay_m if blocked else 0.0)
+        r = self._r_uwb
+        excess = 0.0
+        if float(r.random()) < self.links.multipath_probability(tag):
+            excess += float(r.exponential(cfg.mean_m))
+        if cfg.p_block > 0.0 and self.links.blocked(anchor, tag, self.arena) and float(r.random()) < cfg.p_block:
+            excess += cfg.block_delay_m + float(r.exponential(cfg.block_mean_m))
+        return excess
 
     def _realistic(self, a: int, b: int, true: float, tag: tuple[float, float, float],
                    quat: tuple[float, float, float, float] | list[float]) -> tuple[float, bool]:
@@ -219,7 +220,7 @@ class Sensors:
         ba, _, uta = self.links.link(a, tag, rt)
         ea = self._link_nlos(a, tag)
         if b < 0:
-            bias, nl = ba, ea
+            bias, nl = ba + self.sim.twr_offset, ea
             noise = float(self._r_uwb.normal(0.0, self.sim.twr_std))
             hit = ea != 0.0
         else:
