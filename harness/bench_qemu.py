@@ -159,6 +159,9 @@ class StageRow:
     update: float
     predict_per_call: float   # instructions per IMU prediction (0 if none ran)
     predictions: int
+    frames: int               # IMU + UWB frames streamed
+    sim_s: float              # simulated seconds
+    wall_s: float             # host seconds the replay took (the emulated UART is the bottleneck)
 
 
 def _median(a: np.ndarray) -> float:
@@ -190,7 +193,9 @@ def stage_costs(device: Any, build_name: str, duration_s: float, seed: int) -> l
                 compute=_median(res["compute"][ok]), compute_max=int(res["compute"][ok].max()) if ok.any() else 0,
                 nn=_median(res["cost_nn"][ok]), gates=_median(res["cost_gates"][ok]),
                 update=_median(res["cost_update"][ok]),
-                predict_per_call=pred_total / preds if preds else 0.0, predictions=preds))
+                predict_per_call=pred_total / preds if preds else 0.0, predictions=preds,
+                frames=len(flight.uwb) + (len(flight.imu) if flight.imu is not None else 0),
+                sim_s=run.sim_s, wall_s=run.wall_s))
     return rows
 
 
@@ -390,6 +395,11 @@ def print_report(out: dict[str, Any]) -> None:
           f"network {s['network_flash']:,} B flash = {100.0 * s['network_flash'] / s['flash']:.1f}% "
           f"(weights {s['network_weights']:,} B)")
     print(f"stack high-water mark after the flights: {s['stack_high_water']:,} B of {s['stack_reserved']:,} B reserved")
+    frames = sum(r["frames"] for r in out["stages"])
+    wall = sum(r["wall_s"] for r in out["stages"])
+    sim = sum(r["sim_s"] for r in out["stages"])
+    print(f"== link: {frames:,} frames ({sim:.0f} s simulated) streamed in {wall:.0f} s through the emulated USART "
+          f"({sim / wall:.2f}x real time; host-load dependent, QEMU moves ~1 byte per main-loop iteration)")
 
 
 def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_dir: Path | None,

@@ -93,7 +93,7 @@ class QemuProcess:
     # ---------------------------------------------------------------------------- lifecycle
     def start(self) -> None:
         if not self.elf.is_file():
-            raise QemuError(f"firmware {self.elf} not found: build it with `make -C firmware_sim/stm32`")
+            raise QemuError(f"firmware {self.elf} not found: build it with `make stm32`")
         if shutil.which(self.options.qemu) is None:
             raise QemuError(f"{self.options.qemu} not found: run scripts/ensure_arm_tools.sh")
         self._tmp = tempfile.TemporaryDirectory(prefix="uwb-qemu-")
@@ -388,7 +388,7 @@ class QemuDevice(Device):
         if self._proc is not None:
             raise DeviceError(f"{self.name} is already started")
         if not self.elf.is_file():
-            raise DeviceError(f"firmware {self.elf} not found: build it with `make -C firmware_sim/stm32` "
+            raise DeviceError(f"firmware {self.elf} not found: build it with `make stm32` "
                               "(toolchain: scripts/ensure_arm_tools.sh)")
         if shutil.which(self.options.qemu) is None:
             raise DeviceError(f"{self.options.qemu} not found: run scripts/ensure_arm_tools.sh")
