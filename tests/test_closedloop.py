@@ -271,6 +271,17 @@ def test_circle_is_tracked(uwb_device, mode: str) -> None:  # noqa: ANN001
 
 
 @pytest.mark.timeout(60)
+def test_realtime_pacing_holds_flight_speed_and_changes_no_number(uwb_device) -> None:  # noqa: ANN001
+    mission = Mission(name="hover", hover_s=0.5, ground_wait_s=0.5, takeoff_s=1.5)
+    fast = _fly(uwb_device, mission, mode="twr")
+    paced = _fly(uwb_device, mission, mode="twr", pacing="realtime", speed=4.0)
+    duration = float(paced.t[-1])
+    assert paced.wall_s >= duration / 4.0 * 0.97          # never ahead of the flight clock
+    assert np.array_equal(fast.p_true, paced.p_true) and np.array_equal(fast.p_est, paced.p_est)
+    assert 0 <= paced.late_controls <= len(paced.t)
+
+
+@pytest.mark.timeout(60)
 def test_an_underpowered_vehicle_fails_the_takeoff_rule(uwb_device) -> None:  # noqa: ANN001
     # worn motors: 4 x 0.079 N against 0.314 N of weight (thrust-to-weight 1.007): at most ~0.07 m/s^2 up
     log = _fly(uwb_device, Mission(name="hover", hover_s=1.0), vehicle=VehicleParams(f_max=0.079))

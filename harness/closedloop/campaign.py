@@ -168,6 +168,8 @@ def add_fly_parser(sub: Any, add_device_options: Callable[[argparse.ArgumentPars
                    help="lockstep (deterministic, as fast as possible) or realtime (flight speed, for boards)")
     p.add_argument("--speed", type=float, default=1.0, help="realtime pacing speed factor")
     p.add_argument("--imu-every", type=int, default=1, help="physics steps (2 ms) per IMU frame (averaged)")
+    p.add_argument("--model", help="bias model (.npz) for outlier+nn: the emulator firmware is built with it; "
+                                   "any other device must report its hash (default: the compiled-in model)")
     p.add_argument("--json", action="store_true", help="print everything (incl. per-flight figures) as JSON")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--markdown", action="store_true", help="print the table as Markdown (for docs)")
@@ -177,7 +179,7 @@ def add_fly_parser(sub: Any, add_device_options: Callable[[argparse.ArgumentPars
 
 
 def cmd_fly(args: argparse.Namespace) -> int:
-    from harness.cli import _device_spec, _hello_dict
+    from harness.cli import _hello_dict, _model_device_spec
     from harness.session import open_device
     if args.seeds < 1:
         raise ValueError("--seeds must be >= 1")
@@ -186,7 +188,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
                         seeds=tuple(range(args.seed0, args.seed0 + args.seeds)), laps=args.laps,
                         hover_s=args.hover_s, profile=args.profile, noise=args.noise, mass=args.mass, loop=loop)
     progress = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    with open_device(_device_spec(args)) as device:
+    device_spec, want_hash = _model_device_spec(args)
+    with open_device(device_spec, expected_model_hash=want_hash) as device:
         hello = _hello_dict(device.last_hello or device.hello(timeout=args.timeout))
         result = run_campaign(device, spec, progress)
     result["device"] = hello
