@@ -302,6 +302,22 @@ def _write_zip(path: Path, members: dict[str, bytes]) -> None:
             z.writestr(name, data)
 
 
+def test_inspect_command_summarises_and_converts(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from harness.flight.loaders import error_summary, main
+    out = tmp_path / "rcv.npz"
+    assert main([str(RCV), "--save", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "rcv_twr-rcv_twr_mini: 27 TWR measurements" in text and "nonpositive_range_anchor_2" in text
+    _assert_same(load_recording(RCV), load_flight(out))
+    s = error_summary(load_recording(RCV))
+    assert s["n"] == 27 and s["gross"] == 0 and abs(s["median"]) <= 0.005  # type: ignore[operator]
+    assert [g["group"] for g in s["groups"]] == ["1", "2", "3", "4"]  # type: ignore[index]
+    pairs = error_summary(load_recording(REDUCED))["groups"]
+    assert [g["group"] for g in pairs][:2] == ["0-1", "1-2"] and all(g["std"] < 1e-5 for g in pairs)  # type: ignore
+    assert main([str(FIX / "const1-bad-nan.csv")]) == 2
+    assert "line 12" in capsys.readouterr().err
+
+
 def test_time_slice() -> None:
     f = load_recording(REDUCED)
     s = time_slice(f, 0.02, 0.05)

@@ -154,3 +154,71 @@ def _has_members(path: Path, names: set[str]) -> bool:
     except (zipfile.BadZipFile, OSError):
         return False
 
+
+
+# ------------------------------------------------------------------------------------------ command line
+def error_summary(flight: Flight, core_m: float = 1.0) -> dict[str, object]:
+    """Measurement error (value - true_value) statistics: overall and per anchor (TWR) or pair (TDoA).
+
+    `core` statistics use |error| < core_m (gross outliers are counted, not averaged)."""
+    u = flight.uwb
+    if u.true_value is None:
+        raise ValueError(f"{flight.name}: no true_value, no error statistics")
+    e = u.value - u.true_value
+    keys = u.anchor_a if u.kind == 1 else u.anchor_a * 1000 + u.anchor_b
+    groups = []
+    for k in np.unique(keys):
+        m = keys == k
+        c = e[m][np.abs(e[m]) < core_m]
+        name = str(int(k)) if u.kind == 1 else f"{int(k) // 1000}-{int(k) % 1000}"
+        groups.append({"group": name, "n": int(m.sum()), "median": float(np.median(c)) if c.size else float("nan"),
+                       "std": float(c.std()) if c.size else float("nan"),
+                       "gross": int(np.count_nonzero(np.abs(e[m]) >= core_m))})
+    core = e[np.abs(e) < core_m]
+    medians = np.array([g["median"] for g in groups if g["n"] >= 20], dtype=np.float64)
+    stds = np.array([g["std"] for g in groups if g["n"] >= 20], dtype=np.float64)
+    return {"n": int(e.size), "gross": int(e.size - core.size), "median": float(np.median(core)),
+            "std": float(core.std()), "rms": float(np.sqrt(np.mean(core ** 2))),
+            "group_median_spread": float(medians.std()) if medians.size else float("nan"),
+            "group_median_min": float(medians.min()) if medians.size else float("nan"),
+            "group_median_max": float(medians.max()) if medians.size else float("nan"),
+            "within_group_std_median": float(np.median(stds)) if stds.size else float("nan"),
+            "groups": groups}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m harness.flight.loaders RECORDING [--anchors FILE] [--save OUT.npz]`: load, summarise the
+    measurement errors against the truth, optionally convert to the native format."""
+    import argparse
+    import sys
+    ap = argparse.ArgumentParser(prog="python -m harness.flight.loaders", description=main.__doc__)
+    ap.add_argument("recording")
+    ap.add_argument("--anchors")
+    ap.add_argument("--constellation", type=int)
+    ap.add_argument("--no-anchor-offset", action="store_true", help="rcv_twr: use the surveyed anchor positions")
+    ap.add_argument("--save", help="write the flight in the native format (.npz)")
+    args = ap.parse_args(argv)
+    try:
+        flight = load_recording(args.recording, args.anchors, constellation=args.constellation,
+                                anchor_offset=None if args.no_anchor_offset else DEFAULT_ANCHOR_OFFSET)
+    except (RecordingError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    kind = "TWR" if flight.uwb.kind == 1 else "TDoA"
+    print(f"{flight.name}: {len(flight.uwb)} {kind} measurements over {flight.duration_s:.1f} s "
+          f"({len(flight.uwb) / max(flight.duration_s, 1e-9):.0f} Hz), {len(flight.truth.t_us)} truth samples, "
+          f"IMU {len(flight.imu) if flight.imu is not None else 0}; dropped {flight.meta.get('dropped', {})}")
+    s = error_summary(flight)
+    print(f"error (|e| < 1 m): median {s['median']:+.3f} m, std {s['std']:.3f} m, rms {s['rms']:.3f} m; "
+          f"gross {s['gross']}; per-{'anchor' if kind == 'TWR' else 'pair'} medians {s['group_median_min']:+.3f}"
+          f"..{s['group_median_max']:+.3f} m (spread {s['group_median_spread']:.3f}), within std "
+          f"{s['within_group_std_median']:.3f} m")
+    for g in s["groups"]:  # type: ignore[attr-defined]
+        print(f"  {g['group']:>6}: n {g['n']:6d}  median {g['median']:+.3f}  std {g['std']:.3f}  gross {g['gross']}")
+    if args.save:
+        print(f"saved {save_flight(flight, Path(args.save))}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
