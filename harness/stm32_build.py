@@ -78,13 +78,14 @@ def _header_define(header: Path) -> str:
 
 
 def build_stm32(targets: tuple[str, ...] = ("fw",), build_dir: Path | None = None, model_header: Path | None = None,
-                nn_impl: str = "m4", timeout_s: float = 600.0) -> Path:
+                nn_impl: str = "m4", make_vars: tuple[str, ...] = (), timeout_s: float = 600.0) -> Path:
     """`make -C firmware_sim/stm32 <targets>` (incremental); returns the build directory.
 
-    With a model header, build into a separate directory: the Makefile does not track that header."""
-    if model_header is not None and build_dir is None:
-        raise ValueError("a build with another model header needs its own build_dir")
-    args = ["-C", str(STM32_DIR), *targets, f"NN_IMPL={nn_impl}"]
+    With a model header or other make variables (UWB_USART=3, ...), build into a separate directory:
+    the Makefile tracks neither."""
+    if (model_header is not None or make_vars) and build_dir is None:
+        raise ValueError("a build with another model header or make variables needs its own build_dir")
+    args = ["-C", str(STM32_DIR), *targets, f"NN_IMPL={nn_impl}", *make_vars]
     if build_dir is not None:
         args.append(f"BUILD={Path(build_dir).resolve()}")
     if model_header is not None:

@@ -103,6 +103,26 @@ def test_board_layer_boots_with_fpu_and_instruction_clock(stm32_selftest: Path, 
         proc.stop()
 
 
+def test_crazyflie_usart3_build_serves_the_protocol(arm_tools: None, tmp_path: Path) -> None:
+    """The Crazyflie build's link (UWB_USART=3: expansion-deck UART1, PC10/PC11) is QEMU's serial2."""
+    from harness.device.qemu import QemuDevice, QemuOptions
+    from harness.errors import DeviceError
+    from harness.stm32_build import build_stm32
+    build = build_stm32(("fw",), tmp_path / "stm32-usart3", make_vars=("UWB_USART=3",))
+    device = QemuDevice(build / "uwb-fw.elf", log_dir=tmp_path, options=QemuOptions(serial_index=2))
+    device.start()
+    try:
+        hello = device.hello(timeout=5.0)
+        assert hello.target.rstrip(b"\x00") == b"stm32f4" and int(hello.cost_unit) == 1
+    finally:
+        device.stop()
+    # On USART1 (the default build's link) this build never enables a receiver: a clear start-up error.
+    wrong = QemuDevice(build / "uwb-fw.elf", log_dir=tmp_path, options=QemuOptions(serial_index=0, start_timeout_s=3.0))
+    with pytest.raises(DeviceError, match="did not enable its USART"):
+        wrong.start()
+    assert not wrong.alive()
+
+
 # ------------------------------------------------------------------------------------------ flights
 @pytest.fixture(scope="module")
 def devices(probe_builds: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
