@@ -94,7 +94,52 @@ def _model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None
     return spec, model.hash
 
 
+_SOURCE_KEYS = ("scenario", "mode", "duration", "seed", "recording", "anchors", "stages", "uwb_only", "model", "set")
+
+
+def _run_source(args: argparse.Namespace) -> dict[str, Any]:
+    """What `run --resume` needs to rebuild the flight and the device (recorded in the results header)."""
+    src = {k: getattr(args, k, None) for k in _SOURCE_KEYS}
+    for k in ("recording", "anchors", "model"):
+        if src[k]:
+            src[k] = str(Path(src[k]).resolve())
+    return src
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
+    """Continue an interrupted run from its results file (see harness/stream/resume.py)."""
+    from harness.stream.resume import ResumeError, read_results, resume_run
+    rec = read_results(Path(args.resume))
+    src = rec.header.get("source")
+    if not isinstance(src, dict):
+        raise ResumeError(f"{rec.path}:1: header has no 'source' (not written by `uwb-hil run`): "
+                          "cannot rebuild the flight")
+    fargs = argparse.Namespace(**{**vars(args), **src})
+    flight = make_flight(fargs)
+    spec, want_hash = _model_device_spec(fargs)
+    with open_device(spec, expected_model_hash=want_hash) as device:
+        hello = device.hello(timeout=args.timeout)
+        update, stop = _progress_bar(f"{flight.name} (resume at {rec.next_index})")
+        try:
+            run, info = resume_run(device, rec, flight, timeout_s=args.timeout, progress=update)
+        finally:
+            stop()
+    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+    summary["config"] = src.get("stages")
+    summary["device"] = _hello_dict(hello)
+    summary["resume"] = info
+    if args.json:
+        print(json.dumps(summary, indent=2, default=float))
+    else:
+        print(f"resumed {rec.path} at measurement {info['resumed_at']}: replayed {info['replayed']} "
+              f"({info['replay_mismatches']} differ from the record), appended {info['appended']}")
+        print_run(summary)
+    return 0
+
+
 def cmd_run(args: argparse.Namespace) -> int:
+    if getattr(args, "resume", None):
+        return cmd_resume(args)
     flight = make_flight(args)
     cfg = config_for(flight, _config_with(args.set), stages=PRESETS[args.stages], uwb_only=args.uwb_only)
     pacing = Pacing(mode=args.pacing, window=args.window, speed=args.speed)
@@ -105,7 +150,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         update, stop = _progress_bar(f"{flight.name} ({args.stages})")
         try:
             run = Streamer(device, timeout_s=args.timeout).run(flight, cfg, pacing, results_path=results_path,
-                                                                progress=update)
+                                                                progress=update,
+                                                                header_extra={"source": _run_source(args)})
         finally:
             stop()
     summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
@@ -230,6 +276,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                      help="override an estimator setting, e.g. --set std_tdoa=0.1 (repeatable)")
     run.add_argument("--results", help="write per-measurement results as JSON Lines here")
+    run.add_argument("--resume", metavar="RESULTS.jsonl",
+                     help="continue an interrupted run recorded in this results file (same flight, config and "
+                          "pacing from its header; new results appended; summary over the whole flight)")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
     run.set_defaults(func=cmd_run)
     demo = sub.add_parser("demo", help="TWR and TDoA flights in three configurations, one table")

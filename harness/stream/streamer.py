@@ -230,15 +230,21 @@ class Streamer:
     # ------------------------------------------------------------------------------ the run
     def run(self, flight: Flight, config: EstimatorConfig, pacing: Pacing = Pacing(),
             results_path: Path | None = None, progress: Callable[[int, int], None] | None = None,
-            include_imu: bool = True) -> RunResult:
-        setup, self._seq = setup_frames(config, flight, self._seq)
+            include_imu: bool = True, header_extra: dict[str, Any] | None = None,
+            writer: ResultsWriter | None = None, reset: bool = True) -> RunResult:
+        """`header_extra` goes into the results header (e.g. how to rebuild the flight for --resume);
+        `writer` replaces the results file writer (resume appends); `reset=False` keeps the device's
+        filter state (the CONFIG is sent without reset: a resumed run continues a replayed prefix)."""
+        setup, self._seq = setup_frames(config, flight, self._seq, reset=reset)
         prep = prepare(flight, self._seq, include_imu=include_imu)
         self._seq = prep.next_seq
         n = len(prep.meas_end)
         results = np.zeros(n, RESULTS_DTYPE)
         state = _State(results=results, seq_to_meas={})
-        writer = ResultsWriter(results_path, {"flight": flight.name, "config": asdict(config),
-                                              "pacing": asdict(pacing), "n_measurements": n})
+        if writer is None:
+            writer = ResultsWriter(results_path, {"flight": flight.name, "config": asdict(config),
+                                                  "pacing": asdict(pacing), "n_measurements": n,
+                                                  **(header_extra or {})})
         t_start = time.perf_counter()
         try:
             self._write(setup)

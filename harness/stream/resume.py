@@ -1,0 +1,243 @@
+"""Resume an interrupted run from its results file (`uwb-hil run --resume RESULTS.jsonl`).
+
+The results file (JSON Lines, written and flushed by the streamer as results arrive) starts with a header
+holding the flight's source (scenario + seed, or recording path), the exact EstimatorConfig and the
+pacing; then one line per measurement, in measurement order. A run stopped by a dead or hung device
+keeps every line written before the failure; a partial last line (the harness itself killed mid-write)
+is ignored.
+
+How resume re-initialises the device: the device is fresh (power-up state), so the harness first
+REPLAYS the recorded part of the flight (measurements 0..k0-1 with their IMU samples, windowed pacing,
+nothing recorded) with the same CONFIG (reset) and anchors. The firmware is deterministic, so this
+rebuilds exactly the filter state the interrupted run had after measurement k0-1; the replayed results
+are compared with the recorded lines and the number of differences is written to the file (a
+different firmware build or a real board with another rounding would show up there). Then the rest of
+the flight is streamed with the recorded pacing, after a CONFIG *without* reset (the filter carries
+on), and its results are appended to the same file with their global indices. The final summary is
+computed over the whole flight from the file.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from harness.config import EstimatorConfig
+from harness.errors import UwbHilError
+from harness.flight.model import Flight
+from harness.stream.streamer import (OUTCOME_PENDING, OUTCOME_RESULT, RESULTS_DTYPE, Pacing, ResultsWriter,
+                                     RunResult, Streamer)
+from protocol import messages as m
+from protocol.framing import DecoderErrors
+
+#: fields that must be equal between a replayed prefix and the recorded results
+REPLAY_FIELDS = ("status", "px", "py", "pz", "var_x", "var_y", "var_z")
+
+
+class ResumeError(UwbHilError, ValueError):
+    """The results file cannot be resumed (missing, malformed, or inconsistent with its flight)."""
+
+
+@dataclass
+class RecordedRun:
+    path: Path
+    header: dict[str, Any]
+    rows: list[dict[str, Any]]          # result records, index 0..len-1 in order
+    segments: int                       # 1 + number of resumes already appended
+    ignored_partial_line: bool
+
+    @property
+    def n_measurements(self) -> int:
+        return int(self.header["n_measurements"])
+
+    @property
+    def next_index(self) -> int:
+        return len(self.rows)
+
+    @property
+    def complete(self) -> bool:
+        return self.next_index >= self.n_measurements
+
+    def config(self) -> EstimatorConfig:
+        try:
+            return EstimatorConfig(**self.header["config"])
+        except (KeyError, TypeError) as exc:
+            raise ResumeError(f"{self.path}:1: header field 'config' is not an EstimatorConfig: {exc}") from None
+
+    def pacing(self) -> Pacing:
+        try:
+            return Pacing(**self.header["pacing"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ResumeError(f"{self.path}:1: header field 'pacing' is invalid: {exc}") from None
+
+    def results_array(self) -> np.ndarray:
+        """The recorded rows as RESULTS_DTYPE (rows not yet recorded stay OUTCOME_PENDING)."""
+        out = np.zeros(self.n_measurements, RESULTS_DTYPE)
+        names = RESULTS_DTYPE.names or ()
+        for k, row in enumerate(self.rows):
+            for name in names:
+                out[name][k] = row[name]
+        return out
+
+
+def read_results(path: Path) -> RecordedRun:
+    """Parse a results file; errors name the file, line and field."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"results file {path} not found")
+    lines = path.read_text(encoding="utf-8").split("\n")
+    if lines and lines[-1] == "":
+        lines.pop()
+    partial = False
+    records: list[tuple[int, dict[str, Any]]] = []
+    for lineno, text in enumerate(lines, start=1):
+        try:
+            rec = json.loads(text)
+        except json.JSONDecodeError as exc:
+            if lineno == len(lines) and not path.read_bytes().endswith(b"\n"):
+                partial = True        # killed while writing the last line: that result is re-run
+                break
+            raise ResumeError(f"{path}:{lineno}: not JSON ({exc.msg})") from None
+        if not isinstance(rec, dict) or "type" not in rec:
+            raise ResumeError(f"{path}:{lineno}: record without a 'type' field")
+        records.append((lineno, rec))
+    if not records or records[0][1]["type"] != "header":
+        raise ResumeError(f"{path}:1: the first line must be the run header")
+    header = records[0][1]
+    for key in ("flight", "config", "pacing", "n_measurements"):
+        if key not in header:
+            raise ResumeError(f"{path}:1: header field {key!r} missing")
+    names = RESULTS_DTYPE.names or ()
+    rows: list[dict[str, Any]] = []
+    segments = 1
+    for lineno, rec in records[1:]:
+        if rec["type"] == "resume":
+            segments += 1
+        if rec["type"] != "result":
+            continue
+        for key in ("index", *names):
+            if key not in rec:
+                raise ResumeError(f"{path}:{lineno}: result field {key!r} missing")
+        if rec["index"] != len(rows):
+            raise ResumeError(f"{path}:{lineno}: result index {rec['index']}, expected {len(rows)} "
+                              "(results are written in measurement order)")
+        rows.append(rec)
+    if len(rows) > int(header["n_measurements"]):
+        raise ResumeError(f"{path}: {len(rows)} results for a flight of {header['n_measurements']} measurements")
+    return RecordedRun(path=path, header=header, rows=rows, segments=segments, ignored_partial_line=partial)
+
+
+def split_flight(flight: Flight, k0: int) -> tuple[Flight | None, Flight | None]:
+    """(measurements 0..k0-1 with the IMU samples streamed before them, the rest). Concatenated they are
+    exactly the original stream (IMU samples go before a measurement with the same time stamp)."""
+    u = flight.uwb
+    m_total = len(u)
+    if not 0 <= k0 <= m_total:
+        raise ResumeError(f"resume point {k0} outside the flight's {m_total} measurements")
+    if k0 == 0:
+        return None, flight
+    t_cut = int(u.t_us[k0 - 1])
+
+    def take_uwb(sel: slice) -> Any:
+        return replace(u, **{f.name: getattr(u, f.name)[sel] for f in fields(u)
+                             if isinstance(getattr(u, f.name), np.ndarray) and getattr(u, f.name).shape[:1] == (m_total,)})
+
+    def take_imu(mask: np.ndarray) -> Any:
+        imu = flight.imu
+        if imu is None:
+            return None
+        n = len(imu)
+        return replace(imu, **{f.name: getattr(imu, f.name)[mask] for f in fields(imu)
+                               if isinstance(getattr(imu, f.name), np.ndarray) and getattr(imu, f.name).shape[:1] == (n,)})
+
+    imu_t = flight.imu.t_us if flight.imu is not None else np.zeros(0, np.int64)
+    prefix = replace(flight, uwb=take_uwb(slice(0, k0)), imu=take_imu(imu_t <= t_cut))
+    suffix = replace(flight, uwb=take_uwb(slice(k0, m_total)), imu=take_imu(imu_t > t_cut)) if k0 < m_total else None
+    return prefix, suffix
+
+
+class AppendWriter(ResultsWriter):
+    """Appends to an existing results file: a 'resume' record, then rows with global indices."""
+
+    def __init__(self, path: Path, offset: int, record: dict[str, Any]) -> None:
+        super().__init__(None, {})
+        self.offset = offset
+        self._fh = open(path, "a", encoding="utf-8")
+        self._fh.write(json.dumps({"type": "resume", **record}) + "\n")
+        self._fh.flush()
+
+    def write_rows(self, idx: np.ndarray, rows: np.ndarray) -> None:
+        super().write_rows(np.asarray(idx) + self.offset, rows)
+
+
+def replay_mismatches(replayed: np.ndarray, recorded: np.ndarray) -> int:
+    """Measurements whose replayed RESULT differs from the recorded one (both answered)."""
+    both = (replayed["outcome"] == OUTCOME_RESULT) & (recorded["outcome"] == OUTCOME_RESULT)
+    diff = np.zeros(len(replayed), bool)
+    for name in REPLAY_FIELDS:
+        diff |= replayed[name] != recorded[name]
+    return int(np.count_nonzero(diff & both))
+
+
+def resume_run(device: Any, rec: RecordedRun, flight: Flight, timeout_s: float = 5.0,
+               progress: Callable[[int, int], None] | None = None) -> tuple[RunResult, dict[str, Any]]:
+    """Replay the recorded part, stream the rest, append to the file. Returns the whole-flight RunResult
+    (read back from the file) and what the resume did."""
+    if len(flight.uwb) != rec.n_measurements:
+        raise ResumeError(f"{rec.path}: header says {rec.n_measurements} measurements, the rebuilt flight "
+                          f"{flight.name!r} has {len(flight.uwb)} (different data or simulator version)")
+    cfg, pacing = rec.config(), rec.pacing()
+    k0 = rec.next_index
+    info: dict[str, Any] = {"resumed_at": k0, "replayed": 0, "replay_mismatches": 0, "appended": 0}
+    if rec.complete:
+        info["note"] = "nothing to resume: every measurement has a result"
+        return run_from_file(rec.path, flight), info
+    prefix, suffix = split_flight(flight, k0)
+    streamer = Streamer(device, timeout_s=timeout_s, seq0=_next_seq(device))
+    t0 = time.perf_counter()
+    if prefix is not None:
+        window = pacing.window if pacing.mode != "lockstep" else 64
+        replay = streamer.run(prefix, cfg, Pacing("windowed", window), results_path=None)
+        info["replayed"] = k0
+        info["replay_mismatches"] = replay_mismatches(replay.results, rec.results_array()[:k0])
+        info["replay_s"] = round(time.perf_counter() - t0, 3)
+    assert suffix is not None
+    writer = AppendWriter(rec.path, offset=k0, record={**info, "segment": rec.segments + 1,
+                                                       "time": time.strftime("%Y-%m-%dT%H:%M:%S")})
+    streamer.run(suffix, cfg, pacing, writer=writer, reset=prefix is None, progress=progress)
+    info["appended"] = len(suffix.uwb)
+    return run_from_file(rec.path, flight), info
+
+
+def _next_seq(device: Any) -> int:
+    channel = getattr(device, "channel", None)
+    return int(channel.next_seq) if channel is not None else 0
+
+
+def run_from_file(path: Path, flight: Flight) -> RunResult:
+    """A RunResult for the whole flight from a (possibly resumed) results file, for run_summary()."""
+    rec = read_results(path)
+    results = rec.results_array()
+    stats = None
+    decoder = DecoderErrors()
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        try:
+            obj = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(obj, dict) and obj.get("type") == "stats":
+            stats = m.Stats(**{k: int(obj[k]) for k, _ in m.Stats.FIELDS})
+            hd = obj.get("host_decoder", {})
+            decoder = DecoderErrors(**{k: int(v) for k, v in hd.items() if k in DecoderErrors.__dataclass_fields__})
+    n = len(results)
+    sim = (int(flight.uwb.t_us[-1]) - int(flight.uwb.t_us[0])) * 1e-6 if n else 0.0
+    pending = int(np.count_nonzero(results["outcome"] == OUTCOME_PENDING))
+    if pending and pending != n - rec.next_index:
+        raise ResumeError(f"{path}: inconsistent outcomes")
+    return RunResult(flight=str(rec.header["flight"]), config=rec.config(), pacing=rec.pacing(), results=results,
+                     stats=stats, decoder_errors=decoder, wall_s=0.0, sim_s=sim)
