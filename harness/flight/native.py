@@ -127,6 +127,8 @@ def load_flight(path: Path | str) -> Flight:
     if kind not in (KIND_TWR, KIND_TDOA):
         raise RecordingError(f"uwb_kind must be {KIND_TWR} (TWR) or {KIND_TDOA} (TDoA), got {kind!r}", path=path,
                              field="uwb_kind")
+    if not isinstance(header.get("meta", {}), dict):
+        raise RecordingError("meta must be a JSON object", path=path, field="meta")
     unknown = sorted(set(data) - set(_MEMBERS) - {HEADER_KEY})
     if unknown:
         raise RecordingError(f"unknown member(s) {unknown}", path=path)
