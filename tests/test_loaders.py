@@ -252,8 +252,14 @@ def _assert_same(a: Flight, b: Flight) -> None:
                 assert va == vb, f"{part}.{name}"
 
 
-@pytest.mark.parametrize("make", [_synthetic_flight, lambda: load_recording(REDUCED), lambda: load_recording(OFFICIAL),
-                                  lambda: load_recording(RCV)], ids=["synthetic", "util8", "util27", "rcv"])
+def _simulated_flight() -> Flight:
+    from harness.flight.scenarios import scenario_flight
+    return scenario_flight("circle", mode="tdoa", duration_s=3.0, seed=2, noise="realistic")
+
+
+@pytest.mark.parametrize("make", [_synthetic_flight, _simulated_flight, lambda: load_recording(REDUCED),
+                                  lambda: load_recording(OFFICIAL), lambda: load_recording(RCV)],
+                         ids=["synthetic", "simulator", "util8", "util27", "rcv"])
 def test_native_round_trip_is_exact(tmp_path: Path, make) -> None:  # noqa: ANN001
     flight = make()
     path = save_flight(flight, tmp_path / "flight.npz")
