@@ -232,11 +232,11 @@ def test_loop_config_is_checked() -> None:
 
 # ---------------------------------------------------------------------------- flights on the device
 def _fly(device, mission: Mission, mode: str = "tdoa", preset: str = "outlier+nn", seed: int = 1,  # noqa: ANN001
-         vehicle: VehicleParams = VehicleParams(), **loop_kw) -> FlightLog:  # noqa: ANN003
+         vehicle: VehicleParams = VehicleParams(), noise: str = "realistic", **loop_kw) -> FlightLog:  # noqa: ANN003
     pl = plan(mission, ARENA)
     est = EstimatorConfig().with_stages(PRESETS[preset])
-    return ClosedLoop(device, LoopConfig(**loop_kw)).fly(pl, est, SensorConfig(mode=mode), sim_config("los"),
-                                                         ARENA, vehicle, seed)
+    return ClosedLoop(device, LoopConfig(**loop_kw)).fly(pl, est, SensorConfig(mode=mode, noise=noise),
+                                                         sim_config("los"), ARENA, vehicle, seed)
 
 
 @pytest.mark.timeout(120)
@@ -268,6 +268,16 @@ def test_circle_is_tracked(uwb_device, mode: str) -> None:  # noqa: ANN001
     # it really flew the half circle: from (2, 0) to (-2, 0)
     main = (log.t > log.meta["phases"]["t_main1"] - 0.5) & (log.t < log.meta["phases"]["t_main1"])
     assert np.all(np.abs(log.p_true[main, 0] + 2.0) < 0.25)
+
+
+@pytest.mark.timeout(120)
+def test_noiseless_circle_shows_the_control_floor(uwb_device) -> None:  # noqa: ANN001
+    """Exact measurements and IMU: what is left is the controller's lag (7 mm in the C test) and the
+    estimator's own error; the realistic flights above are dominated by the UWB errors."""
+    log = _fly(uwb_device, Mission(name="circle", laps=0.5), preset="outlier", noise="none")
+    fm = flight_metrics(log)
+    assert fm["takeoff"]["success"] and fm["tracking_rmse"] < 0.015 and fm["estimation_rmse"] < 0.006
+    assert log.statuses.get("accepted", 0) == sum(log.statuses.values())
 
 
 @pytest.mark.timeout(60)
