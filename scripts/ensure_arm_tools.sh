@@ -40,7 +40,7 @@ fi
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then
     if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
-        SUDO="sudo -n"
+        SUDO="sudo -n env DEBIAN_FRONTEND=noninteractive"  # sudo drops the environment
     else
         echo "ensure_arm_tools: missing ${missing[*]}; not root and no passwordless sudo." >&2
         echo "  install them with: apt-get install --no-install-recommends ${missing[*]}" >&2
