@@ -205,6 +205,7 @@ class KernelRow:
     model: str                 # "shipped" (firmware_sim/models) | "probe" (harness/stm32_build.py)
     kernel: str
     kind: str
+    n_in: int                  # network inputs (6/9 with attitude, 3/6 without)
     n: int
     instructions: float        # median per call
     speedup: float             # portable / this
@@ -340,7 +341,7 @@ def network_kernels(n_inputs: int, seed: int, log_dir: Path | None = None,
             base = float(np.median(costs[:, 0]))
             for k, name in enumerate(KERNELS):
                 med = float(np.median(costs[:, k]))
-                rows.append(KernelRow(model=model, kernel=name, kind=kind_name, n=n_inputs, instructions=med,
+                rows.append(KernelRow(model=model, kernel=name, kind=kind_name, n_in=net.n_in, n=n_inputs, instructions=med,
                                       speedup=base / med if med else float("inf"),
                                       max_err_torch=float(np.max(np.abs(ys[:, k] - ref))),
                                       unclamped=inside, ref_std=float(np.std(ref))))
