@@ -339,3 +339,29 @@ def test_nlos_profile_blocked_links_are_delayed() -> None:
     assert mean_excess(clear[0]) == pytest.approx(p_mp * nl.mean_m, abs=0.01)
     assert mean_excess(blocked[0]) == pytest.approx(p_mp * nl.mean_m + nl.p_block * (nl.block_delay_m + nl.block_mean_m),
                                                     abs=0.03)
+
+
+def test_report_section_from_a_fly_result(tmp_path) -> None:  # noqa: ANN001
+    from harness.closedloop.campaign import markdown_table
+    from harness.closedloop.report import RESULT_NAME, closed_loop_section
+    climb = lambda t: 0.05 if t < 2.0 else min(1.2, 0.05 + 0.5 * (t - 2.0))   # noqa: E731
+    logs = [_synthetic_log(climb, drift=d) for d in (0.03, 0.05)]
+    per = [flight_metrics(lg) for lg in logs]
+    cell = {"mode": "tdoa", "mission": "circle", "config": "outlier+nn", **aggregate(logs, per), "per_flight": per}
+    result = {"cells": [cell], "spec": {"seeds": [1, 2], "profile": "los"}}
+    assert "| tdoa | circle | outlier+nn | 2/2 | 2/2 | 0.040 +- 0.010 |" in markdown_table(result)
+    import json
+    (tmp_path / RESULT_NAME).write_text(json.dumps(result))
+
+    class Ctx:
+        fig_dir = tmp_path / "figures"
+
+        def figure(self, fig, name, caption):  # noqa: ANN001, ANN201
+            from harness.report import plots
+            from harness.report.html import FigureRef
+            return [FigureRef(plots.save(fig, self.fig_dir / f"{name}.png"), caption)]
+
+    sec = closed_loop_section(Ctx())
+    assert sec is not None and sec.tables[0].rows[0][:5] == ["tdoa", "circle", "outlier+nn", "2/2", "2/2"]
+    assert sec.figures and sec.figures[0].path.is_file()
+    assert closed_loop_section(type("Empty", (), {"fig_dir": tmp_path / "none" / "figures"})()) is None
