@@ -71,7 +71,7 @@ uint8_t bias_nn_features(uint8_t layout, const float tag[3], const float rpy[3],
 /* out[j] = relu(b[j] + sum_i x[i] w[i * 50 + j]). The input loop is outside: each pass reads one
  * contiguous weight row and updates all 50 sums (the compiler vectorises it), while every sum still
  * adds its terms in input order, bias first: the same rounding as a sequential dot product. */
-static void dense_relu(const float *x, uint8_t n_in, const float *w, const float *b, float *out)
+static void dense_relu(const float *x, uint8_t n_in, const float *restrict w, const float *b, float *restrict out)
 {
     int i, j;
     for (j = 0; j < BIAS_NN_HIDDEN; j++) {
