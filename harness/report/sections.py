@@ -209,7 +209,13 @@ def provenance(ctx: ReportContext) -> Section | None:
     return sec
 
 
+def closed_loop(ctx: ReportContext) -> Section | None:
+    """RUN_DIR/closed_loop.json written by `uwb-hil fly --out` (harness/closedloop/report.py)."""
+    from harness.closedloop.report import closed_loop_section
+    return closed_loop_section(ctx)
+
+
 DEFAULT_SECTIONS: tuple[SectionFn, ...] = (headline, rmse_boxes, error_time, paths, measurement_streams, recorded,
-                                           latency, failures, provenance)
+                                           closed_loop, latency, failures, provenance)
 
 __all__ = ["CONFIG_KEYS", "DEFAULT_SECTIONS", "ReportContext", "SectionFn"]
