@@ -57,6 +57,7 @@ class ErrorCode(enum.IntEnum):
     BAD_ANCHOR_ID = 7
     NOT_CONFIGURED = 8
     BAD_SETPOINT = 9
+    DIVERGED = 10
 
 
 class Layout(enum.IntEnum):

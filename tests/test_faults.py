@@ -197,9 +197,9 @@ def test_stalls_and_duplicates_do_not_change_the_estimates(device: EmulatorDevic
     """Stalls only delay; a duplicated IMU/UWB frame at the same time stamp may change the estimate a
     little (it is processed twice), so duplicates are checked for accounting, stalls for identity."""
     flight = _flight(4.0, seed=7)
-    clean, _, _ = _run_faulty(device, flight, FaultRates(), FaultRates(), seed=1)
-    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev2:
+    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev2:   # started with `device`: same binary
         dev2.hello(timeout=10.0)
+        clean, _, _ = _run_faulty(device, flight, FaultRates(), FaultRates(), seed=1)
         stalled, link, _ = _run_faulty(dev2, flight, FaultRates(stall=0.02, stall_s=0.03),
                                        FaultRates(stall=0.02, stall_s=0.03), seed=2)
     assert link.tx_log.counts["stalls"] + link.rx_log.counts["stalls"] > 0

@@ -314,6 +314,7 @@ static void track_seq(firmware_t *fw, uint16_t seq)
 static void dispatch(firmware_t *fw, const uwb_msg_t *in)
 {
     int rc;
+    const uint32_t divergences = fw->est.divergences;
     if (!uwb_msg_finite(in)) {
         fw->stats.non_finite++;
         if (in->type == UWB_MSG_TWR || in->type == UWB_MSG_TDOA) {
@@ -364,6 +365,11 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
         fw->stats.unknown_types++;
         send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, in, 0);
         break;
+    }
+    /* The guard re-initialised the filter: say so (after the frame's RESULT) rather than carry on
+     * silently; detail = divergences since power-up. */
+    if (fw->est.divergences != divergences) {
+        send_error(fw, UWB_ERROR_CODE_DIVERGED, in, fw->est.divergences);
     }
 }
 

@@ -50,6 +50,7 @@ enum {
     UWB_ERROR_CODE_BAD_ANCHOR_ID = 7,
     UWB_ERROR_CODE_NOT_CONFIGURED = 8,
     UWB_ERROR_CODE_BAD_SETPOINT = 9,
+    UWB_ERROR_CODE_DIVERGED = 10,
 };
 
 /* Input layout of a bias network */

@@ -294,6 +294,9 @@ class Streamer:
                     res["error_code"][k] = f.msg.code
                     res["t_recv_ns"][k] = now_ns
                     answered.append(k)
+                else:
+                    # not about a pending measurement (an IMU frame, or DIVERGED after a RESULT): keep it
+                    writer.write_record({"type": "device_error", **asdict(f.msg)})
             elif isinstance(f.msg, m.Stats):
                 state.stats = f.msg
         if answered:
