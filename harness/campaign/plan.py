@@ -109,6 +109,7 @@ class CampaignOptions:
     recorded: bool = True
     data_dir: Path = field(default_factory=shared_data_dir)
     firmware: Path = DEFAULT_FIRMWARE
+    takeoff: bool = True           # simulated flights start and end on the ground (needs duration > 10.5 s)
     pacing: str = "windowed"       # of the accuracy runs
     latency_runs: bool = True      # per mode, one extra real-time run (outlier+nn) of the first flight
 
@@ -162,7 +163,7 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
         for traj in opts.trajectories:
             for k in range(opts.seeds):
                 flights.append(FlightSpec(source="sim", mode=mode, trajectory=traj, seed=opts.first_seed + k,
-                                          duration_s=float(opts.duration_s)))
+                                          duration_s=float(opts.duration_s), takeoff=opts.takeoff))
     notes: list[str] = []
     if opts.recorded:
         rec, notes = recorded_flights(Path(opts.data_dir), opts.modes)

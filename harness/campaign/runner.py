@@ -63,6 +63,8 @@ def host_provenance(firmware: Path | None = None) -> dict[str, Any]:
         "git_dirty": git("status", "--porcelain", "--untracked-files=no") not in ("", "unknown"),
         "machine": platform.node(), "platform": platform.platform(), "cpu_count": os.cpu_count(),
         "python": platform.python_version(),
+        # Latency figures depend on how busy the machine was (shared cores): say so next to them.
+        "load_average_1_5_15": [round(x, 2) for x in os.getloadavg()],
         "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
     }
     if firmware is not None:

@@ -2,6 +2,8 @@
 
     DIR/campaign.json            options, the planned runs, notes, provenance of the host side
     DIR/runs/<run_id>.jsonl      per-measurement results, streamed as they arrive (Streamer results_path)
+    DIR/runs/<run_id>.npy        the same rows in binary (streamer RESULTS_DTYPE), written when the run completes:
+                                 the report reads it (parsing a full campaign's JSONL takes minutes)
     DIR/runs/<run_id>.json       small per-run summary; "status" is "ok" or "failed" (written last, atomically)
     DIR/flights/<flight_id>.npz  what the report needs of the flight: truth, measurements, anchors
     DIR/logs/                    device logs and worker output
@@ -52,6 +54,9 @@ class CampaignDir:
     def results_path(self, run_id: str) -> Path:
         return self.runs / f"{run_id}.jsonl"
 
+    def array_path(self, run_id: str) -> Path:
+        return self.runs / f"{run_id}.npy"
+
     def summary_path(self, run_id: str) -> Path:
         return self.runs / f"{run_id}.json"
 
@@ -85,6 +90,12 @@ def write_json_atomic(path: Path, obj: Any) -> None:
         json.dump(obj, fh, indent=1, default=_json_default, allow_nan=True)
         fh.flush()
         os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def save_array_atomic(path: Path, arr: np.ndarray) -> None:
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npy")
+    np.save(tmp, arr, allow_pickle=False)
     os.replace(tmp, path)
 
 
@@ -234,3 +245,22 @@ def load_results(path: Path) -> StoredResults:
     ints = ("index", "kind", "status", "t_us", "t_send_ns", "t_recv_ns", "outcome", "error_code")
     cols = {c: np.asarray(v, dtype=np.int64 if c in ints else np.float64) for c, v in rows.items()}
     return StoredResults(header=header, columns=cols, stats=stats)
+
+
+def load_run_results(cdir: CampaignDir, run_id: str, stats: dict[str, Any] | None = None) -> StoredResults:
+    """A complete run's rows: from the binary copy when it is there and well formed, else from the JSONL."""
+    npy = cdir.array_path(run_id)
+    if npy.exists():
+        try:
+            arr = np.load(npy, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise CampaignDataError(f"{npy}: not a readable results array ({exc})") from None
+        names = arr.dtype.names or ()
+        missing = [c for c in RESULT_COLUMNS if c != "index" and c not in names]
+        if missing:
+            raise CampaignDataError(f"{npy}: missing field(s) {missing}")
+        cols: dict[str, np.ndarray] = {"index": np.arange(len(arr), dtype=np.int64)}
+        for c in RESULT_COLUMNS[1:]:
+            cols[c] = arr[c].astype(np.int64 if np.issubdtype(arr[c].dtype, np.integer) else np.float64)
+        return StoredResults(header={"type": "header", "source": str(npy)}, columns=cols, stats=stats)
+    return load_results(cdir.results_path(run_id))

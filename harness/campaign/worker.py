@@ -19,7 +19,8 @@ from types import FrameType
 from typing import Any
 
 from harness.campaign.plan import FIRST_EVAL_SEED, FlightSpec, RunSpec
-from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, save_flight, write_json_atomic
+from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_array_atomic, save_flight,
+                                    write_json_atomic)
 from harness.config import PRESETS, EstimatorConfig
 from harness.flight.model import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
@@ -125,6 +126,7 @@ def run_group(job: WorkerJob) -> int:
                 result = Streamer(device, timeout_s=job.timeout_s).run(  # type: ignore[arg-type]
                     flight, cfg, pacing, results_path=cdir.results_path(run.run_id))
                 summary = run_summary(result, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+                save_array_atomic(cdir.array_path(run.run_id), result.results)
                 write_json_atomic(cdir.summary_path(run.run_id), {
                     "status": STATUS_OK, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
                     "flight": meta, "device": _hello_dict(hello), "pacing": asdict(pacing),

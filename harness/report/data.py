@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from harness.campaign.store import (STATUS_OK, CampaignDataError, CampaignDir, StoredFlight, StoredResults,
-                                    load_flight, load_results, read_json)
+                                    load_flight, load_run_results, read_json)
 from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT
 
 TIME_BIN_S = 0.5          # error-over-time curves are averaged in bins of this width
@@ -69,13 +69,17 @@ class CampaignData:
     missing: list[str]                       # planned runs without any summary (never ran / interrupted)
     devices: list[dict[str, Any]]            # distinct HELLO identities seen
     flights: dict[str, StoredFlight] = field(default_factory=dict)  # only those needed for plots
+    _results: dict[str, StoredResults] = field(default_factory=dict)
 
     @property
     def cdir(self) -> CampaignDir:
         return CampaignDir(self.root)
 
     def results(self, run_id: str) -> StoredResults:
-        return load_results(self.cdir.results_path(run_id))
+        """Rows of one run (the plots need a few runs' rows; those are kept after the first read)."""
+        if run_id not in self._results:
+            self._results[run_id] = load_run_results(self.cdir, run_id)
+        return self._results[run_id]
 
     def flight(self, flight_id: str) -> StoredFlight:
         if flight_id not in self.flights:
@@ -174,7 +178,10 @@ def load_campaign(root: Path) -> CampaignData:
         fid = planned["flight_id"]
         if fid not in flights:
             flights[fid] = load_flight(cdir.flight_path(fid))
-        res = load_results(cdir.results_path(run_id))
+        res = load_run_results(cdir, run_id, stats=(summary.get("summary") or {}).get("device_stats"))
+        if len(res) != int((summary.get("summary") or {}).get("measurements", len(res))):
+            raise CampaignDataError(f"{cdir.results_path(run_id)}: {len(res)} rows, the run's summary says "
+                                    f"{summary['summary']['measurements']} measurements")
         runs.append(run_metrics(summary, res, flights[fid]))
         dev = summary.get("device") or {}
         devices.setdefault(f"{dev.get('build_id')}/{dev.get('model_hash')}/{dev.get('proto_version')}", dev)

@@ -17,9 +17,9 @@ LABELS = {"none": "no rejection", "outlier": "outlier rejection", "outlier+nn": 
 MODES = ("twr", "tdoa")
 
 
-def save(fig: Figure, path: Path, dpi: int = 110) -> Path:
+def save(fig: Figure, path: Path, dpi: int = 100) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    fig.savefig(path, dpi=dpi)
     return path
 
 
@@ -37,7 +37,7 @@ def rmse_boxes(data: CampaignData) -> Figure | None:
     modes = [m for m in MODES if any(r.mode == m for r in sim)]
     if not modes:
         return None
-    fig = Figure(figsize=(5.2 * len(modes), 4.0))
+    fig = Figure(figsize=(5.2 * len(modes), 4.0), layout="constrained")
     axes = fig.subplots(1, len(modes), squeeze=False)[0]
     for ax, mode in zip(axes, modes):
         runs = [r for r in sim if r.mode == mode]
@@ -75,7 +75,7 @@ def error_over_time(data: CampaignData) -> Figure | None:
     if not modes:
         return None
     trajs = sorted({r.trajectory for r in sim})
-    fig = Figure(figsize=(5.5 * len(trajs), 3.2 * len(modes)))
+    fig = Figure(figsize=(5.5 * len(trajs), 3.2 * len(modes)), layout="constrained")
     axes = fig.subplots(len(modes), len(trajs), squeeze=False)
     for i, mode in enumerate(modes):
         for j, traj in enumerate(trajs):
@@ -100,7 +100,6 @@ def error_over_time(data: CampaignData) -> Figure | None:
             ax.set_ylabel("error |p - p_true| [m]")
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7)
-    fig.tight_layout()
     return fig
 
 
@@ -129,7 +128,7 @@ def paths_3d(data: CampaignData, max_points: int = 3000) -> Figure | None:
     if not modes:
         return None
     trajs = sorted({r.trajectory for r in sim})
-    fig = Figure(figsize=(5.0 * len(trajs), 4.6 * len(modes)))
+    fig = Figure(figsize=(5.0 * len(trajs), 4.6 * len(modes)), layout="constrained")
     for i, mode in enumerate(modes):
         for j, traj in enumerate(trajs):
             ax = fig.add_subplot(len(modes), len(trajs), i * len(trajs) + j + 1, projection="3d")
@@ -176,7 +175,7 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
     t = (flight.uwb_t_us[idx] - flight.uwb_t_us[0]) * 1e-6
     err = (flight.value - flight.true_value)[idx]
     ok = c["outcome"] == OUTCOME_RESULT
-    fig = Figure(figsize=(11, 3.8))
+    fig = Figure(figsize=(11, 3.8), layout="constrained")
     ax = fig.subplots()
     ax.scatter(t[ok], err[ok], s=2, color="#b0b0b0", label="measurement error (z - h(p_true))", rasterized=True)
     if nn.config == "outlier+nn":
@@ -207,7 +206,7 @@ def latency_histograms(data: CampaignData, budget_us: float) -> Figure | None:
     present = [(k, n) for k, n in kinds if any(r.kind == k for r in data.runs)]
     if not present:
         return None
-    fig = Figure(figsize=(11, 3.4 * len(present)))
+    fig = Figure(figsize=(11, 3.4 * len(present)), layout="constrained")
     axes = fig.subplots(len(present), 2, squeeze=False)
     for i, (kind, name) in enumerate(present):
         runs = [r for r in data.runs if r.kind == kind]
@@ -220,7 +219,7 @@ def latency_histograms(data: CampaignData, budget_us: float) -> Figure | None:
             if v.size:
                 lo, hi = max(v.min(), 1e-2), max(v.max(), budget_us * 1.5 if j == 1 else v.max()) * 1.05
                 bins = np.logspace(math.log10(lo), math.log10(hi), 60)
-                ax.hist(v, bins=bins, color="#1f77b4" if j == 0 else "#2ca02c", alpha=0.8)
+                ax.hist(v, bins=bins, color="#1f77b4" if j == 0 else "#2ca02c", alpha=0.8, histtype="stepfilled")
                 ax.set_xscale("log")
                 ax.set_yscale("log")
                 p50, p99 = np.percentile(v, [50, 99])
@@ -232,7 +231,6 @@ def latency_histograms(data: CampaignData, budget_us: float) -> Figure | None:
             ax.set_xlabel("[us]")
             ax.set_ylabel("count")
             ax.legend(fontsize=7)
-    fig.tight_layout()
     return fig
 
 
@@ -243,7 +241,7 @@ def recorded_bars(data: CampaignData) -> Figure | None:
         return None
     fids = sorted({r.flight_id for r in rec})
     cfgs = _configs(rec)
-    fig = Figure(figsize=(max(6.0, 1.1 * len(fids) + 2), 4.2))
+    fig = Figure(figsize=(max(6.0, 1.1 * len(fids) + 2), 4.2), layout="constrained")
     ax = fig.subplots()
     width = 0.8 / max(1, len(cfgs))
     for ci, cfg in enumerate(cfgs):

@@ -201,6 +201,7 @@ def provenance(ctx: ReportContext) -> Section | None:
             ["git commit", f"{p.get('git_commit', '-')}{' (uncommitted changes)' if p.get('git_dirty') else ''}"],
             ["machine", f"{p.get('machine', '-')}: {p.get('platform', '-')}, {p.get('cpu_count', '-')} CPUs, "
                         f"Python {p.get('python', '-')}"],
+            ["load average at start (1/5/15 min)", str(p.get("load_average_1_5_15", "-"))],
             ["campaign date (UTC)", str(p.get("date_utc", "-"))],
             ["report generated on", platform.node()],
             ["pacing", str(p.get("pacing", "-"))]]

@@ -1,0 +1,239 @@
+"""A small campaign through the emulator (2 seeds, short flights, 2 jobs), its report, resume and a failing run.
+
+The report's numbers are checked against a recomputation made here from the raw JSONL results and the stored
+truth (plain json + numpy.interp, not the report's own loader), and against the per-run summaries the workers
+computed live from the in-memory flight.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from harness.campaign.plan import (FIRST_EVAL_SEED, UTIL_HELD_OUT, CampaignOptions, PlanError, RunSpec,
+                                   group_by_flight, plan_campaign)
+from harness.campaign.runner import ExecOptions, run_campaign
+from harness.campaign.store import CampaignDataError, CampaignDir, load_results
+from harness.report.build import build_report
+from harness.report.html import Section
+from harness.report.sections import ReportContext
+from harness.session import DEFAULT_FIRMWARE, shared_data_dir
+
+pytestmark = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_FIRMWARE} not built (make firmware)")
+
+BOGUS = "/nonexistent/uwb-fw"
+# Short flights without the take-off phase keep this under ~1 minute on a loaded 2-core machine.
+OPTS = CampaignOptions(seeds=2, duration_s=6.0, takeoff=False, recorded=False, firmware=DEFAULT_FIRMWARE)
+
+
+def _extra_section(ctx: ReportContext) -> Section:
+    """Stands in for a later section (NEES, closed loop): proves the extension point reaches all outputs."""
+    return Section("extra-test", "Extra test section", paragraphs=[f"{len(ctx.data.runs)} runs seen"],
+                   data={"runs_seen": len(ctx.data.runs)})
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    root = tmp_path_factory.mktemp("campaign")
+    runs, _ = plan_campaign(OPTS)
+    # One run points at a firmware that does not exist: it must fail alone, reported, the rest going on.
+    k = next(i for i, r in enumerate(runs) if r.run_id == f"sim-tdoa-circle-z-s{FIRST_EVAL_SEED + 1}-none")
+    runs[k] = replace(runs[k], firmware=BOGUS)
+    logs: list[str] = []
+    outcome = run_campaign(root, runs, ExecOptions(jobs=2, timeout_s=20.0), options=OPTS, log=logs.append)
+    files, summary = build_report(root, extra_sections=(_extra_section,))
+    return {"root": root, "runs": runs, "outcome": outcome, "files": files, "summary": summary, "logs": logs,
+            "bogus": runs[k].run_id}
+
+
+# ------------------------------------------------------------------------------- independent recomputation
+def _raw_rmse(root: Path, run_id: str, flight_id: str) -> float:
+    truth = np.load(root / "flights" / f"{flight_id}.npz")
+    t, p = [], []
+    with open(root / "runs" / f"{run_id}.jsonl", encoding="utf-8") as fh:
+        for line in fh:
+            rec = json.loads(line)
+            if rec["type"] == "result" and rec["outcome"] == 1:
+                t.append(rec["t_us"])
+                p.append((rec["px"], rec["py"], rec["pz"]))
+    tt = truth["truth_t_us"].astype(float)
+    true = np.stack([np.interp(np.asarray(t, float), tt, truth["truth_pos"][:, i]) for i in range(3)], axis=1)
+    return float(np.sqrt(np.mean(np.sum((np.asarray(p) - true) ** 2, axis=1))))
+
+
+def test_campaign_runs_all_but_the_broken_run(campaign: dict[str, Any]) -> None:
+    out = campaign["outcome"]
+    assert out.total == len(campaign["runs"]) == 2 * 2 * 2 * 3 + 2   # + one real-time latency run per mode
+    assert out.skipped == 0
+    assert out.ok == out.total - 1
+    assert [f["run_id"] for f in out.failed] == [campaign["bogus"]]
+    assert "not found" in out.failed[0]["error"] and BOGUS in out.failed[0]["error"]
+    s = CampaignDir(campaign["root"]).read_summary(campaign["bogus"])
+    assert s is not None and s["status"] == "failed" and s["error_type"] == "FileNotFoundError"
+
+
+def test_every_run_streamed_its_results_and_summary(campaign: dict[str, Any]) -> None:
+    root = campaign["root"]
+    for run in campaign["runs"]:
+        if run.firmware == BOGUS:
+            continue
+        s = json.loads((root / "runs" / f"{run.run_id}.json").read_text())
+        assert s["status"] == "ok" and s["fingerprint"] == run.fingerprint()
+        res = load_results(root / "runs" / f"{run.run_id}.jsonl")
+        n = s["flight"]["measurements"]
+        assert len(res) == n > 1000 * (1 if run.flight.mode == "twr" else 2)
+        assert np.array_equal(res.columns["index"], np.arange(n))
+        assert int(np.count_nonzero(res.columns["outcome"] == 1)) == n       # nothing lost on a healthy run
+        assert res.stats is not None and res.stats["results"] >= n
+        assert s["flight"]["seed_disjoint_from_training"] is True and s["flight"]["seed"] >= FIRST_EVAL_SEED
+        assert s["pacing"]["mode"] == run.pacing
+        # The worker's live figure (in-memory flight) equals the recomputation from the files.
+        assert s["summary"]["accuracy"]["rmse"] == pytest.approx(_raw_rmse(root, run.run_id, run.flight.flight_id),
+                                                                 rel=1e-9)
+
+
+def test_report_numbers_match_a_recomputation_from_raw_results(campaign: dict[str, Any]) -> None:
+    root, summary = campaign["root"], campaign["summary"]
+    on_disk = json.loads((root / "report.json").read_text())
+    assert on_disk["twr"]["rmse_outlier"] == pytest.approx(summary["twr"]["rmse_outlier"])
+    for mode in ("twr", "tdoa"):
+        entry = on_disk[mode]
+        per_cfg: dict[str, dict[str, float]] = {}
+        for cfg, key in (("none", "raw"), ("outlier", "outlier"), ("outlier+nn", "outlier_nn")):
+            runs = [r for r in campaign["runs"] if r.flight.mode == mode and r.config == cfg and r.role == "accuracy"
+                    and r.firmware != BOGUS]
+            vals = {r.flight.flight_id: _raw_rmse(root, r.run_id, r.flight.flight_id) for r in runs}
+            per_cfg[cfg] = vals
+            assert entry[f"n_{key}"] == len(vals) == (3 if (mode, cfg) == ("tdoa", "none") else 4)
+            assert entry[f"rmse_{key}"] == pytest.approx(np.mean(list(vals.values())), rel=1e-9)
+            assert entry[f"std_{key}"] == pytest.approx(np.std(list(vals.values()), ddof=1), rel=1e-9)
+            assert 0.0 < entry[f"rmse_{key}"] < 1.0          # metres: a working filter on a 4 m circle
+        a, b = entry["rmse_outlier"], entry["rmse_outlier_nn"]
+        assert entry["reduction_pct"] == pytest.approx(100.0 * (a - b) / a, abs=1e-9)
+        paired = [100 * (per_cfg["outlier"][f] - v) / per_cfg["outlier"][f] for f, v in per_cfg["outlier+nn"].items()]
+        assert entry["reduction_paired_pct"] == pytest.approx(np.mean(paired), abs=1e-9)
+        assert entry["paper"] == {"twr": {"rmse_outlier_nn": 0.19, "reduction_pct": 18.5},
+                                  "tdoa": {"rmse_outlier_nn": 0.21, "reduction_pct": 48.0}}[mode]
+        assert set(entry["by_trajectory"]) == {"circle", "circle-z"}
+        assert entry["seeds"] == [FIRST_EVAL_SEED, FIRST_EVAL_SEED + 1]
+
+
+def test_report_latency_matches_raw_results(campaign: dict[str, Any]) -> None:
+    root, lat = campaign["root"], campaign["summary"]["latency"]
+    for mode, kind in (("twr", 1), ("tdoa", 2)):
+        compute, rtt = [], []
+        for r in campaign["runs"]:
+            if r.flight.mode != mode or r.firmware == BOGUS:
+                continue
+            for line in open(root / "runs" / f"{r.run_id}.jsonl", encoding="utf-8"):
+                rec = json.loads(line)
+                if rec["type"] == "result" and rec["outcome"] == 1:
+                    assert rec["kind"] == kind
+                    compute.append(rec["compute"] / 1e3)
+                    if r.role == "latency":
+                        rtt.append((rec["t_recv_ns"] - rec["t_send_ns"]) / 1e3)
+        entry = lat[mode]
+        assert entry["compute"]["n"] == len(compute)
+        assert entry["compute"]["p99"] == pytest.approx(np.percentile(compute, 99), rel=1e-5)
+        assert entry["end_to_end_pacing"] == "realtime"
+        assert entry["end_to_end_us"]["n"] == len(rtt) > 0
+        assert entry["end_to_end_us"]["p50"] == pytest.approx(np.percentile(rtt, 50), rel=1e-5)
+        assert entry["end_to_end_us"]["deadline_misses"] == int(np.count_nonzero(np.asarray(rtt) > 5000.0))
+        assert entry["lost"] == 0 and entry["refused"] == 0
+        assert 0 < entry["compute"]["p50"] < 5000.0          # the firmware itself meets the 5 ms budget
+
+
+def test_report_files_html_is_self_contained(campaign: dict[str, Any]) -> None:
+    files = campaign["files"]
+    for p in (files.html, files.markdown, files.json):
+        assert p.exists() and p.stat().st_size > 0
+    names = {p.name for p in files.figures}
+    assert {"rmse_boxes.png", "error_over_time.png", "paths_3d.png", "stream_twr.png", "stream_tdoa.png",
+            "latency.png"} <= names
+    for p in files.figures:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    html = files.html.read_text()
+    srcs = re.findall(r'<img[^>]*src="([^"]+)"', html)
+    assert len(srcs) == len(files.figures)
+    assert all(s.startswith("data:image/png;base64,") and len(s) > 5000 for s in srcs)   # embedded, not linked
+    for needle in ("Provenance", "-18.5 %", "-48.0 %", campaign["bogus"], "Extra test section", "p99.9"):
+        assert needle in html
+    md = files.markdown.read_text()
+    assert all(f"figures/{n}" in md for n in names)
+
+
+def test_report_provenance_and_extension_sections(campaign: dict[str, Any]) -> None:
+    s = campaign["summary"]
+    prov = s["provenance"]
+    assert re.fullmatch(r"[0-9a-f]{40}", prov["git_commit"])
+    assert len(prov["model_hashes"]) == 1 and re.fullmatch(r"[0-9a-f]{16}", prov["model_hashes"][0])
+    assert prov["build_ids"] and prov["protocol_versions"] and prov["machine"] and prov["date_utc"]
+    assert s["runs"]["failed"] == 1 and s["runs"]["failed_runs"][0]["run_id"] == campaign["bogus"]
+    assert s["sections"]["extra-test"] == {"runs_seen": campaign["outcome"].ok}
+
+
+def test_rerun_resumes_and_retries_only_what_is_not_done(campaign: dict[str, Any]) -> None:
+    root, runs = campaign["root"], campaign["runs"]
+    done = [r for r in runs if r.firmware != BOGUS]
+    mtimes = {r.run_id: os.stat(root / "runs" / f"{r.run_id}.jsonl").st_mtime_ns for r in done}
+    # Simulate an interruption in the middle of one run: its summary never got written.
+    victim = next(r for r in done if r.run_id.endswith("-outlier") and r.flight.mode == "twr")
+    (root / "runs" / f"{victim.run_id}.json").unlink()
+    logs: list[str] = []
+    out = run_campaign(root, runs, ExecOptions(jobs=2, timeout_s=20.0), options=OPTS, log=logs.append)
+    assert out.skipped == len(done) - 1
+    assert out.ok == 1 and [f["run_id"] for f in out.failed] == [campaign["bogus"]]
+    for r in done:
+        changed = os.stat(root / "runs" / f"{r.run_id}.jsonl").st_mtime_ns != mtimes[r.run_id]
+        assert changed == (r.run_id == victim.run_id), r.run_id
+    assert CampaignDir(root).is_complete(victim.run_id, victim.fingerprint())
+
+
+# ------------------------------------------------------------------------------------------ no device needed
+def test_plan_covers_the_paper_grid_with_unseen_seeds() -> None:
+    runs, notes = plan_campaign(CampaignOptions(recorded=False))
+    acc = [r for r in runs if r.role == "accuracy"]
+    assert len(acc) == 2 * 2 * 10 * 3 and len(runs) == len(acc) + 2
+    assert {r.config for r in acc} == {"none", "outlier", "outlier+nn"}
+    assert min(r.flight.seed for r in acc) == FIRST_EVAL_SEED and notes == []
+    assert all(60.0 <= r.flight.duration_s <= 80.0 and r.flight.takeoff for r in acc)
+    assert len({r.run_id for r in runs}) == len(runs)
+    assert all(len(g) == 3 or (len(g) == 4 and g[-1].role == "latency") for g in group_by_flight(runs))
+    assert RunSpec.from_dict(runs[-1].as_dict()) == runs[-1]
+    assert replace(runs[0], config="outlier").fingerprint() != runs[0].fingerprint()
+    with pytest.raises(PlanError, match="--modes"):
+        plan_campaign(CampaignOptions(modes=("twr", "bogus")))
+    with pytest.raises(PlanError, match="configuration"):
+        plan_campaign(CampaignOptions(configs=("none", "nn-only")))
+
+
+def test_recorded_flights_are_the_held_out_ones() -> None:
+    data = shared_data_dir()
+    if not (data / "util").is_dir():
+        pytest.skip(f"shared data not found at {data}")
+    runs, notes = plan_campaign(CampaignOptions(seeds=0, latency_runs=False, data_dir=data))
+    paths = {r.flight.path for r in runs}
+    assert {str(data / p) for p in UTIL_HELD_OUT} <= paths
+    for p in paths:
+        assert "trial5" in p or "const3" in p or "rcv_twr" in p, p     # never a training trial
+        assert not re.search(r"const[12]-trial[1-4]-", p), p
+    assert all(r.flight.uwb_only for r in runs) and notes == []
+
+
+def test_bad_campaign_files_are_named(tmp_path: Path) -> None:
+    with pytest.raises(CampaignDataError, match="campaign.json: not found"):
+        build_report(tmp_path)
+    bad = tmp_path / "x.jsonl"
+    bad.write_text('{"type": "header"}\n{"type": "result", "index": 0}\n')
+    with pytest.raises(CampaignDataError, match=r"x\.jsonl: line 2: result without field 'kind'"):
+        load_results(bad)
+    bad.write_text('{"type": "header"}\n{"type": "res')
+    with pytest.raises(CampaignDataError, match=r"line 2: malformed JSON"):
+        load_results(bad)
