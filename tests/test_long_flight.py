@@ -1,0 +1,254 @@
+"""Numerical health over a long simulated flight through the firmware: 20 % NLOS outliers, IMU glitches,
+a 2 s UWB outage and one absurd IMU sample that forces a divergence.
+
+Checked: every measurement answered, no NaN/Inf anywhere in the RESULTs, covariance diagonal positive and
+bounded on the wire, and the FULL covariance (firmware_sim/fuzz/cov_health.c, same bytes, in-process)
+finite, exactly symmetric, bounded and positive definite after every measurement; the divergence is
+reported (ERROR DIVERGED) exactly once, and the filter re-converges after the outage and the divergence.
+Also NEES over Monte-Carlo seeds (harness/report/consistency.py).
+
+`make test` flies UWB_LONGFLIGHT_S = 150 s; `make longflight` flies 3600 s. Figures are printed (-s).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.config import PRESETS, EstimatorConfig
+from harness.device.emulator import EmulatorDevice
+from harness.flight.faults import FlightFaults, InjectedFaults, inject
+from harness.flight.model import Flight
+from harness.flight.scenarios import scenario_flight
+from harness.report.consistency import chi2_quantile, monte_carlo_nees, position_nees
+from harness.report.health import reconvergence_s, rejection_streaks
+from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, config_for
+from harness.stream.prepare import prepare, setup_frames
+from harness.stream.resume import split_flight
+from harness.stream.streamer import OUTCOME_RESULT, RESULTS_DTYPE, Pacing, Streamer
+from protocol import encode_frame
+from protocol import messages as m
+
+pytestmark = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_FIRMWARE} not built (make firmware)")
+
+DURATION_S = float(os.environ.get("UWB_LONGFLIGHT_S", "150"))
+CHUNK_S = 30.0            # streamed in pieces: bounded memory, seq numbers never collide within a window
+CONVERGED_M = 0.35        # "re-converged": error below this for 1 s
+FW = REPO_ROOT / "firmware_sim"
+
+
+@dataclass
+class LongRun:
+    gates: str
+    flight: Flight
+    cfg: EstimatorConfig
+    results: np.ndarray
+    errors: list[m.Error]
+    injected: InjectedFaults
+    err: np.ndarray          # position error per measurement [m]
+    wall_s: float
+
+
+#: chi2: the chi-square gate alone; outlier: kinematic + chi-square gates (the paper's configuration)
+GATES = {"chi2": int(m.Stage.CHI2_GATE), "outlier": PRESETS["outlier"]}
+KINEMATIC_LOCKOUT = ("known firmware issue (reported): in IMU mode the kinematic gate's dt is the time since "
+                     "the last prediction (<= 10 ms, floor gate_dt_min), so d_max stays ~0.25 m; once the estimate "
+                     "is further off than that (after the 2 s outage) every measurement is rejected for good and "
+                     "the estimate drifts; the clamped covariance then loses positive definiteness")
+
+
+def _faults(duration: float) -> FlightFaults:
+    return FlightFaults(nlos_fraction=0.2, imu_glitch_rate=1e-3, outage_start_s=0.4 * duration, outage_len_s=2.0,
+                        diverge_at_s=0.7 * duration, seed=17)
+
+
+@pytest.fixture(scope="module")
+def faulted_flight() -> tuple[Flight, InjectedFaults]:
+    base = scenario_flight("random", mode="twr", duration_s=DURATION_S, seed=31, noise="gaussian", noise_std=0.1)
+    return inject(base, _faults(DURATION_S))
+
+
+def _chunks(flight: Flight) -> list[Flight]:
+    out = []
+    rest: Flight | None = flight
+    while rest is not None:
+        u = rest.uwb
+        k = int(np.searchsorted(u.t_us, int(u.t_us[0]) + int(CHUNK_S * 1e6)))
+        if k >= len(u):
+            out.append(rest)
+            break
+        head, rest = split_flight(rest, k)
+        assert head is not None
+        out.append(head)
+    return out
+
+
+@pytest.fixture(scope="module", params=list(GATES))
+def long_run(request: pytest.FixtureRequest, faulted_flight: tuple[Flight, InjectedFaults],
+             tmp_path_factory: pytest.TempPathFactory) -> LongRun:
+    flight, injected = faulted_flight
+    cfg = config_for(flight, EstimatorConfig(), stages=GATES[request.param])
+    log_dir = tmp_path_factory.mktemp("longflight")
+    t0 = time.perf_counter()
+    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=log_dir) as dev:
+        dev.hello(timeout=10.0)
+        streamer = Streamer(dev, timeout_s=10.0, seq0=dev.channel.next_seq)
+        parts, errors = [], []
+        for i, piece in enumerate(_chunks(flight)):
+            run = streamer.run(piece, cfg, Pacing("windowed", 64), reset=(i == 0))
+            parts.append(run.results)
+            errors += run.errors
+    wall = time.perf_counter() - t0
+    results = np.concatenate(parts) if parts else np.zeros(0, RESULTS_DTYPE)
+    truth = flight.truth.position_at(flight.uwb.t_us.astype(np.int64))
+    est = np.stack([results["px"], results["py"], results["pz"]], axis=1).astype(np.float64)
+    return LongRun(request.param, flight, cfg, results, errors, injected, np.linalg.norm(est - truth, axis=1), wall)
+
+
+def test_every_measurement_answered_and_finite(long_run: LongRun) -> None:
+    res = long_run.results
+    assert len(res) == len(long_run.flight.uwb)
+    assert np.all(res["outcome"] == OUTCOME_RESULT)
+    for name, _ in m.Result.FIELDS:
+        col = res[name]
+        if col.dtype.kind == "f":
+            assert np.all(np.isfinite(col)), name
+    for v in ("var_x", "var_y", "var_z", "var_vx", "var_vy", "var_vz", "var_d0", "var_d1", "var_d2"):
+        assert np.all(res[v] >= 1e-6) and np.all(res[v] <= 100.0), v
+
+
+def test_divergence_is_detected_and_reported_once(long_run: LongRun) -> None:
+    diverged = [e for e in long_run.errors if e.code == m.ErrorCode.DIVERGED]
+    assert len(diverged) == 1, diverged
+    e = diverged[0]
+    assert e.msg_type == m.Imu.MSG_ID and e.detail == 1
+    assert [e for e in long_run.errors if e.code != m.ErrorCode.DIVERGED] == []
+
+
+def _figures(run: LongRun) -> dict[str, float]:
+    inj = run.injected
+    t = run.flight.uwb.t_us
+    a, b = inj.outage_us
+    quiet = np.ones(len(t), bool)
+    for start in (b, inj.diverge_t_us):
+        quiet &= ~((t >= start - 3_000_000) & (t < start + 10_000_000))
+    status = run.results["status"]
+    streaks = rejection_streaks(run.results, 1.0)
+    return {"rmse_quiet": float(np.sqrt(np.mean(run.err[quiet] ** 2))),
+            "err_p95_before_outage": float(np.percentile(run.err[(t >= a - 10_000_000) & (t < a)], 95)),
+            "err_at_outage_end": float(run.err[np.searchsorted(t, b)]),
+            "reconverge_outage_s": reconvergence_s(t, run.err, b, CONVERGED_M),
+            "reconverge_divergence_s": reconvergence_s(t, run.err, inj.diverge_t_us, CONVERGED_M),
+            "accepted": float(np.mean(status == 0)), "rejected_kinematic": float(np.mean(status == 1)),
+            "rejected_chi2": float(np.mean(status == 2)), "lockouts": float(len(streaks)),
+            "longest_lockout_s": max((s.duration_s for s in streaks), default=0.0)}
+
+
+def test_reconverges_after_outage_and_divergence(long_run: LongRun) -> None:
+    inj = long_run.injected
+    t = long_run.flight.uwb.t_us
+    a, b = inj.outage_us
+    assert not np.any((t >= a) & (t < b)) and inj.outage_removed > 0       # the outage happened
+    f = _figures(long_run)
+    print(f"\nlong flight {DURATION_S:.0f} s, gates {long_run.gates}: {len(t)} UWB, {len(long_run.flight.imu)} IMU, "
+          f"{len(inj.nlos_idx)} NLOS outliers, {len(inj.imu_glitch_idx)} IMU glitches, outage removed "
+          f"{inj.outage_removed}; wall {long_run.wall_s:.1f} s ({DURATION_S / long_run.wall_s:.0f}x real time)\n  "
+          + ", ".join(f"{k} {v:.3f}" for k, v in f.items()))
+    if long_run.gates == "outlier" and f["reconverge_outage_s"] == float("inf"):
+        # today's firmware: the filter does not recover, and the harness detects the lockout (it is
+        # reported, not carried on silently); once the firmware is fixed the checks below apply
+        assert f["lockouts"] >= 1 and f["longest_lockout_s"] > 1.0
+        pytest.xfail(KINEMATIC_LOCKOUT)
+    assert f["lockouts"] == 0
+    assert f["rmse_quiet"] < 0.3
+    assert f["reconverge_outage_s"] < 2.0
+    assert f["reconverge_divergence_s"] < 2.0
+
+
+@pytest.fixture(scope="module")
+def cov_health_exe(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    exe = tmp_path_factory.mktemp("covh") / "cov_health"
+    srcs = sorted(str(p.relative_to(FW)) for d in ("core", "proto", "app") for p in (FW / d).glob("*.c"))
+    cmd = ["cc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-Icore", "-Iproto", "-Iapp", "-Imodels", "-O1", "-g",
+           "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-D_POSIX_C_SOURCE=200809L", "-o", str(exe),
+           "fuzz/cov_health.c", *srcs, "host/platform_host.c", "-lm"]
+    subprocess.run(cmd, cwd=FW, check=True, timeout=300)
+    return exe
+
+
+def test_full_covariance_stays_symmetric_positive_definite(long_run: LongRun, cov_health_exe: Path) -> None:
+    flight = long_run.flight
+    proc = subprocess.Popen([str(cov_health_exe)], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    assert proc.stdin is not None
+    seq = 0
+    for i, piece in enumerate(_chunks(flight)):
+        setup, seq = setup_frames(long_run.cfg, piece, seq, reset=(i == 0))
+        prep = prepare(piece, seq)
+        seq = prep.next_seq
+        proc.stdin.write(setup + prep.stream)
+    proc.stdin.write(encode_frame(m.StatsReq(), seq))
+    out, _ = proc.communicate(timeout=1800)
+    assert proc.returncode == 0
+    words = out.decode().split()
+    figures = {k: float(v) for k, v in zip(words[0::2], words[1::2])}
+    print(f"\nfull covariance after every RESULT, gates {long_run.gates}: {figures}")
+    assert figures["results"] == len(flight.uwb) == figures["checks"]
+    assert figures["non_finite"] == figures["out_of_bounds"] == 0 and figures["asym_max"] == 0.0
+    assert figures["max_abs"] <= 100.0 and figures["diverged_errors"] == 1
+    if long_run.gates == "outlier" and figures["not_pd"] > 0:
+        pytest.xfail(KINEMATIC_LOCKOUT)
+    assert figures["not_pd"] == 0 and figures["min_pivot"] > 0
+
+
+# --------------------------------------------------------------------------------------------- NEES
+def test_chi2_quantile_matches_known_values() -> None:
+    # chi2.ppf(0.025, 3) = 0.2158, (0.975, 3) = 9.348, (0.975, 30) = 46.98, (0.025, 300) = 253.9
+    assert chi2_quantile(0.025, 3) == pytest.approx(0.2158, rel=0.2)     # Wilson-Hilferty is poor at k=3
+    assert chi2_quantile(0.975, 3) == pytest.approx(9.348, rel=0.01)
+    assert chi2_quantile(0.975, 30) == pytest.approx(46.98, rel=0.002)
+    assert chi2_quantile(0.025, 300) == pytest.approx(253.9, rel=0.002)
+
+
+def test_nees_of_a_consistent_synthetic_estimator_is_three() -> None:
+    rng = np.random.default_rng(5)
+    runs = []
+    for _ in range(20):
+        res = np.zeros(500, RESULTS_DTYPE)
+        truth = rng.normal(size=(500, 3))
+        sd = rng.uniform(0.05, 0.5, (500, 3))
+        est = truth + sd * rng.normal(size=(500, 3))
+        for j, (p, v) in enumerate((("px", "var_x"), ("py", "var_y"), ("pz", "var_z"))):
+            res[p], res[v] = est[:, j], sd[:, j] ** 2
+        res["outcome"] = OUTCOME_RESULT
+        runs.append(position_nees(res, truth))
+    s = monte_carlo_nees(runs)
+    assert s.anees == pytest.approx(3.0, abs=0.1)
+    assert 0.9 < s.inside <= 1.0
+    over = monte_carlo_nees([r * 4 for r in runs])          # variances 4x too small
+    assert over.anees == pytest.approx(12.0, abs=0.4) and over.above > 0.9
+
+
+def test_nees_over_monte_carlo_seeds_on_the_firmware(tmp_path: Path) -> None:
+    """8 seeds of the same 10 s flight (Gaussian noise, no outliers) through the firmware."""
+    nees = []
+    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
+        dev.hello(timeout=10.0)
+        streamer = Streamer(dev, seq0=dev.channel.next_seq)
+        for seed in range(8):
+            flight = scenario_flight("circle", mode="twr", duration_s=10.0, seed=100 + seed, noise="gaussian",
+                                     noise_std=0.1)
+            cfg = config_for(flight, EstimatorConfig(), stages=PRESETS["outlier"])
+            run = streamer.run(flight, cfg, Pacing("windowed", 64))
+            truth = flight.truth.position_at(flight.uwb.t_us.astype(np.int64))
+            nees.append(position_nees(run.results, truth))
+    s = monte_carlo_nees(nees, skip=400)          # skip the first 2 s (convergence from the initial guess)
+    print(f"\nNEES over 8 seeds (circle, TWR, 0.1 m Gaussian): {s.as_dict()}")
+    assert s.runs == 8 and s.epochs > 1000
+    assert np.isfinite(s.anees) and s.anees > 0
+    assert 0.0 <= s.inside <= 1.0 and s.lo < 3.0 < s.hi
