@@ -358,7 +358,8 @@ def _share(instr: float) -> tuple[float, float, float]:
 
 
 def print_report(out: dict[str, Any]) -> None:
-    print("== STM32F405 (Cortex-M4F) under QEMU -icount shift=0: guest instructions per measurement")
+    print("== STM32F405 (Cortex-M4F) under QEMU -icount shift=0: guest instructions per measurement"
+          f" (shipped model hash {out.get('model_hash', '?')})")
     print(f"   median over measurements with an EKF update; cycles ASSUMED = {CYCLES_PER_INSTRUCTION:g} x instructions;"
           f" slot = 5 ms at 168 MHz ({SLOT_S * SYSCLK_HZ:,.0f} cycles)")
     hdr = f"{'measurement':34} {'n':>5} {'instr':>8} {'~cycles':>8} {'~us':>7} {'% slot':>7}   {'network':>7} {'gates':>6} {'update':>7}"
@@ -415,6 +416,8 @@ def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_
         with qemu_device(elf, log_dir) as dev:
             stages += stage_costs(dev, name, duration_s, seed)
             stack_used[name] = dev.stack_high_water()   # the deepest the flights took the painted stack
+            if dev.last_hello is not None:
+                out["model_hash"] = f"{dev.last_hello.model_hash:016x}"
     out["stages"] = [asdict(r) for r in stages]
     kernels = network_kernels(nn_inputs, seed, log_dir, build_m4 / "uwb-nnbench.elf", "shipped")
     kernels += network_kernels(nn_inputs, seed, log_dir, build_probe / "uwb-nnbench.elf", "probe")
