@@ -20,7 +20,7 @@ import pytest
 from harness.config import PRESETS, EstimatorConfig
 from harness.device.emulator import EmulatorDevice
 from harness.flight.scenarios import scenario_flight
-from harness.link.faulty import FaultRates, FaultyDevice, FaultyLink
+from harness.link.faulty import FaultRates, FaultyDevice, FaultyLink, SeqUnwrap, unwrap_seqs
 from harness.session import DEFAULT_FIRMWARE, config_for
 from harness.stream.batch import encode_rows
 from harness.stream.streamer import OUTCOME_LOST, OUTCOME_RESULT, Pacing, Streamer
@@ -152,7 +152,7 @@ def test_tx_faults_are_accounted_by_device_and_results(device: EmulatorDevice, t
     assert d["seq_gaps"] == len(lost) > 0
     # 3. every measurement ends with an outcome; the LOST ones are exactly the measurements lost on the way
     res = run.results
-    meas_seq = res["meas_seq"].astype(int)
+    meas_seq = unwrap_seqs(res["meas_seq"])
     lost_meas = {int(s) for s in meas_seq} & lost
     assert set(meas_seq[res["outcome"] == OUTCOME_LOST].tolist()) == lost_meas
     assert int(np.count_nonzero(res["outcome"] == OUTCOME_RESULT)) == len(res) - len(lost_meas)
@@ -184,7 +184,7 @@ def test_rx_faults_lose_results_which_are_reported_lost(device: EmulatorDevice) 
     assert d["results"] == len(res)                                          # the device answered everything
     lost = rx.lost_seqs
     assert len(lost) > 5
-    lost_rows = set(res["meas_seq"][res["outcome"] == OUTCOME_LOST].astype(int).tolist())
+    lost_rows = set(unwrap_seqs(res["meas_seq"])[res["outcome"] == OUTCOME_LOST].tolist())
     assert lost_rows == lost
     # the host decoder counted what the link delivered broken
     assert run.decoder_errors.crc_errors == rx.delivered.errors.crc_errors
@@ -206,6 +206,17 @@ def test_stalls_and_duplicates_do_not_change_the_estimates(device: EmulatorDevic
     assert np.all(stalled.results["outcome"] == OUTCOME_RESULT)
     for f in FIELDS_COMPARED:
         assert np.array_equal(clean.results[f], stalled.results[f]), f
+
+
+def test_seq_unwrap_counts_across_wraps() -> None:
+    seqs = [(65530 + k) & 0xFFFF for k in range(20)]
+    seqs.insert(5, seqs[4])                          # a duplicate
+    del seqs[12:14]                                  # two lost frames
+    out = unwrap_seqs(seqs)
+    assert out[0] == 65530 and out[-1] == 65530 + 19 and list(out[4:6]) == [65534, 65534]
+    assert np.all(np.diff(out) >= 0)
+    u = SeqUnwrap()
+    assert [u(s) for s in (10, 9, 11)] == [10, 9, 11]    # a step back stays a step back
 
 
 def test_faulty_link_is_seeded_and_counts() -> None:

@@ -71,7 +71,8 @@ class DirectionLog:
     """What the link did in one direction, and what the peer therefore received."""
 
     counts: Counter[str] = field(default_factory=Counter)
-    sent_seqs: list[int] = field(default_factory=list)       # frame_key() of every original data frame
+    # keys: frame_key() unwrapped to a running count (see unwrap_seqs), so seqs never collide
+    sent_seqs: list[int] = field(default_factory=list)       # key of every original data frame
     damaged_seqs: set[int] = field(default_factory=set)       # altered, dropped, or hit by garbage
     delivered: FrameDecoder = field(default_factory=FrameDecoder)   # shadow of the peer's parser
     intact_seqs: Counter[int] = field(default_factory=Counter)  # key -> copies delivered intact
@@ -86,6 +87,27 @@ class DirectionLog:
         return {**dict(self.counts), "data_frames": len(self.sent_seqs), "lost_frames": len(self.lost_seqs),
                 "delivered_ok": self.delivered.frames_ok, "delivered_crc_errors": errs.crc_errors,
                 "delivered_framing_errors": errs.framing_errors}
+
+
+class SeqUnwrap:
+    """16-bit seq -> running 64-bit count (frames come in order; a long run wraps the seq many times)."""
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+
+    def __call__(self, seq: int) -> int:
+        if self.last is None:
+            self.last = seq
+            return seq
+        d = (seq - self.last) & 0xFFFF
+        self.last += d - 0x10000 if d >= 0x8000 else d
+        return self.last
+
+
+def unwrap_seqs(seqs: Any) -> np.ndarray:
+    """Unwrap a sequence of 16-bit seqs given in stream order (e.g. RESULTS meas_seq)."""
+    u = SeqUnwrap()
+    return np.array([u(int(s)) for s in seqs], dtype=np.int64)
 
 
 def frame_key(frame: Frame) -> int:
@@ -114,6 +136,8 @@ class _Injector:
         self.fault_types = fault_types
         self.log = DirectionLog()
         self._tail = b""
+        self._unwrap_sent = SeqUnwrap()
+        self._unwrap_delivered = SeqUnwrap()
 
     def process(self, data: bytes) -> bytes:
         """Faulted bytes for `data`; an incomplete trailing frame waits for its delimiter."""
@@ -127,7 +151,7 @@ class _Injector:
         wire = bytes(out)
         for f in self.log.delivered.feed(wire):
             if f.msg.MSG_ID in self.fault_types:
-                self.log.intact_seqs[frame_key(f)] += 1
+                self.log.intact_seqs[self._unwrap_delivered(frame_key(f))] += 1
         return wire
 
     def _frame(self, enc: bytes) -> bytes:
@@ -137,7 +161,7 @@ class _Injector:
         if len(enc) < 2 or enc[1] not in self.fault_types:
             return enc + b"\x00"
         original = _decode_enc(enc)
-        key = frame_key(original) if original is not None else -1
+        key = self._unwrap_sent(frame_key(original)) if original is not None else -1
         c["frames"] += 1
         self.log.sent_seqs.append(key)
         prefix = b""
