@@ -16,6 +16,7 @@ help:
 	@echo "make size      flash / RAM of the STM32F405 firmware, with the bias network's share"
 	@echo "make fuzz      libFuzzer over the frame parser and firmware input path (FUZZ_SECONDS=600)"
 	@echo "make longflight  1-hour simulated flight with faults through the firmware"
+	@echo "make campaign  the paper's experiments through the firmware + report (CAMPAIGN_DIR, CAMPAIGN_ARGS)"
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -72,6 +73,13 @@ stm32: arm-tools
 
 size: stm32
 	@$(MAKE) -s -C firmware_sim/stm32 size
+
+# The full campaign (not in CI; resumes when re-run): DIR/report.html, report.md, report.json. docs/campaign.md.
+CAMPAIGN_DIR  ?= out/campaign
+CAMPAIGN_ARGS ?=
+.PHONY: campaign
+campaign: $(STAMP) firmware
+	$(VENV)/bin/uwb-hil campaign --out $(CAMPAIGN_DIR) $(CAMPAIGN_ARGS)
 
 clean:
 	$(MAKE) -C firmware_sim clean

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from harness.campaign.plan import (FIRST_EVAL_SEED, UTIL_HELD_OUT, CampaignOptions, PlanError, RunSpec,
-                                   group_by_flight, plan_campaign)
+from harness.campaign.plan import (FIRST_EVAL_SEED, RECORDED_MODELS, UTIL_HELD_OUT, CampaignOptions, PlanError,
+                                   RunSpec, group_by_flight, held_out, plan_campaign)
 from harness.campaign.runner import ExecOptions, run_campaign
 from harness.campaign.store import CampaignDataError, CampaignDir, load_results
 from harness.report.build import build_report
@@ -174,6 +174,7 @@ def test_report_provenance_and_extension_sections(campaign: dict[str, Any]) -> N
     prov = s["provenance"]
     assert re.fullmatch(r"[0-9a-f]{40}", prov["git_commit"])
     assert len(prov["model_hashes"]) == 1 and re.fullmatch(r"[0-9a-f]{16}", prov["model_hashes"][0])
+    assert prov["model_hash_by_source"] == {"sim": prov["model_hashes"]}
     assert prov["build_ids"] and prov["protocol_versions"] and prov["machine"] and prov["date_utc"]
     assert s["runs"]["failed"] == 1 and s["runs"]["failed_runs"][0]["run_id"] == campaign["bogus"]
     assert s["sections"]["extra-test"] == {"runs_seen": campaign["outcome"].ok}
@@ -203,6 +204,7 @@ def test_plan_covers_the_paper_grid_with_unseen_seeds() -> None:
     assert len(acc) == 2 * 2 * 10 * 3 and len(runs) == len(acc) + 2
     assert {r.config for r in acc} == {"none", "outlier", "outlier+nn"}
     assert min(r.flight.seed for r in acc) == FIRST_EVAL_SEED and notes == []
+    assert all(r.model is None for r in runs)            # simulated flights: the firmware's default model
     assert all(60.0 <= r.flight.duration_s <= 80.0 and r.flight.takeoff for r in acc)
     assert len({r.run_id for r in runs}) == len(runs)
     assert all(len(g) == 3 or (len(g) == 4 and g[-1].role == "latency") for g in group_by_flight(runs))
@@ -224,7 +226,13 @@ def test_recorded_flights_are_the_held_out_ones() -> None:
     for p in paths:
         assert "trial5" in p or "const3" in p or "rcv_twr" in p, p     # never a training trial
         assert not re.search(r"const[12]-trial[1-4]-", p), p
-    assert all(r.flight.uwb_only for r in runs) and notes == []
+    assert all(r.flight.uwb_only for r in runs)
+    assert not any("not found: skipped" in n for n in notes), notes
+    for family, (_, model_file) in RECORDED_MODELS.items():
+        fam = [r for r in runs if (r.flight.trajectory.startswith("util") == (family == "util"))]
+        assert fam and all(r.model == (str(model_file) if model_file.is_file() else None) for r in fam)
+        rels, _ = held_out(family)
+        assert {str(data / p) for p in rels} == {r.flight.path for r in fam}
 
 
 def test_bad_campaign_files_are_named(tmp_path: Path) -> None:

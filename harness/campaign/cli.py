@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from harness.campaign.plan import CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, plan_campaign
+from harness.campaign.plan import (CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, attach_firmware,
+                                   plan_campaign)
 from harness.campaign.runner import ExecOptions, run_campaign
 from harness.session import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
@@ -36,6 +37,10 @@ def add_parser(sub: Any) -> None:
                    help="also replay the held-out recorded flights of the shared data")
     p.add_argument("--data-dir", default=None, help="recorded data (default ../shared/data or $UWB_HIL_DATA)")
     p.add_argument("--firmware", default=str(DEFAULT_FIRMWARE), help="host firmware binary")
+    p.add_argument("--sim-model", default=None,
+                   help="bias model (.npz) for the simulated flights (default: the firmware's compiled-in model)")
+    p.add_argument("--recorded-models", action=argparse.BooleanOptionalAction, default=True,
+                   help="recorded flights on a firmware carrying the real-data networks of firmware_sim/models")
     p.add_argument("--pacing", choices=PACING_MODES, default="windowed",
                    help="pacing of the accuracy runs (windowed: same estimates as lockstep, much faster)")
     p.add_argument("--latency-runs", action=argparse.BooleanOptionalAction, default=True,
@@ -52,10 +57,17 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                            recorded=args.recorded,
                            data_dir=Path(args.data_dir) if args.data_dir else shared_data_dir(),
                            firmware=Path(args.firmware).resolve(), pacing=args.pacing,
-                           latency_runs=args.latency_runs)
+                           latency_runs=args.latency_runs,
+                           sim_model=Path(args.sim_model).resolve() if args.sim_model else None,
+                           recorded_models=args.recorded_models)
     if not opts.firmware.exists():
         raise FileNotFoundError(f"firmware binary {opts.firmware} not found: run `make firmware`")
     runs, notes = plan_campaign(opts)
+    try:
+        runs = attach_firmware(runs)      # firmware images for non-default models (built once, cached)
+    except RuntimeError as exc:
+        print(f"uwb-hil: error: {exc}", file=sys.stderr)
+        return 2
     ex = ExecOptions(jobs=max(1, args.jobs), timeout_s=args.timeout)
     outcome = run_campaign(Path(args.out), runs, ex, options=opts, notes=notes,
                            log=lambda s: print(s, file=sys.stderr, flush=True))

@@ -4,20 +4,23 @@ Simulated flights: {twr, tdoa} x trajectories x seeds, each flown in the three c
 (none, outlier, outlier+nn). Seeds start at 1000 so they are disjoint from the seeds the bias network was
 trained on (training uses seeds < 1000; recorded in every run's summary as ``seed_disjoint_from_training``).
 
-Recorded flights: the held-out UTIL TDoA trials (trial 5 of const1/const2 and all of const3: the default
-network is trained on const1/const2 trials 1-4) and the rcv_twr sequences, replayed in UWB-only mode.
+Recorded flights: the held-out UTIL TDoA trials (trial 5 of const1/const2 and all of const3: the real-data
+network is trained on const1/const2 trials 1-4) and the held-out rcv_twr sequence(s), replayed in UWB-only
+mode, through a firmware carrying the network trained on that data (firmware_sim/models/util_tdoa_pos.npz,
+rcv_twr.npz; the held-out lists are read from firmware_sim/models/models.json when it is there).
+Simulated flights run on the firmware's compiled-in default model (trained on simulated flights).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from harness.config import PRESETS
-from harness.session import DEFAULT_FIRMWARE, shared_data_dir
+from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
 MODES = ("twr", "tdoa")
@@ -33,7 +36,11 @@ UTIL_HELD_OUT = (
     "util/const3/const3-trial2-tdoa2-extracted.csv",
 )
 UTIL_ANCHORS = "util/anchors.csv"
-RCV_TWR_SEQUENCES = tuple(f"rcv_twr/sequence{k}" for k in range(1, 6))
+RCV_TWR_HELD_OUT = ("rcv_twr/sequence5",)     # the rcv_twr network is trained on sequences 1-4
+MODELS_DIR = REPO_ROOT / "firmware_sim" / "models"
+#: Real-data networks per recorded family (key in models.json, file).
+RECORDED_MODELS = {"util": ("util_tdoa_pos", MODELS_DIR / "util_tdoa_pos.npz"),
+                   "rcv_twr": ("rcv_twr", MODELS_DIR / "rcv_twr.npz")}
 
 
 class PlanError(ValueError):
@@ -77,6 +84,8 @@ class RunSpec:
     firmware: str = str(DEFAULT_FIRMWARE)
     pacing: str = "windowed"
     role: str = ROLE_ACCURACY
+    model: str | None = None       # bias model (.npz) the firmware must carry; None: its compiled-in default
+    model_hash: str | None = None  # expected HELLO model hash (checked before the run), once known
 
     @property
     def run_id(self) -> str:
@@ -85,7 +94,8 @@ class RunSpec:
 
     def as_dict(self) -> dict[str, Any]:
         return {"run_id": self.run_id, "flight_id": self.flight.flight_id, "config": self.config,
-                "firmware": self.firmware, "pacing": self.pacing, "role": self.role, "flight": asdict(self.flight)}
+                "firmware": self.firmware, "pacing": self.pacing, "role": self.role, "model": self.model,
+                "model_hash": self.model_hash, "flight": asdict(self.flight)}
 
     def fingerprint(self) -> str:
         """Changes whenever anything that decides the run's outcome changes (resume compares it)."""
@@ -95,7 +105,8 @@ class RunSpec:
     @staticmethod
     def from_dict(d: dict[str, Any]) -> RunSpec:
         return RunSpec(flight=FlightSpec(**d["flight"]), config=str(d["config"]), firmware=str(d["firmware"]),
-                       pacing=str(d.get("pacing", "windowed")), role=str(d.get("role", ROLE_ACCURACY)))
+                       pacing=str(d.get("pacing", "windowed")), role=str(d.get("role", ROLE_ACCURACY)),
+                       model=d.get("model"), model_hash=d.get("model_hash"))
 
 
 @dataclass(frozen=True)
@@ -112,6 +123,8 @@ class CampaignOptions:
     takeoff: bool = True           # simulated flights start and end on the ground (needs duration > 10.5 s)
     pacing: str = "windowed"       # of the accuracy runs
     latency_runs: bool = True      # per mode, one extra real-time run (outlier+nn) of the first flight
+    sim_model: Path | None = None  # None: the firmware's compiled-in default model
+    recorded_models: bool = True   # recorded flights on a firmware with the real-data network (if present)
 
     def validate(self) -> None:
         if self.seeds < 0:
@@ -130,29 +143,58 @@ class CampaignOptions:
             raise PlanError("--trajectories is empty")
 
 
-def recorded_flights(data_dir: Path, modes: tuple[str, ...]) -> tuple[list[FlightSpec], list[str]]:
-    """The held-out recordings present under data_dir, and notes on those that are missing."""
+def held_out(family: str) -> tuple[tuple[str, ...], str]:
+    """Held-out recordings of a family (paths relative to the data dir) and where that list comes from."""
+    key, _ = RECORDED_MODELS[family]
+    default = UTIL_HELD_OUT if family == "util" else RCV_TWR_HELD_OUT
+    info = MODELS_DIR / "models.json"
+    try:
+        names = list((json.loads(info.read_text(encoding="utf-8")).get(key) or {}).get("heldout") or {})
+    except (OSError, ValueError):
+        names = []
+    if not names:
+        return default, "built-in list"
+    if family == "util":      # models.json names files; find their constellation directory
+        rel = tuple(f"util/{n.split('-')[0]}/{n}" for n in names)
+    else:
+        rel = tuple(names)
+    return rel, f"{info} ({key}.heldout)"
+
+
+def recorded_flights(data_dir: Path, modes: tuple[str, ...], with_models: bool = True
+                     ) -> tuple[list[FlightSpec], list[str], dict[str, str | None]]:
+    """The held-out recordings present under data_dir, notes (missing files, split source), and the model
+    file per flight id (None: the firmware's default)."""
     flights: list[FlightSpec] = []
     notes: list[str] = []
-    if "tdoa" in modes:
-        anchors = data_dir / UTIL_ANCHORS
-        for rel in UTIL_HELD_OUT:
+    models: dict[str, str | None] = {}
+    for family, mode in (("util", "tdoa"), ("rcv_twr", "twr")):
+        if mode not in modes:
+            continue
+        rels, source = held_out(family)
+        notes.append(f"held-out {family} recordings from {source}: {', '.join(rels)}")
+        model_file = RECORDED_MODELS[family][1]
+        model = str(model_file) if with_models and model_file.is_file() else None
+        if with_models and model is None:
+            notes.append(f"{model_file} not found: {family} flights run on the firmware's default model")
+        for rel in rels:
             path = data_dir / rel
-            if not path.is_file() or not anchors.is_file():
-                notes.append(f"recorded flight {path} (or {anchors}) not found: skipped")
-                continue
-            label = "util-" + path.name.replace("-extracted.csv", "")
-            flights.append(FlightSpec(source="recorded", mode="tdoa", trajectory=label, path=str(path),
-                                      anchors=str(anchors), uwb_only=True))
-    if "twr" in modes:
-        for rel in RCV_TWR_SEQUENCES:
-            path = data_dir / rel
-            if not path.is_dir():
-                notes.append(f"recorded sequence {path} not found: skipped")
-                continue
-            flights.append(FlightSpec(source="recorded", mode="twr", trajectory="rcv-" + path.name,
-                                      path=str(path), uwb_only=True))
-    return flights, notes
+            if family == "util":
+                anchors = data_dir / UTIL_ANCHORS
+                if not path.is_file() or not anchors.is_file():
+                    notes.append(f"recorded flight {path} (or {anchors}) not found: skipped")
+                    continue
+                f = FlightSpec(source="recorded", mode=mode, trajectory="util-" + path.name.replace("-extracted.csv", ""),
+                               path=str(path), anchors=str(anchors), uwb_only=True)
+            else:
+                if not path.is_dir():
+                    notes.append(f"recorded sequence {path} not found: skipped")
+                    continue
+                f = FlightSpec(source="recorded", mode=mode, trajectory="rcv-" + path.name, path=str(path),
+                               uwb_only=True)
+            flights.append(f)
+            models[f.flight_id] = model
+    return flights, notes, models
 
 
 def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
@@ -165,10 +207,12 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
                 flights.append(FlightSpec(source="sim", mode=mode, trajectory=traj, seed=opts.first_seed + k,
                                           duration_s=float(opts.duration_s), takeoff=opts.takeoff))
     notes: list[str] = []
+    models: dict[str, str | None] = {f.flight_id: (str(opts.sim_model) if opts.sim_model else None) for f in flights}
     if opts.recorded:
-        rec, notes = recorded_flights(Path(opts.data_dir), opts.modes)
+        rec, notes, rec_models = recorded_flights(Path(opts.data_dir), opts.modes, opts.recorded_models)
         flights += rec
-    runs = [RunSpec(flight=f, config=c, firmware=str(opts.firmware), pacing=opts.pacing)
+        models.update(rec_models)
+    runs = [RunSpec(flight=f, config=c, firmware=str(opts.firmware), pacing=opts.pacing, model=models[f.flight_id])
             for f in flights for c in opts.configs]
     if opts.latency_runs:
         for mode in opts.modes:
@@ -176,7 +220,7 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
             if first is not None:
                 cfg = "outlier+nn" if "outlier+nn" in opts.configs else opts.configs[-1]
                 runs.append(RunSpec(flight=first, config=cfg, firmware=str(opts.firmware), pacing="realtime",
-                                    role=ROLE_LATENCY))
+                                    role=ROLE_LATENCY, model=models[first.flight_id]))
     return runs, notes
 
 
@@ -186,3 +230,23 @@ def group_by_flight(runs: list[RunSpec]) -> list[list[RunSpec]]:
     for r in runs:
         groups.setdefault((r.flight, r.firmware), []).append(r)
     return list(groups.values())
+
+
+def attach_firmware(runs: list[RunSpec], build_root: Path | None = None) -> list[RunSpec]:
+    """Point every run that names a model at a firmware carrying it (built once per model, cached by hash:
+    harness.biasnet.cbuild.firmware_for) and record the hash the device must report."""
+    from harness.biasnet.cbuild import firmware_for
+    from harness.biasnet.model import BiasModel
+
+    built: dict[str, tuple[str, str]] = {}
+    out = []
+    for r in runs:
+        if r.model is None:
+            out.append(r)
+            continue
+        if r.model not in built:
+            model = BiasModel.load(Path(r.model))
+            built[r.model] = (str(firmware_for(model, build_root)), model.hash_hex)
+        fw, h = built[r.model]
+        out.append(replace(r, firmware=fw, model_hash=h))
+    return out

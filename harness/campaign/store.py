@@ -206,6 +206,7 @@ class StoredResults:
     header: dict[str, Any]
     columns: dict[str, np.ndarray]     # RESULT_COLUMNS -> (M,) arrays, row k = measurement index k
     stats: dict[str, Any] | None       # the trailing "stats" record (device counters), if the run finished
+    records: tuple[dict[str, Any], ...] = ()   # other records, e.g. "device_error" (DIVERGED, refused IMU)
 
     def __len__(self) -> int:
         return int(len(self.columns["index"]))
@@ -215,6 +216,7 @@ def load_results(path: Path) -> StoredResults:
     """Parse one run's JSONL. Every malformed line is an error naming the file, line and field."""
     header: dict[str, Any] | None = None
     stats: dict[str, Any] | None = None
+    records: list[dict[str, Any]] = []
     rows: dict[str, list[float]] = {c: [] for c in RESULT_COLUMNS}
     try:
         fh = open(path, encoding="utf-8")
@@ -238,13 +240,15 @@ def load_results(path: Path) -> StoredResults:
                     if c not in rec:
                         raise CampaignDataError(f"{path}: line {lineno}: result without field {c!r}")
                     rows[c].append(rec[c])
+            elif isinstance(kind, str):
+                records.append(rec)       # e.g. "device_error"; kept for whoever knows the type
             else:
-                raise CampaignDataError(f"{path}: line {lineno}: unknown record type {kind!r}")
+                raise CampaignDataError(f"{path}: line {lineno}: record without a 'type'")
     if header is None:
         raise CampaignDataError(f"{path}: no header line")
     ints = ("index", "kind", "status", "t_us", "t_send_ns", "t_recv_ns", "outcome", "error_code")
     cols = {c: np.asarray(v, dtype=np.int64 if c in ints else np.float64) for c, v in rows.items()}
-    return StoredResults(header=header, columns=cols, stats=stats)
+    return StoredResults(header=header, columns=cols, stats=stats, records=tuple(records))
 
 
 def load_run_results(cdir: CampaignDir, run_id: str, stats: dict[str, Any] | None = None) -> StoredResults:

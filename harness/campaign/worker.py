@@ -26,6 +26,7 @@ from harness.flight.model import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.session import DeviceSpec, config_for, open_device
 from harness.stream.streamer import Pacing, Streamer
+from protocol import messages as m
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,7 @@ def run_group(job: WorkerJob) -> int:
                 pacing = Pacing(mode=run.pacing, window=job.window)
                 if device is None:
                     spec = DeviceSpec(firmware=Path(run.firmware), timeout_s=job.timeout_s, log_dir=cdir.logs)
-                    device_cm = open_device(spec)
+                    device_cm = open_device(spec, expected_model_hash=int(run.model_hash, 16) if run.model_hash else None)
                     device = device_cm.__enter__()
                     hello = device.last_hello or device.hello(timeout=job.timeout_s)  # type: ignore[attr-defined]
                 cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[run.config], uwb_only=run.flight.uwb_only)
@@ -130,7 +131,9 @@ def run_group(job: WorkerJob) -> int:
                 write_json_atomic(cdir.summary_path(run.run_id), {
                     "status": STATUS_OK, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
                     "flight": meta, "device": _hello_dict(hello), "pacing": asdict(pacing),
-                    "estimator_config": asdict(cfg), "summary": summary, "wall_s": time.time() - started,
+                    "estimator_config": asdict(cfg), "summary": summary,
+                    "divergences": sum(1 for e in result.errors if e.code == m.ErrorCode.DIVERGED),
+                    "device_errors": len(result.errors), "wall_s": time.time() - started,
                     "host": platform.node()})
             except Exception as exc:  # noqa: BLE001 - reported in the run's summary; the next run goes on
                 failed += 1

@@ -47,6 +47,8 @@ class RunMetrics:
     kind: int
     device_stats: dict[str, Any] | None
     cost_unit: int = 0
+    model_hash: str = ""
+    divergences: int = 0         # the firmware's divergence guard re-initialised the filter (ERROR DIVERGED)
     pacing: str = "windowed"
     role: str = "accuracy"       # "latency": an extra real-time run, kept out of the accuracy figures
 
@@ -146,7 +148,9 @@ def run_metrics(summary: dict[str, Any], res: StoredResults, flight: StoredFligh
         max_error=float(norm.max()) if len(norm) else nan,
         status_counts={name: int(np.count_nonzero(status == k)) for k, name in _STATUS_NAMES.items()},
         err_t_s=err_t, err_mean=err_mean, compute_us=compute_us, rtt_us=rtt_us, kind=int(flight.kind),
-        device_stats=res.stats, cost_unit=cost_unit, pacing=str(spec.get("pacing", "windowed")),
+        device_stats=res.stats, cost_unit=cost_unit, model_hash=str(summary.get("device", {}).get("model_hash", "")),
+        divergences=int(summary.get("divergences", 0)),
+        pacing=str(spec.get("pacing", "windowed")),
         role=str(spec.get("role", "accuracy")))
 
 

@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 from harness.report import plots
 from harness.report.data import TIME_BIN_S, CampaignData
 from harness.report.html import FigureRef, Section, Table
-from harness.report.summary import CONFIG_KEYS, PAPER
+from harness.report.summary import CONFIG_KEYS, DIVERGED_RMSE_M, PAPER
 
 
 @dataclass
@@ -121,13 +121,18 @@ def recorded(ctx: ReportContext) -> Section | None:
         return None
     sec = Section("recorded", "Recorded flights (held out from training)")
     sec.paragraphs.append(
-        "Real flights replayed through the firmware in UWB-only mode (constant-velocity model): UTIL TDoA "
-        "trials not used for training (trial 5 of constellations 1 and 2, and constellation 3 with obstacles) "
-        "and the rcv_twr drone sequences. RMSE against motion capture [m].")
-    rows = [[mode.upper(), _ms(m, "raw"), _ms(m, "outlier"), _ms(m, "outlier_nn"), _pct(-m["reduction_pct"]),
-             _pct(-m["reduction_paired_pct"])] for mode, m in rec.items() if mode in ("twr", "tdoa")]
+        "Real flights replayed through the firmware in UWB-only mode (constant-velocity model), on a firmware "
+        "carrying the network trained on that kind of data: UTIL TDoA trials not used for training (trial 5 "
+        "of constellations 1 and 2, constellation 3 with obstacles) and the held-out rcv_twr sequence. RMSE "
+        f"against motion capture [m]. A run above {DIVERGED_RMSE_M:.0f} m has left the arena (diverged): the "
+        "mean then says little, so the median is given too.")
+    rows = [[mode.upper(), *[f"{_ms(m, k)}; median {_f(m.get('median_' + k))}"
+                             + (f"; {m['diverged_' + k]} diverged" if m.get("diverged_" + k) else "")
+                             for k in ("raw", "outlier", "outlier_nn")],
+             _pct(-m["reduction_pct"]), _pct(-m["reduction_paired_pct"])]
+            for mode, m in rec.items() if mode in ("twr", "tdoa")]
     sec.tables.append(Table(["mode", "no rejection", "outlier rejection", "outlier rejection + NN",
-                             "change (means)", "change (per flight)"], rows, "Mean over recorded flights"))
+                             "change (means)", "change (per flight)"], rows, "Over recorded flights"))
     frows = [[f["flight_id"], _f(f.get("rmse_raw")), _f(f.get("rmse_outlier")), _f(f.get("rmse_outlier_nn")),
               _pct(-100.0 * (f["rmse_outlier"] - f["rmse_outlier_nn"]) / f["rmse_outlier"])
               if f.get("rmse_outlier") and f.get("rmse_outlier_nn") is not None else "-"]
@@ -166,7 +171,8 @@ def latency(ctx: ReportContext) -> Section | None:
                   str(lat[name]["refused"])] for name in ("twr", "tdoa") if name in lat]
     sec.tables.append(Table(["message type", "measurements sent", "RESULTs", "lost", "refused"], loss_rows,
                             "Frames"))
-    sec.paragraphs.append("Device counters summed over runs: " + ", ".join(f"{k} {v}" for k, v in counters.items()))
+    sec.paragraphs.append("Device counters summed over runs: " + ", ".join(f"{k} {v}" for k, v in counters.items())
+                          + f"; filter divergences (ERROR DIVERGED) {lat.get('divergences_total', 0)}.")
     sec.figures += ctx.figure(plots.latency_histograms(ctx.data, budget), "latency",
                               "Device compute time and end-to-end latency per message type (log axes).")
     sec.data = lat
@@ -195,7 +201,8 @@ def provenance(ctx: ReportContext) -> Section | None:
     p = ctx.summary.get("provenance") or {}
     sec = Section("provenance", "Provenance")
     rows = [["firmware build id(s)", ", ".join(p.get("build_ids", []))],
-            ["bias model hash(es)", ", ".join(p.get("model_hashes", []))],
+            ["bias model hash(es)", "; ".join(f"{k}: {', '.join(v)}" for k, v in
+                                              (p.get("model_hash_by_source") or {}).items())],
             ["protocol version(s)", ", ".join(str(v) for v in p.get("protocol_versions", []))],
             ["firmware binary", f"{p.get('firmware_path', '-')} (sha256 {p.get('firmware_sha256', '-')})"],
             ["git commit", f"{p.get('git_commit', '-')}{' (uncommitted changes)' if p.get('git_dirty') else ''}"],
@@ -204,7 +211,7 @@ def provenance(ctx: ReportContext) -> Section | None:
             ["load average at start (1/5/15 min)", str(p.get("load_average_1_5_15", "-"))],
             ["campaign date (UTC)", str(p.get("date_utc", "-"))],
             ["report generated on", platform.node()],
-            ["pacing", str(p.get("pacing", "-"))]]
+            ["pacing", ", ".join(p.get("pacing") or [])]]
     sec.tables.append(Table(["what", "value"], rows))
     sec.data = p
     return sec

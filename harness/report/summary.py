@@ -18,6 +18,8 @@ CONFIG_KEYS = {"none": "raw", "outlier": "outlier", "outlier+nn": "outlier_nn"}
 PAPER = {"twr": {"rmse_outlier_nn": 0.19, "reduction_pct": 18.5},
          "tdoa": {"rmse_outlier_nn": 0.21, "reduction_pct": 48.0}}
 KIND_NAMES = {1: "twr", 2: "tdoa"}
+#: A run whose RMSE exceeds this left the arena (the filter diverged); counted apart, never hidden.
+DIVERGED_RMSE_M = 10.0
 
 
 def _mean_std(values: list[float]) -> tuple[float, float, int]:
@@ -36,6 +38,9 @@ def rmse_table(runs: list[RunMetrics]) -> dict[str, Any]:
         rs = [r for r in runs if r.config == cfg]
         mean, std, n = _mean_std([r.rmse for r in rs])
         out[f"rmse_{key}"], out[f"std_{key}"], out[f"n_{key}"] = mean, std, n
+        finite = [r.rmse for r in rs if math.isfinite(r.rmse)]
+        out[f"median_{key}"] = float(np.median(finite)) if finite else float("nan")
+        out[f"diverged_{key}"] = int(sum(1 for x in finite if x > DIVERGED_RMSE_M))
         by_cfg[cfg] = {r.flight_id: r.rmse for r in rs}
     a, b = out["rmse_outlier"], out["rmse_outlier_nn"]
     out["reduction_pct"] = 100.0 * (a - b) / a if math.isfinite(a) and math.isfinite(b) and a > 0 else float("nan")
@@ -58,6 +63,7 @@ def accuracy_section(data: CampaignData) -> dict[str, Any]:
         entry["by_trajectory"] = {t: rmse_table([r for r in runs if r.trajectory == t])
                                   for t in sorted({r.trajectory for r in runs})}
         entry["seeds"] = sorted({int(r.seed) for r in runs if r.seed is not None})
+        entry["divergences"] = {cfg: int(sum(r.divergences for r in runs if r.config == cfg)) for cfg in CONFIG_KEYS}
         out[mode] = entry
     rec = [r for r in data.accuracy_runs if r.source == "recorded"]
     if rec:
@@ -110,6 +116,7 @@ def latency_section(data: CampaignData, budget_s: float = DEFAULT_BUDGET_S) -> d
             totals[c] += int((r.device_stats or {}).get(c, 0))
     out["device_counters"] = totals
     out["lost_total"] = int(sum(r.lost for r in data.runs))
+    out["divergences_total"] = int(sum(r.divergences for r in data.runs))
     return out
 
 
@@ -119,7 +126,11 @@ def provenance_section(data: CampaignData) -> dict[str, Any]:
     prov["model_hashes"] = sorted({str(d.get("model_hash")) for d in data.devices})
     prov["build_ids"] = sorted({str(d.get("build_id")) for d in data.devices})
     prov["protocol_versions"] = sorted({int(d.get("proto_version", -1)) for d in data.devices})
-    prov["pacing"] = (data.manifest.get("exec") or {}).get("pacing")
+    by_source: dict[str, set[str]] = {}
+    for r in data.runs:
+        by_source.setdefault(r.source, set()).add(r.model_hash)
+    prov["model_hash_by_source"] = {k: sorted(v) for k, v in by_source.items()}
+    prov["pacing"] = sorted({f"{r.role}: {r.pacing}" for r in data.runs})
     return prov
 
 
