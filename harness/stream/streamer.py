@@ -195,6 +195,20 @@ class Streamer:
         except LinkClosed as exc:
             raise self._died("link closed while writing") from exc
 
+    #: bytes per write between reads. The device answers a 21-byte TWR with a ~115-byte RESULT; if the
+    #: harness wrote a long burst without reading, the device's replies could fill the pty while it is
+    #: still being written to, both sides would block in write() and the run would fail after the write
+    #: timeout with a false "device stopped reading" (seen under load in realtime pacing).
+    WRITE_SLICE = 2048
+
+    def _write_stream(self, data: bytes, state: _State, writer: ResultsWriter) -> None:
+        for off in range(0, len(data), self.WRITE_SLICE):
+            self._write(data[off:off + self.WRITE_SLICE])
+            if off + self.WRITE_SLICE < len(data):
+                got, frames = self._read(0.0)
+                if len(got) or frames:
+                    self._absorb(got, frames, state, writer, time.perf_counter_ns())
+
     def _died(self, what: str) -> Exception:
         if not self.device.alive():
             return DeviceDied(f"device died: {what}")
@@ -361,7 +375,7 @@ class Streamer:
                 end = int(prep.meas_end[hi - 1])
                 now = time.perf_counter_ns()
                 self._mark_sent(prep, state, sent_meas, hi, now)
-                self._write(prep.stream[sent_bytes:end])
+                self._write_stream(prep.stream[sent_bytes:end], state, writer)
                 sent_bytes, sent_meas = end, hi
             self._wait_progress(state, writer, 0.05)
             if progress is not None:
@@ -389,7 +403,7 @@ class Streamer:
                 end = int(prep.event_end[e_hi - 1])
                 m_hi = int(np.searchsorted(prep.meas_end, end, side="right"))
                 self._mark_sent(prep, state, sent_meas, m_hi, time.perf_counter_ns())
-                self._write(prep.stream[sent_bytes:end])
+                self._write_stream(prep.stream[sent_bytes:end], state, writer)
                 sent_bytes, sent_meas, e = end, m_hi, e_hi
             wait = 0.05 if e >= n_events else max(0.0, min(0.05, float(due_t[e]) - now))
             self._wait_progress(state, writer, wait)
@@ -400,4 +414,4 @@ class Streamer:
     def _finish(self, prep: PreparedFlight, state: _State, writer: ResultsWriter) -> None:
         """Send what follows the last measurement (trailing IMU samples)."""
         if self._sent_bytes < len(prep.stream):
-            self._write(prep.stream[self._sent_bytes:])
+            self._write_stream(prep.stream[self._sent_bytes:], state, writer)
