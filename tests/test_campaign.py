@@ -245,3 +245,18 @@ def test_bad_campaign_files_are_named(tmp_path: Path) -> None:
     bad.write_text('{"type": "header"}\n{"type": "res')
     with pytest.raises(CampaignDataError, match=r"line 2: malformed JSON"):
         load_results(bad)
+
+
+def test_a_rebuilt_firmware_invalidates_complete_runs(tmp_path: Path) -> None:
+    cdir = CampaignDir(tmp_path)
+    cdir.make()
+    run = plan_campaign(CampaignOptions(seeds=1, modes=("twr",), trajectories=("circle",), recorded=False,
+                                        latency_runs=False))[0][0]
+    cdir.results_path(run.run_id).write_text('{"type": "header"}\n')
+    cdir.summary_path(run.run_id).write_text(json.dumps({"status": "ok", "fingerprint": run.fingerprint(),
+                                                         "firmware_sha256": "aaaa"}))
+    assert cdir.is_complete(run.run_id, run.fingerprint(), "aaaa")
+    assert not cdir.is_complete(run.run_id, run.fingerprint(), "bbbb")       # same path, other binary
+    assert not cdir.is_complete(run.run_id, replace(run, config="outlier").fingerprint(), "aaaa")
+    cdir.summary_path(run.run_id).write_text('{"status": "ok", "finger')  # torn: run again, no crash
+    assert not cdir.is_complete(run.run_id, run.fingerprint(), "aaaa")

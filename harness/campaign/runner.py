@@ -68,12 +68,17 @@ def host_provenance(firmware: Path | None = None) -> dict[str, Any]:
         "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
     }
     if firmware is not None:
-        try:
-            prov["firmware_path"] = str(firmware)
-            prov["firmware_sha256"] = hashlib.sha256(Path(firmware).read_bytes()).hexdigest()[:16]
-        except OSError:
-            prov["firmware_sha256"] = "missing"
+        prov["firmware_path"] = str(firmware)
+        prov["firmware_sha256"] = file_sha256(Path(firmware))
     return prov
+
+
+def file_sha256(path: Path) -> str:
+    """First 16 hex digits of the file's SHA-256 ("missing" if it cannot be read)."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+    except OSError:
+        return "missing"
 
 
 def _group_timeout(runs: list[RunSpec], opts: ExecOptions) -> float:
@@ -113,10 +118,11 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
     for n in notes or []:
         log(f"note: {n}")
 
+    fw_sha = {fw: file_sha256(Path(fw)) for fw in {r.firmware for r in runs}}
     pending_groups: list[list[RunSpec]] = []
     skipped = 0
     for group in group_by_flight(runs):
-        todo = [r for r in group if not cdir.is_complete(r.run_id, r.fingerprint())]
+        todo = [r for r in group if not cdir.is_complete(r.run_id, r.fingerprint(), fw_sha[r.firmware])]
         skipped += len(group) - len(todo)
         if todo:
             pending_groups.append(todo)
@@ -134,7 +140,7 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
         while queue or active:
             while queue and len(active) < max(1, exec_opts.jobs):
                 group = queue.pop(0)
-                active.append(_start(cdir, group, exec_opts, env))
+                active.append(_start(cdir, group, exec_opts, env, fw_sha[group[0].firmware]))
             time.sleep(0.1)
             for a in list(active):
                 code = a.proc.poll()
@@ -171,10 +177,11 @@ def _options_dict(options: CampaignOptions | None) -> dict[str, Any] | None:
     return {k: (str(v) if isinstance(v, Path) else v) for k, v in d.items()}
 
 
-def _start(cdir: CampaignDir, group: list[RunSpec], opts: ExecOptions, env: dict[str, str]) -> _Active:
+def _start(cdir: CampaignDir, group: list[RunSpec], opts: ExecOptions, env: dict[str, str],
+           firmware_sha256: str) -> _Active:
     fid = group[0].flight.flight_id
     job = WorkerJob(root=str(cdir.root), runs=tuple(group), window=opts.window,
-                    timeout_s=opts.timeout_s)
+                    timeout_s=opts.timeout_s, firmware_sha256=firmware_sha256)
     for run in group:      # a summary left from an earlier attempt must not be mistaken for this one's
         cdir.summary_path(run.run_id).unlink(missing_ok=True)
     job_path = cdir.logs / f"{fid}.job.json"

@@ -74,12 +74,15 @@ class CampaignDir:
             return None
         return read_json(path)
 
-    def is_complete(self, run_id: str, fingerprint: str) -> bool:
+    def is_complete(self, run_id: str, fingerprint: str, firmware_sha256: str | None = None) -> bool:
+        """Done with this RunSpec and (if given) this very firmware binary: a rebuilt firmware (new model,
+        new code) at the same path must not be mixed with results of the old one."""
         try:
             s = self.read_summary(run_id)
         except CampaignDataError:
             return False      # a torn summary (should not happen: writes are atomic) means: run again
         return bool(s and s.get("status") == STATUS_OK and s.get("fingerprint") == fingerprint
+                    and (firmware_sha256 is None or s.get("firmware_sha256") == firmware_sha256)
                     and self.results_path(run_id).exists())
 
 

@@ -37,16 +37,19 @@ class WorkerJob:
     runs: tuple[RunSpec, ...]
     window: int = 64
     timeout_s: float = 10.0
+    firmware_sha256: str = ""       # of the binary the runner saw (resume compares it)
 
     def to_json(self) -> str:
         return json.dumps({"root": self.root, "runs": [r.as_dict() for r in self.runs],
-                           "window": self.window, "timeout_s": self.timeout_s}, indent=1)
+                           "window": self.window, "timeout_s": self.timeout_s,
+                           "firmware_sha256": self.firmware_sha256}, indent=1)
 
     @staticmethod
     def from_json(text: str) -> WorkerJob:
         d = json.loads(text)
         return WorkerJob(root=d["root"], runs=tuple(RunSpec.from_dict(r) for r in d["runs"]),
-                         window=int(d["window"]), timeout_s=float(d["timeout_s"]))
+                         window=int(d["window"]), timeout_s=float(d["timeout_s"]),
+                         firmware_sha256=str(d.get("firmware_sha256", "")))
 
 
 def build_flight(spec: FlightSpec) -> Flight:
@@ -130,6 +133,7 @@ def run_group(job: WorkerJob) -> int:
                 save_array_atomic(cdir.array_path(run.run_id), result.results)
                 write_json_atomic(cdir.summary_path(run.run_id), {
                     "status": STATUS_OK, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
+                    "firmware_sha256": job.firmware_sha256,
                     "flight": meta, "device": _hello_dict(hello), "pacing": asdict(pacing),
                     "estimator_config": asdict(cfg), "summary": summary,
                     "divergences": sum(1 for e in result.errors if e.code == m.ErrorCode.DIVERGED),
