@@ -181,7 +181,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
     res = compare(model, test, train, args.xi)
     if args.plot:
         from harness.biasnet.plots import bias_vs_azimuth
-        bias_vs_azimuth(model, test[0], Path(args.plot))
+        trained_on = {Path(p).resolve() for p in model.meta.get(f"{kind}_trained_on", []) if not str(p).startswith("sim:")}
+        seen = Path(args.recording[0]).resolve() in trained_on
+        bias_vs_azimuth(model, test[0], Path(args.plot), note="in the training set" if seen else "held out")
         res["plot"] = args.plot
     if args.json:
         print(json.dumps(res, indent=2, default=float))

@@ -44,7 +44,7 @@ def azimuth_series(model: BiasModel, flight: Flight) -> dict[str, np.ndarray | s
     return {"azimuth_deg": az, "error": s.bias[m], "predicted": net.predict_batch(s.x[m]), "label": label}
 
 
-def bias_vs_azimuth(model: BiasModel, flight: Flight, path: Path) -> Path:
+def bias_vs_azimuth(model: BiasModel, flight: Flight, path: Path, note: str = "") -> Path:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -57,7 +57,7 @@ def bias_vs_azimuth(model: BiasModel, flight: Flight, path: Path) -> Path:
     ax.plot(az[order], np.asarray(d["predicted"])[order], ".", ms=2.5, color="tab:red", label="network bias")
     ax.set_xlabel(f"azimuth of {d['label']} seen from the tag, body frame [deg]")
     ax.set_ylabel("error / bias [m]")
-    ax.set_title(f"{flight.name}: measured error and predicted bias vs azimuth")
+    ax.set_title(f"{flight.name}: measured error and predicted bias vs azimuth" + (f" ({note})" if note else ""))
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", markerscale=4)
     fig.tight_layout()
