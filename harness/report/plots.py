@@ -234,24 +234,36 @@ def latency_histograms(data: CampaignData, budget_us: float) -> Figure | None:
     return fig
 
 
-def recorded_bars(data: CampaignData) -> Figure | None:
-    """RMSE per recorded (held-out) flight and configuration."""
+def recorded_bars(data: CampaignData, diverged_m: float = 10.0) -> Figure | None:
+    """RMSE per recorded (held-out) flight and configuration, one panel per mode. Bars of diverged runs
+    (RMSE above diverged_m) are clipped and labelled with their value, so they do not flatten the rest."""
     rec = [r for r in data.accuracy_runs if r.source == "recorded"]
     if not rec:
         return None
-    fids = sorted({r.flight_id for r in rec})
-    cfgs = _configs(rec)
-    fig = Figure(figsize=(max(6.0, 1.1 * len(fids) + 2), 4.2), layout="constrained")
-    ax = fig.subplots()
-    width = 0.8 / max(1, len(cfgs))
-    for ci, cfg in enumerate(cfgs):
-        vals = [next((r.rmse for r in rec if r.flight_id == f and r.config == cfg), np.nan) for f in fids]
-        ax.bar(np.arange(len(fids)) + (ci - (len(cfgs) - 1) / 2) * width, vals, width * 0.9, color=COLORS[cfg],
-               label=LABELS[cfg])
-    ax.set_xticks(range(len(fids)))
-    ax.set_xticklabels([f.removeprefix("rec-") for f in fids], rotation=30, ha="right", fontsize=8)
-    ax.set_ylabel("RMSE [m]")
-    ax.set_title("Recorded flights held out from training (UWB-only replay)")
-    ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=8)
+    modes = [m for m in MODES if any(r.mode == m for r in rec)]
+    fig = Figure(figsize=(max(6.0, 1.3 * len({r.flight_id for r in rec}) + 3), 4.2), layout="constrained")
+    axes = fig.subplots(1, len(modes), squeeze=False,
+                        width_ratios=[len({r.flight_id for r in rec if r.mode == m}) + 1 for m in modes])[0]
+    for ax, mode in zip(axes, modes):
+        runs = [r for r in rec if r.mode == mode]
+        fids = sorted({r.flight_id for r in runs})
+        cfgs = _configs(runs)
+        width = 0.8 / max(1, len(cfgs))
+        sane = [r.rmse for r in runs if math.isfinite(r.rmse) and r.rmse <= diverged_m]
+        top = 1.25 * max(sane) if sane else diverged_m
+        for ci, cfg in enumerate(cfgs):
+            vals = np.array([next((r.rmse for r in runs if r.flight_id == f and r.config == cfg), np.nan)
+                             for f in fids])
+            x = np.arange(len(fids)) + (ci - (len(cfgs) - 1) / 2) * width
+            ax.bar(x, np.minimum(vals, top), width * 0.9, color=COLORS[cfg], label=LABELS[cfg])
+            for xi, v in zip(x, vals):
+                if math.isfinite(v) and v > top:
+                    ax.text(xi, top * 0.97, f"diverged\n{v:.3g} m", rotation=90, ha="center", va="top", fontsize=7)
+        ax.set_ylim(0, top)
+        ax.set_xticks(range(len(fids)))
+        ax.set_xticklabels([f.removeprefix(f"rec-{mode}-") for f in fids], rotation=30, ha="right", fontsize=8)
+        ax.set_ylabel("RMSE [m]")
+        ax.set_title(f"{mode.upper()}: recorded, held out", fontsize=9)
+        ax.grid(axis="y", alpha=0.3)
+        ax.legend(fontsize=7)
     return fig
