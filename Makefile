@@ -53,7 +53,7 @@ test-fuzz:
 
 # The full 1-hour simulated flight through the firmware (NLOS, IMU glitches, UWB outage).
 longflight: $(STAMP) firmware
-	UWB_LONGFLIGHT_S=3600 $(PY) -m pytest -q -s tests/test_long_flight.py --timeout=3600
+	UWB_LONGFLIGHT_S=3600 $(PY) -m pytest -q -s tests/test_long_flight.py --timeout=7200
 
 test: test-c test-fuzz test-py
 
