@@ -175,10 +175,11 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
     t = (flight.uwb_t_us[idx] - flight.uwb_t_us[0]) * 1e-6
     err = (flight.value - flight.true_value)[idx]
     ok = c["outcome"] == OUTCOME_RESULT
-    fig = Figure(figsize=(11, 3.8), layout="constrained")
-    ax = fig.subplots()
+    fig = Figure(figsize=(11, 6.8), layout="constrained")
+    ax, ax2 = fig.subplots(2, 1, sharex=True)
     ax.scatter(t[ok], err[ok], s=2, color="#b0b0b0", label="measurement error (z - h(p_true))", rasterized=True)
-    if nn.config == "outlier+nn":
+    has_nn = nn.config == "outlier+nn"
+    if has_nn:
         ax.scatter(t[ok], c["bias"][ok], s=2, color=COLORS["outlier+nn"], label="predicted bias (NN)",
                    rasterized=True)
     for status, name, color in ((1, "rejected: kinematic gate", "#ff7f0e"), (2, "rejected: chi-square gate", "#d62728"),
@@ -191,12 +192,34 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
         lo, hi = np.percentile(finite, [0.5, 99.5])
         pad = 0.25 * (hi - lo + 1e-3)
         ax.set_ylim(lo - pad, hi + pad)
-    ax.set_title(f"{mode.upper()} measurement stream: {nn.flight_id} ({nn.config}); y-axis clipped to the "
-                 "0.5-99.5 % range", fontsize=9)
-    ax.set_xlabel("time [s]")
+        ax2.set_ylim(lo - pad, hi + pad)
+    ax.set_title(f"{mode.upper()} measurement stream: {nn.flight_id} ({nn.config}), every anchor"
+                 f"{' pair' if mode == 'tdoa' else ''}; y-axis clipped to the 0.5-99.5 % range", fontsize=9)
     ax.set_ylabel("[m]")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, markerscale=3, loc="upper right")
+    # One anchor (pair): the one with the largest mean error, where a bias the network should follow shows.
+    key = flight.anchor_a[idx] * 1000 + (flight.anchor_b[idx] if mode == "tdoa" else 0)
+    keys, inv = np.unique(key[ok], return_inverse=True)
+    if keys.size:
+        mean_err = np.array([np.nanmean(err[ok][inv == k]) for k in range(keys.size)])
+        k = int(np.nanargmax(np.abs(mean_err)))
+        sel = np.zeros_like(ok)
+        sel[np.nonzero(ok)[0][inv == k]] = True
+        a, b = int(keys[k] // 1000), int(keys[k] % 1000)
+        name = f"anchors {a}->{b}" if mode == "tdoa" else f"anchor {a}"
+        ax2.scatter(t[sel], err[sel], s=4, color="#b0b0b0", label=f"measurement error, {name}", rasterized=True)
+        e_s = err[sel]
+        win = max(1, min(51, e_s.size // 20))
+        smooth = np.convolve(e_s, np.ones(win) / win, mode="same") if e_s.size > win else e_s
+        ax2.plot(t[sel], smooth, color="black", lw=1.0, label=f"error, moving mean of {win}")
+        if has_nn:
+            ax2.plot(t[sel], c["bias"][sel], color=COLORS["outlier+nn"], lw=1.4, label="predicted bias (NN)")
+        ax2.set_title(f"{name}: the one with the largest mean error ({mean_err[k]:+.3f} m)", fontsize=9)
+        ax2.legend(fontsize=7, markerscale=3, loc="upper right")
+    ax2.set_xlabel("time [s]")
+    ax2.set_ylabel("[m]")
+    ax2.grid(alpha=0.3)
     return fig
 
 
