@@ -184,8 +184,9 @@ def recorded_flights(data_dir: Path, modes: tuple[str, ...], with_models: bool =
                 if not path.is_file() or not anchors.is_file():
                     notes.append(f"recorded flight {path} (or {anchors}) not found: skipped")
                     continue
-                f = FlightSpec(source="recorded", mode=mode, trajectory="util-" + path.name.replace("-extracted.csv", ""),
-                               path=str(path), anchors=str(anchors), uwb_only=True)
+                label = "util-" + path.name.replace("-extracted.csv", "")
+                f = FlightSpec(source="recorded", mode=mode, trajectory=label, path=str(path),
+                               anchors=str(anchors), uwb_only=True)
             else:
                 if not path.is_dir():
                     notes.append(f"recorded sequence {path} not found: skipped")

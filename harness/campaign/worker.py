@@ -123,7 +123,8 @@ def run_group(job: WorkerJob) -> int:
                 pacing = Pacing(mode=run.pacing, window=job.window)
                 if device is None:
                     spec = DeviceSpec(firmware=Path(run.firmware), timeout_s=job.timeout_s, log_dir=cdir.logs)
-                    device_cm = open_device(spec, expected_model_hash=int(run.model_hash, 16) if run.model_hash else None)
+                    want = int(run.model_hash, 16) if run.model_hash else None
+                    device_cm = open_device(spec, expected_model_hash=want)
                     device = device_cm.__enter__()
                     hello = device.last_hello or device.hello(timeout=job.timeout_s)  # type: ignore[attr-defined]
                 cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[run.config], uwb_only=run.flight.uwb_only)
