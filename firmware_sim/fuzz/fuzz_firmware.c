@@ -3,7 +3,7 @@
  * chunks (the device must not care how bytes arrive). Invariants:
  *   - no crash, leak or undefined behaviour (ASan + UBSan);
  *   - every output byte belongs to a valid to-host frame; RESULT fields are finite;
- *   - the estimator state stays finite;
+ *   - the estimator state stays finite; the full covariance exactly symmetric and within its bounds;
  *   - the output does not depend on the chunking (feeding the same bytes in one call gives the
  *     same output, with the deterministic cost clock);
  *   - STATS accounting: each measurement frame either got a RESULT or was counted as dropped. */
@@ -58,6 +58,16 @@ static void check_state(const firmware_t *fw)
     for (i = 0; i < 9; i++) {
         if (!isfinite(var[i]) || var[i] < 0.0f) {
             fuzz_fail("covariance diagonal not finite or negative");
+        }
+    }
+    /* The clamp runs after every covariance operation: P is exactly symmetric and bounded. */
+    for (i = 0; i < EKF_N; i++) {
+        int j;
+        for (j = 0; j < EKF_N; j++) {
+            const float a = fw->est.ekf.P[i][j];
+            if (!(fabsf(a) <= EKF_P_MAX) || a != fw->est.ekf.P[j][i] || (i == j && !(a >= EKF_P_MIN))) {
+                fuzz_fail("covariance not symmetric or outside its bounds");
+            }
         }
     }
 }
