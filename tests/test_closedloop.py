@@ -182,6 +182,10 @@ def test_mission_plan_phases_and_speed() -> None:
         plan(Mission(name="circle", radius=3.8), ARENA)
     with pytest.raises(MissionError, match="unknown mission"):
         plan(Mission(name="figure8"), ARENA)
+    # the nlos arena's obstacles stand in the way of the 2 m circle; 1.5 m flies around them
+    with pytest.raises(MissionError, match="passes through the obstacle"):
+        plan(Mission(name="circle"), Arena(boxes=NLOS_BOXES))
+    assert plan(Mission(name="circle", radius=1.5), Arena(boxes=NLOS_BOXES)).duration > 30.0
 
 
 # ------------------------------------------------------------------------------------------ metrics

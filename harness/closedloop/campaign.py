@@ -34,6 +34,8 @@ class CampaignSpec:
     seeds: tuple[int, ...] = tuple(range(1, 11))
     laps: float = 1.0
     hover_s: float = 10.0
+    radius: float = 2.0
+    height: float = 1.2
     profile: str = "los"
     noise: str = "realistic"
     mass: float = 0.032
@@ -54,7 +56,7 @@ def run_campaign(device: Any, spec: CampaignSpec, progress: Progress | None = No
     cells = []
     for mode in spec.modes:
         for mission_name in spec.missions:
-            pl = plan(Mission(name=mission_name, laps=spec.laps, hover_s=spec.hover_s), arena, spec.loop.control_dt)
+            pl = plan(_mission(spec, mission_name), arena, spec.loop.control_dt)
             for config in spec.configs:
                 est = replace(spec.estimator, mode=MODE_IMU).with_stages(PRESETS[config])
                 logs: list[FlightLog] = []
@@ -77,7 +79,11 @@ def run_campaign(device: Any, spec: CampaignSpec, progress: Progress | None = No
                     cell["logs"] = logs
                 cells.append(cell)
     return {"cells": cells, "spec": _spec_dict(spec), "mission_duration_s": {
-        name: plan(Mission(name=name, laps=spec.laps, hover_s=spec.hover_s), arena).duration for name in spec.missions}}
+        name: plan(_mission(spec, name), arena).duration for name in spec.missions}}
+
+
+def _mission(spec: CampaignSpec, name: str) -> Mission:
+    return Mission(name=name, laps=spec.laps, hover_s=spec.hover_s, radius=spec.radius, height=spec.height)
 
 
 def _spec_dict(spec: CampaignSpec) -> dict[str, Any]:
@@ -161,6 +167,8 @@ def add_fly_parser(sub: Any, add_device_options: Callable[[argparse.ArgumentPars
     p.add_argument("--seed0", type=int, default=1)
     p.add_argument("--laps", type=float, default=1.0, help="circle laps (2 m radius at 0.375 m/s: 33.5 s each)")
     p.add_argument("--hover-s", type=float, default=10.0, help="length of the hover mission's main segment")
+    p.add_argument("--radius", type=float, default=2.0, help="circle radius [m] (the simulator's: 2 m)")
+    p.add_argument("--height", type=float, default=1.2, help="circle / hover height [m]")
     p.add_argument("--profile", choices=PROFILES, default="los", help="simulator error profile")
     p.add_argument("--noise", choices=NOISE_KINDS, default="realistic")
     p.add_argument("--mass", type=float, default=0.032, help="simulated vehicle mass [kg] (controller assumes 0.032)")
@@ -186,7 +194,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
     loop = LoopConfig(pacing=args.pacing, speed=args.speed, timeout_s=args.timeout, imu_every=args.imu_every)
     spec = CampaignSpec(modes=args.mode, missions=args.mission, configs=args.config,
                         seeds=tuple(range(args.seed0, args.seed0 + args.seeds)), laps=args.laps,
-                        hover_s=args.hover_s, profile=args.profile, noise=args.noise, mass=args.mass, loop=loop)
+                        hover_s=args.hover_s, radius=args.radius, height=args.height, profile=args.profile,
+                        noise=args.noise, mass=args.mass, loop=loop)
     progress = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     device_spec, want_hash = _model_device_spec(args)
     with open_device(device_spec, expected_model_hash=want_hash) as device:

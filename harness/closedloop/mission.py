@@ -120,6 +120,15 @@ def plan(mission: Mission, arena: Arena, control_dt: float = 0.01) -> MissionPla
     vel, acc = s.vel.copy(), s.acc.copy()
     vel[~on] = 0.0
     acc[~on] = 0.0
+    for box in arena.boxes:
+        # the obstacles of the "nlos" arena stand on the floor: a vehicle cannot fly through one
+        lo, hi = np.asarray(box.lo), np.asarray(box.hi)
+        inside = np.all((s.pos >= lo - 0.1) & (s.pos <= hi + 0.1), axis=1)
+        if np.any(inside):
+            k = int(np.argmax(inside))
+            raise MissionError(f"mission {mission.name} passes through the obstacle {box.lo}..{box.hi} at "
+                               f"t = {t[k]:.1f} s ({s.pos[k, 0]:.2f}, {s.pos[k, 1]:.2f}, {s.pos[k, 2]:.2f}); "
+                               f"choose another radius or height")
     start = tuple(float(v) for v in s.pos[0])
     return MissionPlan(mission=mission, t=t, pos=s.pos, vel=vel, acc=acc, yaw=traj.yaw(t), motors_on=on,
                        t_takeoff=t_takeoff, t_main0=t_main0, t_main1=t_main1, t_land=t_land,
