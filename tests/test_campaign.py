@@ -260,3 +260,30 @@ def test_a_rebuilt_firmware_invalidates_complete_runs(tmp_path: Path) -> None:
     assert not cdir.is_complete(run.run_id, replace(run, config="outlier").fingerprint(), "aaaa")
     cdir.summary_path(run.run_id).write_text('{"status": "ok", "finger')  # torn: run again, no crash
     assert not cdir.is_complete(run.run_id, run.fingerprint(), "aaaa")
+
+
+def _one_run() -> list[RunSpec]:
+    return plan_campaign(CampaignOptions(seeds=1, modes=("twr",), trajectories=("circle",), configs=("none",),
+                                         recorded=False, latency_runs=False))[0]
+
+
+def test_a_crashed_worker_is_reported(tmp_path: Path) -> None:
+    crash = tmp_path / "crash.sh"
+    crash.write_text("#!/bin/sh\necho 'worker blew up' >&2\nexit 3\n")
+    crash.chmod(0o755)
+    runs = _one_run()
+    out = run_campaign(tmp_path / "c", runs, ExecOptions(jobs=1, python=str(crash)), log=lambda s: None)
+    assert out.ok == 0 and len(out.failed) == 1
+    s = CampaignDir(tmp_path / "c").read_summary(runs[0].run_id)
+    assert s is not None and s["status"] == "failed" and "exited with code 3" in s["error"]
+    assert "worker blew up" in s["traceback"]
+
+
+def test_a_hung_worker_is_stopped_and_reported(tmp_path: Path) -> None:
+    hang = tmp_path / "hang.sh"
+    hang.write_text("#!/bin/sh\nexec sleep 60\n")
+    hang.chmod(0o755)
+    runs = _one_run()
+    out = run_campaign(tmp_path / "c", runs, ExecOptions(jobs=1, python=str(hang), group_timeout_s=1.0),
+                       log=lambda s: None)
+    assert out.ok == 0 and len(out.failed) == 1 and "timed out after 1 s" in out.failed[0]["error"]
