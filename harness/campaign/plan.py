@@ -7,7 +7,7 @@ trained on (training uses seeds < 1000; recorded in every run's summary as ``see
 Recorded flights: the held-out UTIL TDoA trials (trial 5 of const1/const2 and all of const3: the real-data
 network is trained on const1/const2 trials 1-4) and the held-out rcv_twr sequence(s), replayed in UWB-only
 mode, through a firmware carrying the network trained on that data (firmware_sim/models/util_tdoa_pos.npz,
-rcv_twr.npz; the held-out lists are read from firmware_sim/models/models.json when it is there).
+rcv_twr.npz; the held-out lists are checked against firmware_sim/models/models.json).
 Simulated flights run on the firmware's compiled-in default model (trained on simulated flights).
 """
 
@@ -144,21 +144,22 @@ class CampaignOptions:
 
 
 def held_out(family: str) -> tuple[tuple[str, ...], str]:
-    """Held-out recordings of a family (paths relative to the data dir) and where that list comes from."""
+    """Held-out recordings of a family (paths relative to the data dir) and a note on the training's own list.
+
+    The list is fixed here (the training split: UTIL const1/const2 trials 1-4 and rcv_twr sequences 1-4 are
+    training data, everything else is held out); models.json's "heldout" (the flights the training chose to
+    evaluate on) is only compared, since it may list fewer flights than are unseen."""
     key, _ = RECORDED_MODELS[family]
-    default = UTIL_HELD_OUT if family == "util" else RCV_TWR_HELD_OUT
+    rels = UTIL_HELD_OUT if family == "util" else RCV_TWR_HELD_OUT
     info = MODELS_DIR / "models.json"
     try:
-        names = list((json.loads(info.read_text(encoding="utf-8")).get(key) or {}).get("heldout") or {})
+        names = set((json.loads(info.read_text(encoding="utf-8")).get(key) or {}).get("heldout") or {})
     except (OSError, ValueError):
-        names = []
-    if not names:
-        return default, "built-in list"
-    if family == "util":      # models.json names files; find their constellation directory
-        rel = tuple(f"util/{n.split('-')[0]}/{n}" for n in names)
-    else:
-        rel = tuple(names)
-    return rel, f"{info} ({key}.heldout)"
+        return rels, f"{info} not readable: held-out list not cross-checked"
+    ours = {Path(r).name if family == "util" else r for r in rels}
+    if names and not names <= ours:
+        return rels, f"{info} ({key}.heldout) names flights outside this list: {sorted(names - ours)}"
+    return rels, f"{key}.heldout of {info.name} is a subset of this list"
 
 
 def recorded_flights(data_dir: Path, modes: tuple[str, ...], with_models: bool = True
@@ -171,8 +172,8 @@ def recorded_flights(data_dir: Path, modes: tuple[str, ...], with_models: bool =
     for family, mode in (("util", "tdoa"), ("rcv_twr", "twr")):
         if mode not in modes:
             continue
-        rels, source = held_out(family)
-        notes.append(f"held-out {family} recordings from {source}: {', '.join(rels)}")
+        rels, check = held_out(family)
+        notes.append(f"held-out {family} recordings: {', '.join(rels)} ({check})")
         model_file = RECORDED_MODELS[family][1]
         model = str(model_file) if with_models and model_file.is_file() else None
         if with_models and model is None:
