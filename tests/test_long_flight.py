@@ -60,7 +60,8 @@ GATES = {"chi2": int(m.Stage.CHI2_GATE), "outlier": PRESETS["outlier"]}
 KINEMATIC_LOCKOUT = ("known firmware issue (reported): in IMU mode the kinematic gate's dt is the time since "
                      "the last prediction (<= 10 ms, floor gate_dt_min), so d_max stays ~0.25 m; once the estimate "
                      "is further off than that (after the 2 s outage) every measurement is rejected for good and "
-                     "the estimate drifts; the clamped covariance then loses positive definiteness")
+                     "the estimate drifts (over an hour past the divergence guard's 1e5 m, repeatedly); the clamped "
+                     "covariance then loses positive definiteness")
 
 
 def _faults(duration: float) -> FlightFaults:
@@ -123,12 +124,20 @@ def test_every_measurement_answered_and_finite(long_run: LongRun) -> None:
         assert np.all(res[v] >= 1e-6) and np.all(res[v] <= 100.0), v
 
 
+def _locked_out(run: LongRun) -> bool:
+    return run.gates == "outlier" and bool(rejection_streaks(run.results, 1.0))
+
+
 def test_divergence_is_detected_and_reported_once(long_run: LongRun) -> None:
     diverged = [e for e in long_run.errors if e.code == m.ErrorCode.DIVERGED]
-    assert len(diverged) == 1, diverged
-    e = diverged[0]
-    assert e.msg_type == m.Imu.MSG_ID and e.detail == 1
     assert [e for e in long_run.errors if e.code != m.ErrorCode.DIVERGED] == []
+    # every guard firing is reported, numbered 1, 2, ... (detail = divergences since power-up)
+    assert len(diverged) >= 1 and [e.detail for e in diverged] == list(range(1, len(diverged) + 1))
+    assert all(e.msg_type == m.Imu.MSG_ID for e in diverged)
+    if len(diverged) > 1 and _locked_out(long_run):
+        # an hour of lockout drifts past the guard's 1e5 m again and again: reported each time
+        pytest.xfail(KINEMATIC_LOCKOUT)
+    assert len(diverged) == 1, diverged
 
 
 def _figures(run: LongRun) -> dict[str, float]:
@@ -200,10 +209,10 @@ def test_full_covariance_stays_symmetric_positive_definite(long_run: LongRun, co
     print(f"\nfull covariance after every RESULT, gates {long_run.gates}: {figures}")
     assert figures["results"] == len(flight.uwb) == figures["checks"]
     assert figures["non_finite"] == figures["out_of_bounds"] == 0 and figures["asym_max"] == 0.0
-    assert figures["max_abs"] <= 100.0 and figures["diverged_errors"] == 1
-    if long_run.gates == "outlier" and figures["not_pd"] > 0:
+    assert figures["max_abs"] <= 100.0 and figures["diverged_errors"] >= 1
+    if _locked_out(long_run) and (figures["not_pd"] > 0 or figures["diverged_errors"] > 1):
         pytest.xfail(KINEMATIC_LOCKOUT)
-    assert figures["not_pd"] == 0 and figures["min_pivot"] > 0
+    assert figures["not_pd"] == 0 and figures["min_pivot"] > 0 and figures["diverged_errors"] == 1
 
 
 # --------------------------------------------------------------------------------------------- NEES
