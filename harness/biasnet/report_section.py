@@ -1,0 +1,74 @@
+"""The campaign report's bias-network section: the paper's Fig. 5 (measured error and predicted bias vs
+azimuth) on a simulated spin in place with the shipped default network, and on the real heading sweep
+(rcv_twr sequence 3) with the shipped rcv_twr network when the shared data is there; plus the shipped
+networks' held-out measurement figures from firmware_sim/models/models.json."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from harness.biasnet.export import DEFAULT_NPZ
+from harness.biasnet.model import BiasModel
+
+if TYPE_CHECKING:
+    from harness.report.html import Section
+    from harness.report.sections import ReportContext
+
+SPIN_SEED = 1100  # an evaluation seed (>= 1000): a flight the network never saw
+
+
+def _figure(ctx: "ReportContext", model: BiasModel, flight: Any, name: str, caption: str) -> list[Any]:
+    from harness.biasnet.plots import bias_vs_azimuth
+    from harness.report.html import FigureRef
+    path = bias_vs_azimuth(model, flight, ctx.fig_dir / f"{name}.png")
+    return [FigureRef(path, caption)]
+
+
+def _heldout_rows(summary: dict[str, Any]) -> list[list[str]]:
+    rows = []
+    for key in ("sim", "util_tdoa_pos", "rcv_twr"):
+        entry = summary.get(key)
+        if not isinstance(entry, dict):
+            continue
+        groups = ({f"{key} {m}": entry[m]["heldout"] for m in ("twr", "tdoa") if m in entry} if key == "sim"
+                  else {f"{key} {name}": res for name, res in entry.get("heldout", {}).items()})
+        for label, methods in groups.items():
+            net = methods.get("network", {})
+            rows.append([label, str(net.get("n", "-")), f"{net.get('rmse_raw', float('nan')):.4f}"]
+                        + [f"{100 * methods[m]['reduction']:.1f} %" if m in methods else "-"
+                           for m in ("network", "pair-constant", "voxel-table")])
+    return rows
+
+
+def bias_section(ctx: "ReportContext") -> "Section | None":
+    from harness.flight.scenarios import scenario_flight
+    from harness.report.html import Section, Table
+    from harness.session import SHARED_DATA
+    if not DEFAULT_NPZ.is_file():
+        return None
+    sec = Section("bias-network", "Bias network: predicted bias vs azimuth (paper Fig. 5)")
+    default = BiasModel.load(DEFAULT_NPZ)
+    spin = scenario_flight("spin", mode="twr", duration_s=30.0, seed=SPIN_SEED)
+    sec.figures += _figure(ctx, default, spin, "fig5_sim_spin",
+                           f"Simulated spin in place (seed {SPIN_SEED}, unseen in training): measured TWR error "
+                           f"and the shipped network's bias (model {default.hash_hex}).")
+    rcv_model = DEFAULT_NPZ.parent / "rcv_twr.npz"
+    seq3 = SHARED_DATA / "rcv_twr" / "sequence3"
+    if rcv_model.is_file() and seq3.is_dir():
+        from harness.flight.loaders import load_recording
+        model = BiasModel.load(rcv_model)
+        sec.figures += _figure(ctx, model, load_recording(seq3), "fig5_rcv_heading_sweep",
+                               "Real heading sweep (rcv_twr sequence 3, part of that network's training set): "
+                               "measured TWR error and the network's bias.")
+    summary_path = DEFAULT_NPZ.parent / "models.json"
+    if summary_path.is_file():
+        summary = json.loads(summary_path.read_text())
+        rows = _heldout_rows(summary)
+        if rows:
+            sec.tables.append(Table(["network / held-out data", "n", "RMSE raw [m]", "network", "pair constant",
+                                     "voxel table"], rows))
+            sec.data = {"models": {k: summary[k].get("hash") for k in ("sim", "util_tdoa_pos", "rcv_twr")
+                                   if isinstance(summary.get(k), dict)}}
+    return sec
