@@ -217,13 +217,19 @@ def provenance(ctx: ReportContext) -> Section | None:
     return sec
 
 
+def bias_network(ctx: ReportContext) -> Section | None:
+    """Paper Fig. 5 and the shipped networks' held-out figures (harness/biasnet/report_section.py)."""
+    from harness.biasnet.report_section import bias_section
+    return bias_section(ctx)
+
+
 def closed_loop(ctx: ReportContext) -> Section | None:
     """RUN_DIR/closed_loop.json written by `uwb-hil fly --out` (harness/closedloop/report.py)."""
     from harness.closedloop.report import closed_loop_section
     return closed_loop_section(ctx)
 
 
-DEFAULT_SECTIONS: tuple[SectionFn, ...] = (headline, rmse_boxes, error_time, paths, measurement_streams, recorded,
+DEFAULT_SECTIONS: tuple[SectionFn, ...] = (headline, rmse_boxes, error_time, paths, measurement_streams, bias_network, recorded,
                                            closed_loop, latency, failures, provenance)
 
 __all__ = ["CONFIG_KEYS", "DEFAULT_SECTIONS", "ReportContext", "SectionFn"]
