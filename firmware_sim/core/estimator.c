@@ -70,6 +70,8 @@ static void reset_filter(estimator_t *est)
     est->has_uwb_time = 0;
     est->t_imu_us = 0;
     est->t_uwb_us = 0;
+    est->has_fused = 0;
+    est->t_fused_us = 0;
     est->cost_predict = 0;
 }
 
@@ -192,6 +194,7 @@ static void process(estimator_t *est, uint64_t t_us, const float *anchor_a, cons
     float h, H[3], dt, y, bias;
     ekf_scalar_t m;
     uint32_t c0, c1, c2, c3;
+    int64_t since_us;
     int rc;
 
     memset(out, 0, sizeof *out);
@@ -218,7 +221,14 @@ static void process(estimator_t *est, uint64_t t_us, const float *anchor_a, cons
 
     /* d_max is reported whatever happens next (plots), so compute it first. The velocity norm is
      * frame independent and the CV prediction does not change the velocity. */
-    dt = gate_kinematic_dt(diff_us(t_us, t_ref), have_ref, cfg->gate_dt_min);
+    /* The gate's dt also counts from the last fused UWB measurement: while measurements are being
+     * rejected (an outage, a run of outliers) the bound widens, so the filter cannot lock itself out
+     * after drifting more than d_max away. At the nominal rate both references are a few ms old. */
+    since_us = diff_us(t_us, t_ref);
+    if (have_ref && est->has_fused && diff_us(t_us, est->t_fused_us) > since_us) {
+        since_us = diff_us(t_us, est->t_fused_us);
+    }
+    dt = gate_kinematic_dt(since_us, have_ref, cfg->gate_dt_min);
     out->d_max = gate_kinematic_dmax(&ekf->S[EKF_PX], dt, tdoa ? cfg->a_max_tdoa : cfg->a_max_twr);
 
     /* 1. measurement model */
@@ -254,6 +264,8 @@ static void process(estimator_t *est, uint64_t t_us, const float *anchor_a, cons
     if (out->status == EST_ACCEPTED) {
         ekf_scalar_apply(ekf, &m);
         ekf_finalize(ekf);
+        est->t_fused_us = t_us;
+        est->has_fused = 1;
         guard(est);
         out->gain[0] = m.K[EKF_X];
         out->gain[1] = m.K[EKF_Y];

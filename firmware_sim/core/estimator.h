@@ -60,6 +60,8 @@ typedef struct {
     const bias_model_t *model;        /* may be NULL, or have NULL networks */
     uint64_t t_imu_us, t_uwb_us;      /* last accepted IMU / UWB timestamps (time rule) */
     uint8_t has_imu_time, has_uwb_time;
+    uint64_t t_fused_us;              /* last UWB measurement fused into the filter (kinematic gate) */
+    uint8_t has_fused;
     float last_good_pos[3];           /* re-initialisation point of the divergence guard */
     uint32_t cost_predict;            /* cost of the predictions since the last measurement */
     uint32_t predictions;             /* IMU or CV predictions since power-up */

@@ -132,6 +132,7 @@ class TwinEstimator:
         self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
         self.t_imu_us: int | None = None
         self.t_uwb_us: int | None = None
+        self.t_fused_us: int | None = None  # last UWB measurement fused (kinematic gate reference)
 
     def configure(self, config: EstimatorConfig, reset: bool = True) -> None:
         """Apply ``config``; ``reset`` re-initialises the filter and forgets the time references."""
@@ -225,7 +226,10 @@ class TwinEstimator:
                 self.predictions += 1
                 self._guard()
                 ekf = self.ekf
-        dt = gates.kinematic_dt(None if t_ref is None else t_us - t_ref, c.gate_dt_min)
+        since = None if t_ref is None else t_us - t_ref
+        if since is not None and self.t_fused_us is not None:
+            since = max(since, t_us - self.t_fused_us)  # widens while measurements are rejected
+        dt = gates.kinematic_dt(since, c.gate_dt_min)
         d_max = gates.kinematic_dmax(ekf.x[3:6], dt, c.a_max_tdoa if tdoa else c.a_max_twr)
 
         model = (measurements.tdoa(ekf.x[POS], anchor_a, anchor_b) if anchor_b is not None
@@ -250,6 +254,7 @@ class TwinEstimator:
         if status == ACCEPTED:
             ekf.apply(upd)
             ekf.finalize()
+            self.t_fused_us = t_us
             gain = upd.K[POS].copy()
             self._guard()
         return self._result(status, y, upd.S, bias, d_max, gain, upd.mahalanobis)
