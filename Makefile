@@ -83,3 +83,10 @@ campaign: $(STAMP) firmware
 
 clean:
 	$(MAKE) -C firmware_sim clean
+
+# The shipped bias networks (firmware_sim/models/): simulated TWR/TDoA, UTIL and rcv_twr; reproducible
+# (seeded, single-threaded, ends by early stopping). Rebuild the firmware afterwards: `make firmware`.
+.PHONY: models
+models: $(STAMP)
+	$(VENV)/bin/uwb-hil models
+	$(MAKE) firmware
