@@ -15,6 +15,7 @@
 #define SCB_BFAR REG32(0xE000ED38u)
 #define SCB_MMFAR REG32(0xE000ED34u)
 #define NVIC_ISER(n) REG32(0xE000E100u + 4u * (n))
+#define NVIC_ICER(n) REG32(0xE000E180u + 4u * (n))
 #define NVIC_IPR_BYTE(irq) (*(volatile uint8_t *)(uintptr_t)(0xE000E400u + (irq)))
 
 /* DWT cycle counter: present on silicon, absent (reads 0) in QEMU 7.2. */

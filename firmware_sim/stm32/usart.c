@@ -1,7 +1,10 @@
 /* The link USART: 8N1, RX interrupt -> ring buffer, TX polled.
  *
  * Flow control without lost bytes: when the ring is full the ISR leaves the byte in DR and masks
- * RXNEIE; usart_rx_release() unmasks it once there is room. QEMU's USART model has a 1-byte RX
+ * the interrupt (RXNEIE and the NVIC line); usart_rx_release() unmasks both once there is room.
+ * The NVIC mask is what matters under QEMU 7.2: its USART model does not lower the IRQ line when
+ * RXNEIE is cleared, so masking RXNEIE alone re-enters the ISR forever (an interrupt storm that
+ * starves the main loop which would make room). QEMU's USART model has a 1-byte RX
  * register and does not accept a new byte while RXNE is set, so this gives lossless back-pressure
  * into the host's pty. On silicon a paused receiver overruns (counted); the host's windowed
  * streaming keeps the ring from filling there. */
@@ -85,6 +88,7 @@ void link_rx_isr(void)
         if (head - rx_tail >= RX_RING_SIZE) {
             /* Full: keep the byte in DR (back-pressure) until the main loop makes room. */
             USART_CR1(LINK_BASE) &= ~USART_CR1_RXNEIE;
+            NVIC_ICER(LINK_IRQn / 32u) = 1u << (LINK_IRQn % 32u);
             return;
         }
         rx_ring[head & (RX_RING_SIZE - 1u)] = (uint8_t)USART_DR(LINK_BASE);
@@ -109,6 +113,7 @@ void usart_rx_release(size_t n)
         /* Read-modify-write of CR1 races only with the ISR clearing RXNEIE, which it does only
          * while RXNEIE is set; here it is clear, so the ISR cannot run. */
         USART_CR1(LINK_BASE) |= USART_CR1_RXNEIE;
+        NVIC_ISER(LINK_IRQn / 32u) = 1u << (LINK_IRQn % 32u);
     }
 }
 
