@@ -19,7 +19,7 @@ import pytest
 
 from harness.campaign.plan import (FIRST_EVAL_SEED, RECORDED_MODELS, UTIL_HELD_OUT, CampaignOptions, PlanError,
                                    RunSpec, group_by_flight, held_out, plan_campaign)
-from harness.campaign.runner import ExecOptions, run_campaign
+from harness.campaign.runner import ExecOptions, group_stem, run_campaign
 from harness.campaign.store import CampaignDataError, CampaignDir, load_results
 from harness.report.build import build_report
 from harness.report.html import Section
@@ -77,6 +77,18 @@ def test_campaign_runs_all_but_the_broken_run(campaign: dict[str, Any]) -> None:
     assert "not found" in out.failed[0]["error"] and BOGUS in out.failed[0]["error"]
     s = CampaignDir(campaign["root"]).read_summary(campaign["bogus"])
     assert s is not None and s["status"] == "failed" and s["error_type"] == "FileNotFoundError"
+
+
+def test_each_flight_and_firmware_group_has_its_own_worker_files(campaign: dict[str, Any]) -> None:
+    # The broken run shares its flight with runs on the real firmware: two groups, one flight id. Named
+    # by flight alone, their workers overwrote each other's job file (runs lost, JSONL written twice).
+    groups = group_by_flight(campaign["runs"])
+    logs = campaign["root"] / "logs"
+    stems = {group_stem(g) for g in groups}
+    assert len(stems) == len(groups) > len({g[0].flight.flight_id for g in groups})
+    for g in groups:
+        job = json.loads((logs / f"{group_stem(g)}.job.json").read_text())
+        assert sorted(r["run_id"] for r in job["runs"]) == sorted(r.run_id for r in g)
 
 
 def test_every_run_streamed_its_results_and_summary(campaign: dict[str, Any]) -> None:

@@ -177,6 +177,14 @@ def _options_dict(options: CampaignOptions | None) -> dict[str, Any] | None:
     return {k: (str(v) if isinstance(v, Path) else v) for k, v in d.items()}
 
 
+def group_stem(group: list[RunSpec]) -> str:
+    """File stem of a worker's job and log. Groups are per (flight, firmware): the same flight runs on
+    several firmwares (one per bias model), possibly at the same time, so the firmware is in the name;
+    with the flight id alone two workers overwrote each other's job file and ran the same runs twice."""
+    digest = hashlib.sha256(group[0].firmware.encode("utf-8")).hexdigest()[:8]
+    return f"{group[0].flight.flight_id}.{digest}"
+
+
 def _start(cdir: CampaignDir, group: list[RunSpec], opts: ExecOptions, env: dict[str, str],
            firmware_sha256: str) -> _Active:
     fid = group[0].flight.flight_id
@@ -184,9 +192,10 @@ def _start(cdir: CampaignDir, group: list[RunSpec], opts: ExecOptions, env: dict
                     timeout_s=opts.timeout_s, firmware_sha256=firmware_sha256)
     for run in group:      # a summary left from an earlier attempt must not be mistaken for this one's
         cdir.summary_path(run.run_id).unlink(missing_ok=True)
-    job_path = cdir.logs / f"{fid}.job.json"
+    stem = group_stem(group)
+    job_path = cdir.logs / f"{stem}.job.json"
     job_path.write_text(job.to_json(), encoding="utf-8")
-    log_path = cdir.logs / f"{fid}.worker.log"
+    log_path = cdir.logs / f"{stem}.worker.log"
     with open(log_path, "wb") as fh:
         proc = subprocess.Popen([opts.python, "-m", "harness.campaign.worker", str(job_path)], cwd=REPO_ROOT,
                                 stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT, env=env)
