@@ -37,6 +37,9 @@ _RESULT_ENC_LEN = _RESULT_DT.itemsize + 1
 RESULT_FIELDS = [name for name, _ in m.Result.FIELDS]
 RESULTS_DTYPE = np.dtype([(name, _RESULT_DT[name]) for name in RESULT_FIELDS]
                          + [("t_send_ns", "<i8"), ("t_recv_ns", "<i8"), ("outcome", "i1"), ("error_code", "u1")])
+_FIELDS_OFFSET = _RESULT_DT.fields[RESULT_FIELDS[0]][1]
+_FIELDS_NBYTES = sum(RESULTS_DTYPE[name].itemsize for name in RESULT_FIELDS)
+assert all(RESULTS_DTYPE.fields[n][1] + _FIELDS_OFFSET == _RESULT_DT.fields[n][1] for n in RESULT_FIELDS)
 
 
 class LinkLike(Protocol):
@@ -291,11 +294,16 @@ class Streamer:
         res = state.results
         answered: list[int] = []
         if len(got):
-            idx = np.array([state.seq_to_meas.pop(int(s), -1) for s in got["meas_seq"]], dtype=np.int64)
-            keep = idx >= 0
-            idx, got = idx[keep], got[keep]
-            for name in RESULT_FIELDS:
-                res[name][idx] = got[name]
+            pop = state.seq_to_meas.pop
+            found = [pop(s, -1) for s in got["meas_seq"].tolist()]
+            idx = np.array(found, dtype=np.int64)
+            if -1 in found:
+                keep = idx >= 0
+                idx, got = idx[keep], got[keep]
+            # The RESULT fields are one packed run of bytes in both layouts: copy rows as bytes.
+            res_bytes = res.view(np.uint8).reshape(len(res), RESULTS_DTYPE.itemsize)
+            got_bytes = np.ascontiguousarray(got).view(np.uint8).reshape(len(got), _RESULT_DT.itemsize)
+            res_bytes[idx, :_FIELDS_NBYTES] = got_bytes[:, _FIELDS_OFFSET:_FIELDS_OFFSET + _FIELDS_NBYTES]
             res["t_recv_ns"][idx] = now_ns
             res["outcome"][idx] = OUTCOME_RESULT
             answered += idx.tolist()
@@ -317,10 +325,11 @@ class Streamer:
             state.max_answered = max(state.max_answered, max(answered))
             # The device answers in order: anything older still unanswered was lost on the way.
             lo = state.resolved_upto
-            older = np.nonzero(res["outcome"][lo:state.max_answered] == OUTCOME_PENDING)[0] + lo
-            for k in older.tolist():
-                res["outcome"][k] = OUTCOME_LOST
-                state.seq_to_meas.pop(int(res["meas_seq"][k]), None)
+            if state.max_answered > lo:
+                older = np.nonzero(res["outcome"][lo:state.max_answered] == OUTCOME_PENDING)[0] + lo
+                for k in older.tolist():
+                    res["outcome"][k] = OUTCOME_LOST
+                    state.seq_to_meas.pop(int(res["meas_seq"][k]), None)
             new_hi = state.max_answered + 1
             writer.write_rows(np.arange(lo, new_hi), res[lo:new_hi])
             state.resolved_upto = max(state.resolved_upto, new_hi)
