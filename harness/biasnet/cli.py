@@ -209,7 +209,7 @@ def _add_train_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--optimizer", choices=("adam", "sgd"), default="adam",
                    help="adam (default) or sgd: mini-batch gradient descent with Nesterov momentum")
     g.add_argument("--lr", type=float, default=None, help="learning rate (default 3e-3 adam, 0.05 sgd)")
-    g.add_argument("--batch-size", type=int, default=512)
+    g.add_argument("--batch-size", type=int, default=TrainConfig.batch_size)
     g.add_argument("--epochs", type=int, default=60, help="at most this many epochs")
     g.add_argument("--patience", type=int, default=6, help="early stopping: epochs without improvement")
     g.add_argument("--val-fraction", type=float, default=0.15, help="share of FLIGHTS held out for validation")

