@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"== bias-network training: {t['samples']} simulated TDoA samples ({t['train_samples']} train, the rest "
               "validation flights)")
         print(f"full training {t['seconds']:.1f} s ({t['epochs']} epochs, {t['stopped_by']}); goal < {t['goal_s']:.0f} s: "
-              f"{'met' if t['within_goal'] else 'NOT met'} ({t['goal_s'] / t['seconds']:.2f}x the budget); validation "
+              f"{'met' if t['within_goal'] else 'NOT met'} ({t['goal_s'] / t['seconds']:.2f}x headroom); validation "
               f"bias RMSE {t['val_rmse_before_m']:.4f} -> {t['val_rmse_after_m']:.4f} m")
         print(f"per epoch: uwb-hil train defaults {t['epoch_s_default']:.2f} s vs PyTorch defaults (batch 64, all cores) "
               f"{t['epoch_s_torch_defaults']:.2f} s: {t['speedup']:.1f}x")
