@@ -72,6 +72,8 @@ static void reset_filter(estimator_t *est)
     est->t_uwb_us = 0;
     est->has_fused = 0;
     est->t_fused_us = 0;
+    memset(est->t_anchor_seen_us, 0, sizeof est->t_anchor_seen_us);
+    memset(est->t_anchor_fused_us, 0, sizeof est->t_anchor_fused_us);
     est->cost_predict = 0;
 }
 
@@ -182,8 +184,32 @@ static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *
 }
 
 /* The pipeline for one measurement z. anchor_b == NULL means TWR to anchor_a. */
-static void process(estimator_t *est, uint64_t t_us, const float *anchor_a, const float *anchor_b,
-                    float z, estimator_result_t *out)
+/* How long the links of anchor id had been rejected up to its previous measurement (0 if that one
+ * was fused, or before the first fusion). */
+static int64_t anchor_rejected_us(const estimator_t *est, uint8_t id)
+{
+    const uint64_t seen = est->t_anchor_seen_us[id], fused = est->t_anchor_fused_us[id];
+    return (est->has_fused && seen > fused) ? diff_us(seen, fused) : 0;
+}
+
+static void mark_fused(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b)
+{
+    unsigned i;
+    if (!est->has_fused) {
+        /* The first fusion starts every anchor's clock: one rejected from then on accrues time. */
+        for (i = 0; i < ESTIMATOR_MAX_ANCHORS; i++) {
+            est->t_anchor_fused_us[i] = t_us;
+        }
+        est->has_fused = 1;
+    }
+    est->t_fused_us = t_us;
+    est->t_anchor_fused_us[id_a] = t_us;
+    est->t_anchor_fused_us[id_b] = t_us;
+}
+
+/* id_b == id_a for TWR (anchor_b NULL). */
+static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b, const float *anchor_a,
+                    const float *anchor_b, float z, estimator_result_t *out)
 {
     ekf_t *ekf = &est->ekf;
     const estimator_config_t *cfg = &est->cfg;
@@ -194,7 +220,7 @@ static void process(estimator_t *est, uint64_t t_us, const float *anchor_a, cons
     float h, H[3], dt, y, bias;
     ekf_scalar_t m;
     uint32_t c0, c1, c2, c3;
-    int64_t since_us;
+    int64_t since_us, rej_a, rej_b;
     int rc;
 
     memset(out, 0, sizeof *out);
@@ -224,9 +250,20 @@ static void process(estimator_t *est, uint64_t t_us, const float *anchor_a, cons
     /* The gate's dt also counts from the last fused UWB measurement: while measurements are being
      * rejected (an outage, a run of outliers) the bound widens, so the filter cannot lock itself out
      * after drifting more than d_max away. At the nominal rate both references are a few ms old. */
+    /* It also widens by the time this link's anchors have been rejected while others were fused: with
+     * the estimate off along their direction they alone disagree, and the filter-wide reference above,
+     * kept fresh by the others, would hold them out for hundreds of seconds (the hour-long flight). An
+     * isolated outlier (the anchor's previous measurement fused) meets the nominal bound. */
+    rej_a = anchor_rejected_us(est, id_a);
+    rej_b = anchor_rejected_us(est, id_b);
+    est->t_anchor_seen_us[id_a] = t_us;
+    est->t_anchor_seen_us[id_b] = t_us;
     since_us = diff_us(t_us, t_ref);
     if (have_ref && est->has_fused && diff_us(t_us, est->t_fused_us) > since_us) {
         since_us = diff_us(t_us, est->t_fused_us);
+    }
+    if (have_ref) {
+        since_us += rej_a > rej_b ? rej_a : rej_b;
     }
     dt = gate_kinematic_dt(since_us, have_ref, cfg->gate_dt_min);
     out->d_max = gate_kinematic_dmax(&ekf->S[EKF_PX], dt, tdoa ? cfg->a_max_tdoa : cfg->a_max_twr);
@@ -264,8 +301,7 @@ static void process(estimator_t *est, uint64_t t_us, const float *anchor_a, cons
     if (out->status == EST_ACCEPTED) {
         ekf_scalar_apply(ekf, &m);
         ekf_finalize(ekf);
-        est->t_fused_us = t_us;
-        est->has_fused = 1;
+        mark_fused(est, t_us, id_a, id_b);
         guard(est);
         out->gain[0] = m.K[EKF_X];
         out->gain[1] = m.K[EKF_Y];
@@ -288,7 +324,7 @@ int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float rang
     if (est->has_uwb_time && t_us < est->t_uwb_us) {
         return EST_ERR_TIME_BACKWARDS;
     }
-    process(est, t_us, est->anchors[anchor], NULL, range, out);
+    process(est, t_us, anchor, anchor, est->anchors[anchor], NULL, range, out);
     return EST_OK;
 }
 
@@ -301,7 +337,7 @@ int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t
     if (est->has_uwb_time && t_us < est->t_uwb_us) {
         return EST_ERR_TIME_BACKWARDS;
     }
-    process(est, t_us, est->anchors[anchor_a], est->anchors[anchor_b], diff, out);
+    process(est, t_us, anchor_a, anchor_b, est->anchors[anchor_a], est->anchors[anchor_b], diff, out);
     return EST_OK;
 }
 

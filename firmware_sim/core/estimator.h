@@ -62,6 +62,10 @@ typedef struct {
     uint8_t has_imu_time, has_uwb_time;
     uint64_t t_fused_us;              /* last UWB measurement fused into the filter (kinematic gate) */
     uint8_t has_fused;
+    /* Per anchor: when it was last measured and last took part in a fused measurement. Their gap is
+     * how long its links have been rejected; the kinematic gate widens by it (estimator.c). */
+    uint64_t t_anchor_seen_us[ESTIMATOR_MAX_ANCHORS];
+    uint64_t t_anchor_fused_us[ESTIMATOR_MAX_ANCHORS];
     float last_good_pos[3];           /* re-initialisation point of the divergence guard */
     uint32_t cost_predict;            /* cost of the predictions since the last measurement */
     uint32_t predictions;             /* IMU or CV predictions since power-up */

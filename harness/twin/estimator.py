@@ -133,6 +133,9 @@ class TwinEstimator:
         self.t_imu_us: int | None = None
         self.t_uwb_us: int | None = None
         self.t_fused_us: int | None = None  # last UWB measurement fused (kinematic gate reference)
+        # per anchor, as the firmware: last measured / last part of a fused measurement (0 = never)
+        self.t_anchor_seen_us = [0] * MAX_ANCHORS
+        self.t_anchor_fused_us = [0] * MAX_ANCHORS
 
     def configure(self, config: EstimatorConfig, reset: bool = True) -> None:
         """Apply ``config``; ``reset`` re-initialises the filter and forgets the time references."""
@@ -167,13 +170,13 @@ class TwinEstimator:
         """One two-way range to ``anchor``."""
         a = self._anchor(anchor)
         self._check_uwb_time(int(t_us))
-        return self._process(int(t_us), a, None, float(rng))
+        return self._process(int(t_us), (int(anchor), int(anchor)), a, None, float(rng))
 
     def on_tdoa(self, t_us: int, a: int, b: int, diff: float) -> TwinResult:
         """One TDoA ``diff = d(tag, B) - d(tag, A)``."""
         pa, pb = self._anchor(a), self._anchor(b)
         self._check_uwb_time(int(t_us))
-        return self._process(int(t_us), pa, pb, float(diff))
+        return self._process(int(t_us), (int(a), int(b)), pa, pb, float(diff))
 
     def state(self) -> TwinState:
         """The current estimate."""
@@ -212,7 +215,8 @@ class TwinEstimator:
             return 0.0
         return float(net.predict(f))
 
-    def _process(self, t_us: int, anchor_a: np.ndarray, anchor_b: np.ndarray | None, z: float) -> TwinResult:
+    def _process(self, t_us: int, ids: tuple[int, int], anchor_a: np.ndarray, anchor_b: np.ndarray | None,
+                 z: float) -> TwinResult:
         c, ekf = self.config, self.ekf
         tdoa = anchor_b is not None
         self.t_uwb_us = t_us
@@ -226,9 +230,17 @@ class TwinEstimator:
                 self.predictions += 1
                 self._guard()
                 ekf = self.ekf
+        # time this link's anchors had been rejected up to their previous measurement (estimator.c)
+        rejected = max((self.t_anchor_seen_us[i] - self.t_anchor_fused_us[i]
+                        if self.t_fused_us is not None and self.t_anchor_seen_us[i] > self.t_anchor_fused_us[i]
+                        else 0) for i in ids)
+        for i in ids:
+            self.t_anchor_seen_us[i] = t_us
         since = None if t_ref is None else t_us - t_ref
         if since is not None and self.t_fused_us is not None:
             since = max(since, t_us - self.t_fused_us)  # widens while measurements are rejected
+        if since is not None:
+            since += rejected
         dt = gates.kinematic_dt(since, c.gate_dt_min)
         d_max = gates.kinematic_dmax(ekf.x[3:6], dt, c.a_max_tdoa if tdoa else c.a_max_twr)
 
@@ -254,7 +266,11 @@ class TwinEstimator:
         if status == ACCEPTED:
             ekf.apply(upd)
             ekf.finalize()
+            if self.t_fused_us is None:
+                self.t_anchor_fused_us = [t_us] * MAX_ANCHORS
             self.t_fused_us = t_us
+            for i in ids:
+                self.t_anchor_fused_us[i] = t_us
             gain = upd.K[POS].copy()
             self._guard()
         return self._result(status, y, upd.S, bias, d_max, gain, upd.mahalanobis)
