@@ -337,7 +337,7 @@ class Stats:
     unknown_types: int
     bad_lengths: int
     non_finite: int
-    unknown_anchors: int
+    unknown_anchors: int  # measurements naming an anchor never set, ANCHOR frames with an id out of range
     time_backwards: int
     bad_configs: int
     dropped_meas: int  # measurements refused for any reason (no RESULT sent)

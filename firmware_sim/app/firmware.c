@@ -334,6 +334,8 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
         const float pos[3] = {in->u.anchor.x, in->u.anchor.y, in->u.anchor.z};
         rc = estimator_set_anchor(&fw->est, in->u.anchor.anchor_id, pos);
         if (rc != EST_OK) {
+            /* STATS accounts for every frame not used: an anchor the device cannot hold is unknown. */
+            fw->stats.unknown_anchors++;
             send_error(fw, (uint8_t)rc, in, in->u.anchor.anchor_id);
         }
         break;
