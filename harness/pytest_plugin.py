@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 import pytest
 
@@ -158,18 +158,9 @@ def _make_device(choice: DeviceChoice, log_dir: Path) -> Device:
         if not choice.port:
             pytest.fail("target 'serial' needs --uwb-port (a device path or pyserial URL)", pytrace=False)
         return SerialDevice(choice.port, choice.baud)
-    qemu_device = _qemu_device_class()
-    if qemu_device is None:
-        pytest.skip("QEMU target not built yet")
-    return qemu_device(log_dir=log_dir)
+    from harness.device.qemu import QemuDevice
 
-
-def _qemu_device_class() -> Callable[..., Device] | None:
-    try:
-        from harness.device import qemu
-    except ImportError:
-        return None
-    return getattr(qemu, "QemuDevice", None)
+    return QemuDevice(log_dir=log_dir)
 
 
 def _hello_properties(device: Device) -> dict[str, str]:

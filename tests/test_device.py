@@ -502,16 +502,3 @@ def test_plugin_missing_firmware_is_a_clear_error(pytester: pytest.Pytester, tmp
     result.assert_outcomes(errors=1)
     result.stdout.fnmatch_lines(["*firmware binary*nope not found*make firmware*"])
 
-
-def test_plugin_qemu_target_skips_until_qemu_device_exists(pytester: pytest.Pytester) -> None:
-    from harness.device import qemu
-
-    if hasattr(qemu, "QemuDevice"):
-        pytest.skip("QemuDevice exists now: the qemu target is exercised by its own tests")
-    pytester.makepyfile("""
-        def test_dev(uwb_device):
-            pass
-    """)
-    result = _run(pytester, "--uwb-target", "qemu", "-rs")
-    result.assert_outcomes(skipped=1)
-    result.stdout.fnmatch_lines(["*QEMU target not built yet*"])
