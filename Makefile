@@ -74,11 +74,16 @@ stm32: arm-tools
 size: stm32
 	@$(MAKE) -s -C firmware_sim/stm32 size
 
-# The full campaign (not in CI; resumes when re-run): DIR/report.html, report.md, report.json. docs/campaign.md.
+# The full campaign (not in CI; the open-loop runs resume when re-run): the closed-loop flights first
+# (DIR/closed_loop.json, ~7 min, flown again each time), then the paper's runs and the report, which
+# includes the closed-loop section: DIR/report.html, report.md, report.json. docs/campaign.md.
 CAMPAIGN_DIR  ?= out/campaign
 CAMPAIGN_ARGS ?=
+FLY_ARGS      ?=
 .PHONY: campaign
 campaign: $(STAMP) firmware
+	mkdir -p $(CAMPAIGN_DIR)
+	$(VENV)/bin/uwb-hil fly --out $(CAMPAIGN_DIR)/closed_loop.json $(FLY_ARGS)
 	$(VENV)/bin/uwb-hil campaign --out $(CAMPAIGN_DIR) $(CAMPAIGN_ARGS)
 
 clean:

@@ -192,6 +192,41 @@ def test_report_provenance_and_extension_sections(campaign: dict[str, Any]) -> N
     assert s["sections"]["extra-test"] == {"runs_seen": campaign["outcome"].ok}
 
 
+def _raw_nees(root: Path, run_id: str, flight_id: str, skip_s: float) -> np.ndarray:
+    truth = np.load(root / "flights" / f"{flight_id}.npz")
+    rows = []
+    with open(root / "runs" / f"{run_id}.jsonl", encoding="utf-8") as fh:
+        for line in fh:
+            rec = json.loads(line)
+            if rec["type"] == "result" and rec["outcome"] == 1:
+                rows.append([rec[k] for k in ("t_us", "px", "py", "pz", "var_x", "var_y", "var_z")])
+    a = np.asarray(rows, dtype=np.float64)
+    tt = truth["truth_t_us"].astype(float)
+    true = np.stack([np.interp(a[:, 0], tt, truth["truth_pos"][:, i]) for i in range(3)], axis=1)
+    nees = np.sum((a[:, 1:4] - true) ** 2 / a[:, 4:7], axis=1)
+    return nees[(a[:, 0] - truth["uwb_t_us"][0]) * 1e-6 >= skip_s]
+
+
+def test_report_nees_matches_a_recomputation_from_raw_results(campaign: dict[str, Any]) -> None:
+    root = campaign["root"]
+    groups = json.loads((root / "report.json").read_text())["sections"]["consistency"]["groups"]
+    # every simulated flight set with at least two complete seeds (the bogus run leaves one)
+    assert len(groups) == 2 * 2 * 3 - 1
+    for g in groups:
+        runs = [r for r in campaign["runs"] if r.flight.mode == g["mode"] and r.flight.trajectory == g["trajectory"]
+                and r.config == g["config"] and r.role == "accuracy"]
+        assert len(runs) == g["runs"] == 2 and sorted(r.flight.seed for r in runs) == g["seeds"]
+        per_run = [_raw_nees(root, r.run_id, r.flight.flight_id, g["skip_s"]) for r in runs]
+        n = min(len(x) for x in per_run)
+        avg = np.mean([x[:n] for x in per_run], axis=0)
+        assert g["epochs"] == n and g["anees"] == pytest.approx(float(np.mean(avg)), rel=1e-6)
+        assert 0.0 < g["lo"] < 3.0 < g["hi"]            # chi-square bounds of a mean over 2 runs x 3 dof
+        assert g["verdict"] in ("consistent", "under-confident", "over-confident")
+        inside = float(np.mean((avg >= g["lo"]) & (avg <= g["hi"])))
+        assert g["inside"] == pytest.approx(inside) and g["above"] == pytest.approx(float(np.mean(avg > g["hi"])))
+        assert (g["verdict"] == "consistent") == (inside >= 0.9)
+
+
 def test_rerun_resumes_and_retries_only_what_is_not_done(campaign: dict[str, Any]) -> None:
     root, runs = campaign["root"], campaign["runs"]
     done = [r for r in runs if r.firmware != BOGUS]

@@ -51,6 +51,10 @@ class RunMetrics:
     divergences: int = 0         # the firmware's divergence guard re-initialised the filter (ERROR DIVERGED)
     pacing: str = "windowed"
     role: str = "accuracy"       # "latency": an extra real-time run, kept out of the accuracy figures
+    # position NEES per RESULT (e^T diag(var)^-1 e from the RESULT's covariance diagonal; NaN if a variance
+    # is not positive) and its time [s] since the flight's first measurement: the consistency section
+    nees: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float64))
+    nees_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float64))
 
 
 @dataclass
@@ -135,6 +139,9 @@ def run_metrics(summary: dict[str, Any], res: StoredResults, flight: StoredFligh
     else:
         rmse = rmse_xy = rmse_z = nan
         err_mean = err_t = np.zeros(0)
+    var = np.stack([c["var_x"][ok], c["var_y"][ok], c["var_z"][ok]], axis=1).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nees = np.where(np.all(var > 0, axis=1), np.sum(err ** 2 / np.where(var > 0, var, 1.0), axis=1), np.nan)
     status = c["status"][ok]
     cost_unit = int(summary.get("device", {}).get("cost_unit", 0))
     compute = c["compute"][ok]
@@ -151,7 +158,8 @@ def run_metrics(summary: dict[str, Any], res: StoredResults, flight: StoredFligh
         device_stats=res.stats, cost_unit=cost_unit, model_hash=str(summary.get("device", {}).get("model_hash", "")),
         divergences=int(summary.get("divergences", 0)),
         pacing=str(spec.get("pacing", "windowed")),
-        role=str(spec.get("role", "accuracy")))
+        role=str(spec.get("role", "accuracy")),
+        nees=nees, nees_t_s=(t - t0) * 1e-6)
 
 
 def load_campaign(root: Path) -> CampaignData:

@@ -1,6 +1,6 @@
 """The sections of the campaign report. A section is a function ``(ReportContext) -> Section | None``;
-``DEFAULT_SECTIONS`` is the order of the page. Other parts of the project (filter consistency / NEES,
-closed-loop tracking) add theirs by appending a function here or passing ``extra_sections`` to
+``DEFAULT_SECTIONS`` is the order of the page. Other parts of the project (e.g. closed-loop tracking)
+add theirs by appending a function here or passing ``extra_sections`` to
 ``harness.report.build.build_report``; their ``Section.data`` lands in report.json under "sections"."""
 
 from __future__ import annotations
@@ -223,6 +223,51 @@ def bias_network(ctx: ReportContext) -> Section | None:
     return bias_section(ctx)
 
 
+NEES_SKIP_S = 2.0        # the first seconds of each flight (initial convergence) are left out of the NEES
+CONSISTENT_SHARE = 0.9   # "consistent": at least this share of epochs inside the 95 % bounds
+
+
+def consistency(ctx: ReportContext) -> Section | None:
+    """Filter consistency: position NEES averaged over the seeds of each simulated flight set, epoch by
+    epoch (harness/report/consistency.py), with the two-sided 95 % chi-square bounds for 3 x runs dof."""
+    from harness.report.consistency import monte_carlo_nees
+
+    groups: dict[tuple[str, str, str], list[Any]] = {}
+    for r in ctx.data.accuracy_runs:
+        if r.source == "sim" and len(r.nees):
+            groups.setdefault((r.mode, r.trajectory, r.config), []).append(r)
+    rows, data = [], []
+    for (mode, traj, cfg), runs in sorted(groups.items()):
+        if len(runs) < 2:
+            continue
+        runs.sort(key=lambda r: (r.seed is None, r.seed))
+        try:
+            s = monte_carlo_nees([r.nees[r.nees_t_s >= NEES_SKIP_S] for r in runs])
+        except ValueError:
+            continue
+        # by the epochs (the bounds hold per epoch; the mean of thousands of correlated epochs has none)
+        below = 1.0 - s.inside - s.above
+        verdict = ("consistent" if s.inside >= CONSISTENT_SHARE else
+                   "under-confident" if below > s.above else "over-confident")
+        rows.append([mode.upper(), traj, cfg, str(s.runs), str(s.epochs), _f(s.anees, 2), f"[{s.lo:.2f}, {s.hi:.2f}]",
+                     f"{100 * s.inside:.0f} %", f"{100 * s.above:.0f} %", verdict])
+        data.append({"mode": mode, "trajectory": traj, "config": cfg, "skip_s": NEES_SKIP_S,
+                     "seeds": [r.seed for r in runs], **s.as_dict(), "verdict": verdict})
+    if not rows:
+        return None
+    sec = Section("consistency", "Filter consistency (NEES over seeds)")
+    sec.paragraphs.append(
+        "Position NEES e^T P^-1 e from each RESULT's covariance diagonal, averaged over the seeds of a flight "
+        f"set epoch by epoch (measurement index; the first {NEES_SKIP_S:.0f} s left out). A consistent filter "
+        "has ANEES ~3 with ~95 % of epochs inside the bounds; the verdict says consistent when at least "
+        f"{100 * CONSISTENT_SHARE:.0f} % are, else under-confident (more epochs below the lower bound: the "
+        "filter reports more uncertainty than it has) or over-confident (more above the upper one).")
+    sec.tables.append(Table(["mode", "trajectory", "config", "runs", "epochs", "ANEES", "95 % bounds",
+                             "epochs inside", "epochs above", "verdict"], rows))
+    sec.data = {"groups": data}
+    return sec
+
+
 def closed_loop(ctx: ReportContext) -> Section | None:
     """RUN_DIR/closed_loop.json written by `uwb-hil fly --out` (harness/closedloop/report.py)."""
     from harness.closedloop.report import closed_loop_section
@@ -230,6 +275,6 @@ def closed_loop(ctx: ReportContext) -> Section | None:
 
 
 DEFAULT_SECTIONS: tuple[SectionFn, ...] = (headline, rmse_boxes, error_time, paths, measurement_streams, bias_network, recorded,
-                                           closed_loop, latency, failures, provenance)
+                                           consistency, closed_loop, latency, failures, provenance)
 
 __all__ = ["CONFIG_KEYS", "DEFAULT_SECTIONS", "ReportContext", "SectionFn"]
