@@ -1,8 +1,9 @@
 """Recorded-data loaders: synthetic fixtures with known answers, malformed files, the native format,
 every shared recording (skipped without ../shared/data), and a real flight replayed through the device.
 
-The fixtures in tests/fixtures/recordings were generated from exact geometry (noise-free values), so a
-loader that gets a convention wrong (TDoA sign, lever arm, quaternion order, units) fails here.
+The fixtures in tests/fixtures/recordings, and the rcv_twr sequence written by `write_rcv_twr_mini`, come
+from exact geometry (noise-free values), so a loader that gets a convention wrong (TDoA sign, lever arm,
+quaternion order, units) fails here. Real recordings are only read from ../shared/data.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from harness.session import config_for, shared_data_dir
 FIX = Path(__file__).parent / "fixtures" / "recordings"
 REDUCED = FIX / "const1-fixture-tdoa2.csv"
 OFFICIAL = FIX / "const2-fixture-official.csv"
-RCV = FIX / "rcv_twr_mini"
 DATA = shared_data_dir()
 UTIL_FILES = sorted((DATA / "util").glob("const*/*.csv")) if (DATA / "util").is_dir() else []
 RCV_DIRS = sorted((DATA / "rcv_twr").glob("sequence*")) if (DATA / "rcv_twr").is_dir() else []
@@ -123,11 +123,11 @@ def test_empty_and_missing_files() -> None:
         load_recording(REDUCED, FIX / "no-anchors.csv")
 
 
-def test_wrong_kind_of_file_is_explained(tmp_path: Path) -> None:
+def test_wrong_kind_of_file_is_explained(tmp_path: Path, rcv: Path) -> None:
     with pytest.raises(RecordingError, match="anchor file"):
         load_recording(FIX / "anchors.csv")
     with pytest.raises(RecordingError, match="pass the sequence directory"):
-        load_recording(RCV / "anchor_1.csv")
+        load_recording(rcv / "anchor_1.csv")
     other = tmp_path / "other.csv"
     other.write_text("a,b,c\n1,2,3\n")
     with pytest.raises(RecordingError, match="unknown recording format"):
@@ -154,8 +154,49 @@ def test_measurements_outside_the_truth_span_are_dropped_and_counted(tmp_path: P
 
 
 # ------------------------------------------------------------------------------------ rcv_twr
-def test_rcv_twr_fixture_sequence() -> None:
-    f = load_recording(RCV)
+def write_rcv_twr_mini(d: Path) -> Path:
+    """A synthetic rcv_twr sequence in `d` (written here, not committed: the real ones are only read from
+    ../shared/data): 4 anchors, exact ranges (1 cm resolution) to a tag moving in a straight line, round
+    robin every 40 ms, gt at 10 ms, one failed ranging (-1.5) on anchor 2."""
+    d.mkdir(parents=True, exist_ok=True)
+    anchors = {1: (2.0, 2.0, 1.0), 2: (-2.0, 2.0, 1.2), 3: (-2.0, -2.0, 0.8), 4: (2.0, -2.0, 1.1)}
+    offset = np.array([0.0, -0.05, 0.045])   # the loader's default antenna offset
+
+    def ts(t: float) -> str:
+        s = 13.0 + t
+        return f"2024-06-09 19:39:{int(s):02d}.{int(round((s % 1) * 1e6)):06d}"
+
+    def tag(t: float) -> np.ndarray:
+        return np.array([0.2 * t, -0.1 * t, 0.5 + 0.05 * t])
+
+    (d / "anchor.yaml").write_text("".join(
+        f"anchor{k}:\n  - position:\n      data: [{p[0]}, {p[1]}, {p[2]}]\n  - orientation:\n"
+        f"      data: [0.0, 0.0, 0.0, 1.0]\n\n" for k, p in anchors.items()))
+    gt = ["Time,Position X,Position Y,Position Z,Orientation X,Orientation Y,Orientation Z,Orientation W"]
+    for k in range(121):
+        t = 0.01 * k
+        p = tag(t)
+        gt.append(f"{ts(t)},{p[0]:.9f},{p[1]:.9f},{p[2]:.9f},0.0,0.0,0.0,1.0")
+    (d / "gt.csv").write_text("\n".join(gt) + "\n")
+    for k, a in anchors.items():
+        rows = ["Time,Address,Range,Rxpower,Position X,Position Y,Position Z,Orientation X,Orientation Y,"
+                "Orientation Z,Orientation W"]
+        for j in range(7):
+            t = 0.02 + 0.16 * j + 0.04 * (k - 1)
+            p = tag(t)
+            rng = f"{np.linalg.norm(p - (np.array(a) + offset)):.2f}" if not (k == 2 and j == 3) else "-1.5"
+            rows.append(f"{ts(t)},{80 + k},{rng},-62.5,{p[0]:.9f},{p[1]:.9f},{p[2]:.9f},0.0,0.0,0.0,1.0")
+        (d / f"anchor_{k}.csv").write_text("\n".join(rows) + "\n")
+    return d
+
+
+@pytest.fixture(scope="module")
+def rcv(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_rcv_twr_mini(tmp_path_factory.mktemp("rcv") / "rcv_twr_mini")
+
+
+def test_rcv_twr_fixture_sequence(rcv: Path) -> None:
+    f = load_recording(rcv)
     assert f.uwb.kind == KIND_TWR and f.imu is None and f.name == "rcv_twr-rcv_twr_mini"
     assert len(f.uwb) == 27 and f.meta["dropped"] == {"nonpositive_range_anchor_2": 1}
     assert np.all(np.diff(f.uwb.t_us) >= 0) and set(f.uwb.anchor_a.tolist()) == {1, 2, 3, 4}
@@ -166,15 +207,13 @@ def test_rcv_twr_fixture_sequence() -> None:
     np.testing.assert_allclose(f.anchors.orientations[0], [1.0, 0.0, 0.0, 0.0])
     np.testing.assert_allclose(f.uwb.true_value, f.uwb.value, atol=0.0051)   # 1 cm range resolution
     assert f.meta["anchor_addresses"] == {"1": [81], "2": [82], "3": [83], "4": [84]}
-    plain = load_recording(RCV, anchor_offset=None)
+    plain = load_recording(rcv, anchor_offset=None)
     np.testing.assert_allclose(plain.anchors.position(1), [2.0, 2.0, 1.0])
     assert np.max(np.abs(plain.uwb.true_value - plain.uwb.value)) > 0.01
 
 
 def _rcv_copy(tmp_path: Path) -> Path:
-    d = tmp_path / "seq"
-    shutil.copytree(RCV, d)
-    return d
+    return write_rcv_twr_mini(tmp_path / "seq")
 
 
 def _edit_line(path: Path, lineno: int, col: int, value: str) -> None:
@@ -257,11 +296,12 @@ def _simulated_flight() -> Flight:
     return scenario_flight("circle", mode="tdoa", duration_s=3.0, seed=2, noise="realistic")
 
 
-@pytest.mark.parametrize("make", [_synthetic_flight, _simulated_flight, lambda: load_recording(REDUCED),
-                                  lambda: load_recording(OFFICIAL), lambda: load_recording(RCV)],
+@pytest.mark.parametrize("make", [lambda rcv: _synthetic_flight(), lambda rcv: _simulated_flight(),
+                                  lambda rcv: load_recording(REDUCED), lambda rcv: load_recording(OFFICIAL),
+                                  load_recording],
                          ids=["synthetic", "simulator", "util8", "util27", "rcv"])
-def test_native_round_trip_is_exact(tmp_path: Path, make) -> None:  # noqa: ANN001
-    flight = make()
+def test_native_round_trip_is_exact(tmp_path: Path, rcv: Path, make) -> None:  # noqa: ANN001
+    flight = make(rcv)
     path = save_flight(flight, tmp_path / "flight.npz")
     _assert_same(flight, load_flight(path))
     _assert_same(flight, load_recording(path))              # dispatch by content
@@ -308,14 +348,15 @@ def _write_zip(path: Path, members: dict[str, bytes]) -> None:
             z.writestr(name, data)
 
 
-def test_inspect_command_summarises_and_converts(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_inspect_command_summarises_and_converts(tmp_path: Path, rcv: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
     from harness.flight.loaders import error_summary, main
     out = tmp_path / "rcv.npz"
-    assert main([str(RCV), "--save", str(out)]) == 0
+    assert main([str(rcv), "--save", str(out)]) == 0
     text = capsys.readouterr().out
     assert "rcv_twr-rcv_twr_mini: 27 TWR measurements" in text and "nonpositive_range_anchor_2" in text
-    _assert_same(load_recording(RCV), load_flight(out))
-    s = error_summary(load_recording(RCV))
+    _assert_same(load_recording(rcv), load_flight(out))
+    s = error_summary(load_recording(rcv))
     assert s["n"] == 27 and s["gross"] == 0 and abs(s["median"]) <= 0.005  # type: ignore[operator]
     assert [g["group"] for g in s["groups"]] == ["1", "2", "3", "4"]  # type: ignore[index]
     pairs = error_summary(load_recording(REDUCED))["groups"]
