@@ -19,6 +19,7 @@ from harness.biasnet.model import BiasModel, BiasNetwork, ModelFormatError, init
 from harness.biasnet.train import TrainConfig, to_torch, train_network
 from harness.errors import ModelMismatch
 from harness.flight.model import KIND_TDOA, Anchors, Flight, Truth, UwbStream
+from harness.session import shared_data_dir
 from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
 LO6 = np.array([-8.0, -8.0, -3.5, -0.6, -0.6, -np.pi])
@@ -280,3 +281,19 @@ def test_cli_run_with_model_builds_matching_firmware(tmp_path: Path) -> None:
     assert rc == 0
     summary = json.loads(buf.getvalue())
     assert summary["device"]["model_hash"] == model.hash_hex
+
+
+@pytest.mark.skipif(not (shared_data_dir() / "rcv_twr").is_dir(), reason="../shared/data/rcv_twr is absent")
+def test_recorded_network_is_rebuilt_from_shared_data_with_the_recorded_hash(tmp_path: Path,
+                                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    # The networks trained on ../shared/data are not committed; `make campaign` rebuilds them and must get
+    # the hash models.json records (the firmware and the report are checked against it).
+    from harness.biasnet import shipped
+    recorded = json.loads(shipped.SUMMARY.read_text())["rcv_twr"]["hash"]
+    monkeypatch.setattr(shipped, "MODELS_DIR", tmp_path)
+    monkeypatch.setattr(shipped, "SUMMARY", tmp_path / "models.json")
+    out = shipped.build_shipped_models(shared_data_dir(), only="rcv", write_summary=False)
+    model = BiasModel.load(tmp_path / "rcv_twr.npz")
+    assert out["rcv_twr"]["hash"] == model.hash_hex == recorded
+    assert model.meta["twr_trained_on"] == [f"rcv_twr/sequence{k}" for k in range(1, 5)]   # not this machine's paths
+    assert not (tmp_path / "models.json").exists()

@@ -197,7 +197,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------------------ shipped models
 def cmd_models(args: argparse.Namespace) -> int:
     from harness.biasnet.shipped import build_shipped_models
-    summary = build_shipped_models(Path(args.data), quick=args.quick, only=args.only)
+    summary = build_shipped_models(Path(args.data), quick=args.quick, only=args.only,
+                                   write_summary=not args.keep_summary)
     if args.json:
         print(json.dumps(summary, indent=2, default=float))
     return 0
@@ -259,6 +260,8 @@ def add_commands(sub: Any) -> None:
     mo.add_argument("--data", default=str(Path(__file__).resolve().parents[2].parent / "shared" / "data"))
     mo.add_argument("--quick", action="store_true", help="small data sets (smoke test)")
     mo.add_argument("--only", choices=("sim", "util", "rcv"), help="build only one of the models")
+    mo.add_argument("--keep-summary", action="store_true",
+                    help="leave firmware_sim/models/models.json as it is (only (re)build the files)")
     mo.add_argument("--json", action="store_true")
     mo.set_defaults(func=cmd_models)
 

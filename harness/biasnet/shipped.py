@@ -6,7 +6,8 @@
   trials 1-4 (the reduced data has no attitude); evaluated on trial 5 and const3.
 * ``rcv``  -> firmware_sim/models/rcv_twr.npz: TWR pose network on rcv_twr sequences 1-4, evaluated on 5.
 Each model's file carries its provenance and held-out figures (``meta``); firmware_sim/models/models.json
-collects them with the command, so the docs can quote them.
+collects them with the command, so the docs can quote them. Only the simulated network's files are
+committed; the two trained on ../shared/data are rebuilt from it (seeded: the same hashes on any machine).
 """
 
 from __future__ import annotations
@@ -82,14 +83,16 @@ def _short(m: dict[str, Any]) -> dict[str, Any]:
     return {k: m[k] for k in ("n", "rmse_raw", "rmse_corrected", "mae_raw", "mae_corrected", "reduction")}
 
 
-def _build_recorded(name: str, train_paths: list[Path], test_paths: list[Path], layout: int, quick: bool,
-                    kind: str) -> dict[str, Any]:
+def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: list[Path], layout: int,
+                    quick: bool, kind: str) -> dict[str, Any]:
     if not train_paths or not test_paths:
         return {"skipped": "the shared recordings are not there"}
     train = load_recordings(train_paths[:2] if quick else train_paths)
     net, report, _ = train_kind(train, layout, _train_cfg(quick, 300), name)
+    # relative to the data folder: the file says what it was trained on, not where this machine keeps it
     model = BiasModel(**{kind: net}, name=name,  # type: ignore[arg-type]
-                      meta={f"{kind}_trained_on": [str(p) for p in (train_paths[:2] if quick else train_paths)],
+                      meta={f"{kind}_trained_on": [str(p.relative_to(data)) if p.is_relative_to(data) else str(p)
+                                                   for p in (train_paths[:2] if quick else train_paths)],
                             f"{kind}_training": {"samples": report.n_train, "val_samples": report.n_val,
                                                  "epochs": report.epochs, "seconds": round(report.seconds, 1)}})
     results = {}
@@ -104,19 +107,23 @@ def _build_recorded(name: str, train_paths: list[Path], test_paths: list[Path], 
             "heldout": results}
 
 
-def build_shipped_models(data: Path, quick: bool = False, only: str | None = None) -> dict[str, Any]:
+def build_shipped_models(data: Path, quick: bool = False, only: str | None = None,
+                         write_summary: bool = True) -> dict[str, Any]:
+    """Train (and evaluate) the networks into firmware_sim/models/. The networks trained on ../shared/data
+    (util_tdoa_pos.npz, rcv_twr.npz) are build products, not committed; write_summary=False builds them
+    without touching the committed models.json (`make campaign` does that when they are missing)."""
     summary: dict[str, Any] = {"command": "make models" if not quick else "uwb-hil models --quick",
                                "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
                                "python": platform.python_version()}
     if only in (None, "sim"):
         summary["sim"] = build_sim(quick)
     if only in (None, "util"):
-        summary["util_tdoa_pos"] = _build_recorded("util_tdoa_pos", util_train_files(data), util_heldout_files(data),
-                                                   LAYOUT_TDOA_POS, quick, "tdoa")
+        summary["util_tdoa_pos"] = _build_recorded("util_tdoa_pos", data, util_train_files(data),
+                                                   util_heldout_files(data), LAYOUT_TDOA_POS, quick, "tdoa")
     if only in (None, "rcv"):
-        summary["rcv_twr"] = _build_recorded("rcv_twr", rcv_train_dirs(data), rcv_heldout_dirs(data),
+        summary["rcv_twr"] = _build_recorded("rcv_twr", data, rcv_train_dirs(data), rcv_heldout_dirs(data),
                                              LAYOUT_TWR_POSE, quick, "twr")
-    if not quick:  # merge: `--only X` refreshes X's entry and keeps the others
+    if not quick and write_summary:  # merge: `--only X` refreshes X's entry and keeps the others
         old = json.loads(SUMMARY.read_text()) if SUMMARY.is_file() else {}
         SUMMARY.write_text(json.dumps(old | summary, indent=2, default=float) + "\n")
     return summary
