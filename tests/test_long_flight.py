@@ -59,7 +59,6 @@ class LongRun:
 GATES = {"chi2": int(m.Stage.CHI2_GATE), "outlier": PRESETS["outlier"]}
 
 
-
 def _faults(duration: float) -> FlightFaults:
     return FlightFaults(nlos_fraction=0.2, imu_glitch_rate=1e-3, outage_start_s=0.4 * duration, outage_len_s=2.0,
                         diverge_at_s=0.7 * duration, seed=17)

@@ -183,7 +183,6 @@ static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *
     return bias_nn_predict(net, feat);
 }
 
-/* The pipeline for one measurement z. anchor_b == NULL means TWR to anchor_a. */
 /* How long the links of anchor id had been rejected up to its previous measurement (0 if that one
  * was fused, or before the first fusion). */
 static int64_t anchor_rejected_us(const estimator_t *est, uint8_t id)
@@ -207,7 +206,7 @@ static void mark_fused(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id
     est->t_anchor_fused_us[id_b] = t_us;
 }
 
-/* id_b == id_a for TWR (anchor_b NULL). */
+/* The pipeline for one measurement z. anchor_b == NULL means TWR to anchor_a (then id_b == id_a). */
 static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b, const float *anchor_a,
                     const float *anchor_b, float z, estimator_result_t *out)
 {

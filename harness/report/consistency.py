@@ -58,10 +58,17 @@ def position_nees(results: np.ndarray, truth_pos: np.ndarray) -> np.ndarray:
         raise ValueError(f"truth_pos must have shape ({len(results)}, 3), got {truth_pos.shape}")
     est = np.stack([results["px"], results["py"], results["pz"]], axis=1).astype(np.float64)
     var = np.stack([results["var_x"], results["var_y"], results["var_z"]], axis=1).astype(np.float64)
-    ok = (results["outcome"] == OUTCOME_RESULT) & np.all(var > 0, axis=1) & np.all(np.isfinite(est), axis=1)
-    e = est - truth_pos
-    out = np.full(len(results), np.nan)
-    out[ok] = np.sum(e[ok] ** 2 / var[ok], axis=1)
+    out = nees_of(est - truth_pos, var)
+    out[results["outcome"] != OUTCOME_RESULT] = np.nan
+    return out
+
+
+def nees_of(err: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """NEES of error vectors (M, 3) under diagonal variances (M, 3); NaN where a variance is not positive
+    or the error is not finite."""
+    ok = np.all(var > 0, axis=1) & np.all(np.isfinite(err), axis=1)
+    out = np.full(len(err), np.nan)
+    out[ok] = np.sum(err[ok] ** 2 / var[ok], axis=1)
     return out
 
 

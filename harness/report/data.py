@@ -15,6 +15,7 @@ import numpy as np
 
 from harness.campaign.store import (STATUS_OK, CampaignDataError, CampaignDir, StoredFlight, StoredResults,
                                     load_flight, load_run_results, read_json)
+from harness.report.consistency import nees_of
 from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT
 
 TIME_BIN_S = 0.5          # error-over-time curves are averaged in bins of this width
@@ -140,8 +141,6 @@ def run_metrics(summary: dict[str, Any], res: StoredResults, flight: StoredFligh
         rmse = rmse_xy = rmse_z = nan
         err_mean = err_t = np.zeros(0)
     var = np.stack([c["var_x"][ok], c["var_y"][ok], c["var_z"][ok]], axis=1).astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        nees = np.where(np.all(var > 0, axis=1), np.sum(err ** 2 / np.where(var > 0, var, 1.0), axis=1), np.nan)
     status = c["status"][ok]
     cost_unit = int(summary.get("device", {}).get("cost_unit", 0))
     compute = c["compute"][ok]
@@ -159,7 +158,7 @@ def run_metrics(summary: dict[str, Any], res: StoredResults, flight: StoredFligh
         divergences=int(summary.get("divergences", 0)),
         pacing=str(spec.get("pacing", "windowed")),
         role=str(spec.get("role", "accuracy")),
-        nees=nees, nees_t_s=(t - t0) * 1e-6)
+        nees=nees_of(err, var), nees_t_s=(t - t0) * 1e-6)
 
 
 def load_campaign(root: Path) -> CampaignData:

@@ -83,7 +83,7 @@ def cobs_decode_rows(enc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Decode rows encoded by a single COBS block each: (n, L + 1) -> ((n, L) body, (n,) valid)."""
     n, width = enc.shape
     length = width - 1
-    if n < SMALL_BATCH:
+    if n < SMALL_BATCH and length < 254:
         return _cobs_decode_few(enc)
     body = enc[:, 1:].copy()
     valid = np.ones(n, dtype=bool)
@@ -116,8 +116,6 @@ def _cobs_decode_few(enc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n, width = enc.shape
     length = width - 1
     valid = np.zeros(n, dtype=bool)
-    if length >= 254:
-        return enc[:, 1:].copy(), valid
     flat = enc.tobytes()
     parts: list[bytes | bytearray] = []
     for k in range(n):
