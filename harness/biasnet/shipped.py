@@ -75,8 +75,14 @@ def build_sim(quick: bool) -> dict[str, Any]:
     npz = model.save(DEFAULT_NPZ) if not quick else model.save(MODELS_DIR / "quick" / "bias_model_default.npz")
     if not quick:
         export_c(model, DEFAULT_HEADER)
-    out["file"], out["hash"] = str(npz), model.hash_hex
+    out["file"], out["hash"] = _repo_path(npz), model.hash_hex
     return out
+
+
+def _repo_path(path: Path) -> str:
+    """Path as recorded in models.json: relative to the repository, not this machine's checkout."""
+    root = MODELS_DIR.parents[1]
+    return str(path.relative_to(root)) if path.is_relative_to(root) else str(path)
 
 
 def _short(m: dict[str, Any]) -> dict[str, Any]:
@@ -103,7 +109,7 @@ def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: 
         _log(f"{name} on {p.name}: " + ", ".join(f"{k} {100 * v['reduction']:.1f} %" for k, v in res["methods"].items()))
     model.meta[f"{kind}_heldout"] = results
     path = model.save((MODELS_DIR / "quick" if quick else MODELS_DIR) / f"{name}.npz")
-    return {"file": str(path), "hash": model.hash_hex, "training": model.meta[f"{kind}_training"],
+    return {"file": _repo_path(path), "hash": model.hash_hex, "training": model.meta[f"{kind}_training"],
             "heldout": results}
 
 
