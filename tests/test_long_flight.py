@@ -12,6 +12,8 @@ Also NEES over Monte-Carlo seeds (harness/report/consistency.py).
 
 from __future__ import annotations
 
+import math
+
 import os
 import subprocess
 import time
@@ -26,7 +28,8 @@ from harness.device.emulator import EmulatorDevice
 from harness.flight.faults import FlightFaults, InjectedFaults, inject
 from harness.flight.model import Flight
 from harness.flight.scenarios import scenario_flight
-from harness.report.consistency import chi2_quantile, monte_carlo_nees, position_nees
+from harness.report.chi2 import chi2_cdf, chi2_quantile
+from harness.report.consistency import monte_carlo_nees, position_nees
 from harness.report.health import reconvergence_s, rejection_streaks
 from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, config_for
 from harness.stream.prepare import prepare, setup_frames
@@ -197,12 +200,25 @@ def test_full_covariance_stays_symmetric_positive_definite(long_run: LongRun, co
 
 
 # --------------------------------------------------------------------------------------------- NEES
-def test_chi2_quantile_matches_known_values() -> None:
-    # chi2.ppf(0.025, 3) = 0.2158, (0.975, 3) = 9.348, (0.975, 30) = 46.98, (0.025, 300) = 253.9
-    assert chi2_quantile(0.025, 3) == pytest.approx(0.2158, rel=0.2)     # Wilson-Hilferty is poor at k=3
-    assert chi2_quantile(0.975, 3) == pytest.approx(9.348, rel=0.01)
-    assert chi2_quantile(0.975, 30) == pytest.approx(46.98, rel=0.002)
-    assert chi2_quantile(0.025, 300) == pytest.approx(253.9, rel=0.002)
+# scipy.stats.chi2.ppf(p, k) (SciPy 1.x), to the digits printed in statistical tables and beyond
+CHI2_TABLE = [(0.975, 1, 5.023886187314888), (0.025, 1, 0.0009820691171752555), (0.025, 3, 0.21579528262389785),
+              (0.975, 3, 9.348403604496148), (0.025, 6, 1.2373442457912027), (0.975, 6, 14.44937533544792),
+              (0.025, 30, 16.79077226556663), (0.975, 30, 46.97924224367115), (0.025, 300, 253.91232260248975),
+              (0.975, 300, 349.87446882991526), (0.025, 3000, 2850.084936519793)]
+
+
+@pytest.mark.parametrize("p,k,expected", CHI2_TABLE)
+def test_chi2_quantile_is_exact(p: float, k: int, expected: float) -> None:
+    assert chi2_quantile(p, k) == pytest.approx(expected, rel=1e-9)
+    assert chi2_cdf(chi2_quantile(p, k), k) == pytest.approx(p, abs=1e-12)
+
+
+def test_chi2_with_two_degrees_of_freedom_has_its_closed_form() -> None:
+    # k = 2 is the exponential distribution: cdf = 1 - exp(-x/2), quantile = -2 ln(1 - p)
+    for p in (1e-6, 0.025, 0.5, 0.95, 0.999999):
+        assert chi2_quantile(p, 2) == pytest.approx(-2.0 * math.log1p(-p), rel=1e-10)
+    with pytest.raises(ValueError):
+        chi2_quantile(1.0, 3)
 
 
 def test_nees_of_a_consistent_synthetic_estimator_is_three() -> None:

@@ -15,40 +15,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from harness.report.chi2 import chi2_quantile
 from harness.stream.streamer import OUTCOME_RESULT
 
 DOF = 3
-
-
-def chi2_quantile(p: float, k: int) -> float:
-    """Wilson-Hilferty approximation of the chi-square quantile (relative error < 1 % for k >= 3)."""
-    if not 0.0 < p < 1.0 or k < 1:
-        raise ValueError("need 0 < p < 1 and k >= 1")
-    z = _norm_ppf(p)
-    c = 2.0 / (9.0 * k)
-    return k * max(0.0, 1.0 - c + z * math.sqrt(c)) ** 3
-
-
-def _norm_ppf(p: float) -> float:
-    # Acklam's rational approximation (|error| < 1.2e-9); enough for interval bounds.
-    a = (-3.969683028665376e+01, 2.209460984245205e+02, -2.759285104469687e+02, 1.383577518672690e+02,
-         -3.066479806614716e+01, 2.506628277459239e+00)
-    b = (-5.447609879822406e+01, 1.615858368580409e+02, -1.556989798598866e+02, 6.680131188771972e+01,
-         -1.328068155288572e+01)
-    c = (-7.784894002430293e-03, -3.223964580411365e-01, -2.400758277161838e+00, -2.549732539343734e+00,
-         4.374664141464968e+00, 2.938163982698783e+00)
-    d = (7.784695709041462e-03, 3.224671290700398e-01, 2.445134137142996e+00, 3.754408661907416e+00)
-    lo = 0.02425
-    if p < lo:
-        q = math.sqrt(-2 * math.log(p))
-        return (((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) / \
-            ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1)
-    if p > 1 - lo:
-        return -_norm_ppf(1 - p)
-    q = p - 0.5
-    r = q * q
-    return (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q / \
-        (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1)
 
 
 def position_nees(results: np.ndarray, truth_pos: np.ndarray) -> np.ndarray:
