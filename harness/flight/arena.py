@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.flight.formats.yaml_lines import LineList, LineMap, YamlSyntaxError, load_yaml_lines
 from harness.flight.model import Anchors, FlightError
 from harness.flight.trajectory import rot_to_quat
 
@@ -177,70 +178,55 @@ def _load_csv(path: Path, constellation: int | None) -> Anchors:
     return Anchors(ids=ids, positions=np.array([r[1:] for r in sel], dtype=np.float64))
 
 
-def _numbers(text: str, path: Path, lineno: int, field_name: str, n: int) -> list[float]:
-    s = text.strip()
-    if not (s.startswith("[") and s.endswith("]")):
-        raise ConstellationError(f"{path}:{lineno}: field {field_name} must be a [..] list of {n} numbers")
-    try:
-        vals = [float(v) for v in s[1:-1].split(",")]
-    except ValueError:
-        raise ConstellationError(f"{path}:{lineno}: field {field_name} holds a non-number: {s}") from None
+def _numbers(value: object, path: Path, lineno: int, field_name: str, n: int) -> list[float]:
+    ok = isinstance(value, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    if not ok:
+        raise ConstellationError(f"{path}:{lineno}: field {field_name} must be a list of {n} numbers, got {value!r}")
+    vals = [float(v) for v in value]  # type: ignore[union-attr]
     if len(vals) != n or not all(math.isfinite(v) for v in vals):
-        raise ConstellationError(f"{path}:{lineno}: field {field_name} needs {n} finite numbers, got {s}")
+        raise ConstellationError(f"{path}:{lineno}: field {field_name} needs {n} finite numbers, got {value!r}")
     return vals
 
 
 def _load_yaml(path: Path) -> Anchors:
-    """The flow-style subset written above; a tiny reader rather than a YAML dependency."""
+    """`anchors:` - a list of {id, position, orientation (optional)} in any YAML style (PyYAML); the loaded
+    data is validated entry by entry with the file line of each value."""
+    try:
+        doc = load_yaml_lines(path)
+    except YamlSyntaxError as exc:
+        raise ConstellationError(f"{path}:{exc.line or 1}: {exc}") from None
+    if not isinstance(doc, LineMap) or "anchors" not in doc:
+        raise ConstellationError(f"{path}:{getattr(doc, 'line', 1)}: expected a mapping with key 'anchors:' "
+                                 "(a list of {id: N, position: [x, y, z]})")
+    extra = sorted(str(k) for k in doc if k != "anchors")
+    if extra:
+        raise ConstellationError(f"{path}:{doc.line_of(extra[0])}: unexpected key {extra[0]!r} (only 'anchors')")
+    entries = doc["anchors"]
+    if not isinstance(entries, LineList) or not entries:
+        raise ConstellationError(f"{path}:{doc.line_of('anchors')}: no anchors (expected a list under 'anchors:')")
     ids: list[int] = []
     pos: list[list[float]] = []
     ori: list[list[float] | None] = []
-    seen_key = False
-    for lineno, raw in enumerate(path.read_text().splitlines(), start=1):
-        line = raw.split("#", 1)[0].rstrip()
-        if not line.strip():
-            continue
-        if line.strip() == "anchors:":
-            seen_key = True
-            continue
-        s = line.strip()
-        if not (seen_key and s.startswith("- {") and s.endswith("}")):
-            raise ConstellationError(f"{path}:{lineno}: expected 'anchors:' then '- {{id: N, position: [x, y, z]}}' "
-                                     f"lines, got {s!r}")
-        body = s[3:-1]
-        fields: dict[str, str] = {}
-        # split on commas outside brackets
-        depth, cur, parts = 0, "", []
-        for ch in body:
-            depth += ch == "["
-            depth -= ch == "]"
-            if ch == "," and depth == 0:
-                parts.append(cur)
-                cur = ""
-            else:
-                cur += ch
-        parts.append(cur)
-        for part in parts:
-            if ":" not in part:
-                raise ConstellationError(f"{path}:{lineno}: expected key: value, got {part.strip()!r}")
-            k, v = part.split(":", 1)
-            fields[k.strip()] = v.strip()
-        if "id" not in fields or "position" not in fields:
-            raise ConstellationError(f"{path}:{lineno}: an anchor needs id and position")
-        try:
-            ids.append(int(fields["id"]))
-        except ValueError:
-            raise ConstellationError(f"{path}:{lineno}: field id must be an integer, got {fields['id']!r}") from None
-        pos.append(_numbers(fields["position"], path, lineno, "position", 3))
-        ori.append(_numbers(fields["orientation"], path, lineno, "orientation", 4) if "orientation" in fields
-                   else None)
-    if not ids:
-        raise ConstellationError(f"{path}: no anchors")
+    for k, e in enumerate(entries):
+        line = entries.line_of(k)
+        if not isinstance(e, LineMap) or "id" not in e or "position" not in e:
+            raise ConstellationError(f"{path}:{line}: an anchor needs id and position, got {e!r}")
+        unknown = sorted(str(x) for x in e if x not in ("id", "position", "orientation"))
+        if unknown:
+            raise ConstellationError(f"{path}:{e.line_of(unknown[0])}: unknown field {unknown[0]!r}")
+        if not isinstance(e["id"], int) or isinstance(e["id"], bool):
+            raise ConstellationError(f"{path}:{e.line_of('id')}: field id must be an integer, got {e['id']!r}")
+        ids.append(int(e["id"]))
+        pos.append(_numbers(e["position"], path, e.line_of("position"), "position", 3))
+        ori.append(_numbers(e["orientation"], path, e.line_of("orientation"), "orientation", 4)
+                   if "orientation" in e else None)
     if len(set(ids)) != len(ids):
         raise ConstellationError(f"{path}: repeated anchor id")
     orientations = None
     if all(o is not None for o in ori):
         q = np.array(ori, dtype=np.float64)
+        if np.any(np.linalg.norm(q, axis=1) < 1e-9):
+            raise ConstellationError(f"{path}: an orientation quaternion is zero")
         orientations = q / np.linalg.norm(q, axis=1, keepdims=True)
     return Anchors(ids=np.array(ids, dtype=np.int64), positions=np.array(pos, dtype=np.float64),
                    orientations=orientations)

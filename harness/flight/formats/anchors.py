@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.flight.formats.common import RecordingError, normalised_quats, read_csv_table
+from harness.flight.formats.yaml_lines import LineList, LineMap, YamlSyntaxError, load_yaml_lines
 from harness.flight.model import Anchors, FlightError
 
 ANCHORS_CSV_COLUMNS = ("constellation", "anchor_id", "x_m", "y_m", "z_m")
@@ -170,57 +171,40 @@ def load_survey_txt(path: Path) -> Anchors:
 
 
 # ------------------------------------------------------------------------------ rcv_twr anchor.yaml
-_YAML_ANCHOR = re.compile(r"^anchor(\d+):\s*$")
-_YAML_ITEM = re.compile(r"^\s+-\s*(position|orientation):\s*$")
-_YAML_DATA = re.compile(r"^\s+data:\s*\[(.*)\]\s*$")
+_YAML_ANCHOR_KEY = re.compile(r"anchor(\d+)")
+_YAML_ITEMS = {"position": 3, "orientation": 4}
 
 
 def load_anchor_yaml(path: Path) -> Anchors:
-    """The rcv_twr anchor.yaml (a fixed, tiny YAML shape; read directly rather than adding a YAML
-    dependency). A project constellation YAML (`anchors:` list) is passed to the arena's reader."""
+    """The rcv_twr anchor.yaml, read with PyYAML (block or flow style): `anchorK:` entries holding a
+    `position` (3 numbers) and optionally an `orientation` (x, y, z, w), each either a list of one-key
+    mappings (`- position: {data: [..]}`, the dataset's own shape) or a mapping, the numbers either under
+    `data:` or given directly. A project constellation YAML (`anchors:` list) goes to the arena's reader."""
     if not path.is_file():
         raise RecordingError("expected an anchor YAML file", path=path)
-    text = path.read_text(encoding="utf-8-sig")
-    first = next((ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("#")), "")
-    if first == "anchors:":
+    try:
+        doc = load_yaml_lines(path)
+    except YamlSyntaxError as exc:
+        raise RecordingError(str(exc), path=path, line=exc.line) from None
+    if isinstance(doc, LineMap) and "anchors" in doc:
         from harness.flight.arena import load_constellation  # the simulator's constellation format
         return load_constellation(path)
+    if not isinstance(doc, LineMap) or not doc:
+        raise RecordingError("no anchors (expected anchorK: entries with a position)", path=path,
+                             line=getattr(doc, "line", None))
     pos: dict[int, list[float]] = {}
     quat: dict[int, list[float]] = {}
-    current: int | None = None
-    item: str | None = None
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = raw.split("#", 1)[0].rstrip()
-        if not line.strip():
-            continue
-        if (m := _YAML_ANCHOR.match(line)) is not None:
-            current, item = int(m.group(1)), None
-            if current in pos or current in quat:
-                raise RecordingError(f"anchor{current} defined twice", path=path, line=lineno)
-            continue
-        if (m := _YAML_ITEM.match(line)) is not None and current is not None:
-            item = m.group(1)
-            continue
-        if (m := _YAML_DATA.match(line)) is not None and current is not None and item is not None:
-            n = 3 if item == "position" else 4
-            try:
-                vals = [float(v) for v in m.group(1).split(",")]
-            except ValueError:
-                raise RecordingError(f"expected {n} numbers in [..], got [{m.group(1)}]", path=path, line=lineno,
-                                     field=f"anchor{current}.{item}") from None
-            if len(vals) != n or not all(np.isfinite(vals)):
-                raise RecordingError(f"expected {n} finite numbers, got [{m.group(1)}]", path=path, line=lineno,
-                                     field=f"anchor{current}.{item}")
-            (pos if item == "position" else quat)[current] = vals
-            item = None
-            continue
-        raise RecordingError("expected 'anchorK:', '  - position:' / '  - orientation:' or '      data: [..]', "
-                             f"got {raw.strip()!r}", path=path, line=lineno)
-    if not pos:
-        raise RecordingError("no anchors (expected anchorK: blocks with a position)", path=path)
-    no_pos = sorted(set(quat) - set(pos))
-    if no_pos:
-        raise RecordingError(f"anchor(s) {no_pos} have an orientation but no position", path=path)
+    for key, value in doc.items():
+        m = _YAML_ANCHOR_KEY.fullmatch(str(key))
+        if m is None:
+            raise RecordingError(f"unexpected key {key!r}: expected anchorK (K = the anchor id) or anchors:",
+                                 path=path, line=doc.line_of(key))
+        k = int(m.group(1))
+        for item, (val, line) in _anchor_items(value, path, doc.line_of(key), str(key)).items():
+            (pos if item == "position" else quat)[k] = _yaml_numbers(val, _YAML_ITEMS[item], path, line,
+                                                                   f"{key}.{item}")
+        if k not in pos:
+            raise RecordingError("anchor has no position", path=path, line=doc.line_of(key), field=str(key))
     ids = np.array(sorted(pos), dtype=np.int64)
     q = None
     if quat:
@@ -229,3 +213,44 @@ def load_anchor_yaml(path: Path) -> Anchors:
         q = normalised_quats(np.array([quat[int(i)] for i in ids])[:, [3, 0, 1, 2]], None, "orientation",
                              path=path)
     return _make_anchors(ids, np.array([pos[int(i)] for i in ids]), q, path)
+
+
+def _anchor_items(value: object, path: Path, line: int, name: str) -> dict[str, tuple[object, int]]:
+    """{"position" | "orientation": (value, line)} of one anchorK entry (a list of one-key maps or a map)."""
+    entries: list[tuple[object, object, int]] = []
+    if isinstance(value, LineMap):
+        entries = [(k, v, value.line_of(k)) for k, v in value.items()]
+    elif isinstance(value, LineList):
+        for i, it in enumerate(value):
+            if not isinstance(it, LineMap):
+                raise RecordingError("expected '- position: ...' or '- orientation: ...'", path=path,
+                                     line=value.line_of(i), field=name)
+            entries += [(k, v, it.line_of(k)) for k, v in it.items()]
+    else:
+        raise RecordingError("expected a position (and orientation) under the anchor", path=path, line=line,
+                             field=name)
+    out: dict[str, tuple[object, int]] = {}
+    for k, v, ln in entries:
+        if k not in _YAML_ITEMS:
+            raise RecordingError(f"unexpected key {k!r}: expected position or orientation", path=path, line=ln,
+                                 field=name)
+        if k in out:
+            raise RecordingError(f"{k} given twice", path=path, line=ln, field=name)
+        if isinstance(v, LineMap):       # the dataset's `data: [..]` wrapper
+            if set(v) != {"data"}:
+                raise RecordingError(f"expected 'data: [..]' under {k}, got keys {sorted(map(str, v))}",
+                                     path=path, line=ln, field=f"{name}.{k}")
+            v, ln = v["data"], v.line_of("data")
+        out[str(k)] = (v, ln)
+    return out
+
+
+def _yaml_numbers(value: object, n: int, path: Path, line: int, field: str) -> list[float]:
+    ok = isinstance(value, list) and len(value) == n and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    if not ok:
+        raise RecordingError(f"expected {n} numbers in [..], got {value!r}", path=path, line=line, field=field)
+    vals = [float(v) for v in value]  # type: ignore[union-attr]
+    if not all(np.isfinite(vals)):
+        raise RecordingError(f"expected {n} finite numbers, got {value!r}", path=path, line=line, field=field)
+    return vals
