@@ -22,7 +22,7 @@ from harness.config import PRESETS, EstimatorConfig
 from harness.errors import UwbHilError
 from harness.flight.model import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
-from harness.session import DEFAULT_FIRMWARE, TARGETS, DeviceSpec, config_for, kind_name, open_device
+from harness.session import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, TARGETS, DeviceSpec, config_for, kind_name, open_device
 from harness.stream.streamer import PACING_MODES, Pacing, Streamer
 
 
@@ -76,7 +76,8 @@ def print_run(summary: dict[str, Any]) -> None:
 
 # ------------------------------------------------------------------------------------------ commands
 def _device_spec(args: argparse.Namespace) -> DeviceSpec:
-    return DeviceSpec(target=args.target, port=args.port, baud=args.baud, firmware=Path(args.firmware),
+    return DeviceSpec(target=args.target, port=args.port, baud=args.baud,
+                      firmware=Path(args.firmware) if args.firmware else None,
                       timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None)
 
 
@@ -88,7 +89,7 @@ def _model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None
         return spec, None
     from harness.biasnet.model import BiasModel
     model = BiasModel.load(Path(args.model))
-    if spec.resolved_target() == "emulator" and Path(args.firmware) == DEFAULT_FIRMWARE:
+    if spec.resolved_target() == "emulator" and spec.firmware_path() == DEFAULT_FIRMWARE:
         from harness.biasnet.cbuild import firmware_for
         spec = replace(spec, firmware=firmware_for(model))
     return spec, model.hash
@@ -238,7 +239,9 @@ def _add_device_options(p: argparse.ArgumentParser) -> None:
                    help="emulator (host firmware on a pty, default), serial (a board on --port), qemu")
     g.add_argument("--port", help="pyserial URL or device of a real board: /dev/ttyACM0, rfc2217://host:port")
     g.add_argument("--baud", type=int, default=115200)
-    g.add_argument("--firmware", default=str(DEFAULT_FIRMWARE), help="host firmware binary for the emulator")
+    g.add_argument("--firmware", default=None,
+                   help=f"firmware to run: the host binary for the emulator (default {DEFAULT_FIRMWARE}), "
+                        f"the STM32F405 ELF for qemu (default {DEFAULT_STM32_ELF})")
     g.add_argument("--timeout", type=float, default=5.0, help="seconds of device silence before giving up")
     g.add_argument("--log-dir", help="where device logs go")
 

@@ -13,6 +13,7 @@ from harness.flight.model import KIND_TDOA, KIND_TWR, Flight
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_FIRMWARE = REPO_ROOT / "firmware_sim" / "build" / "uwb-fw"
+DEFAULT_STM32_ELF = REPO_ROOT / "firmware_sim" / "build" / "stm32" / "uwb-fw.elf"
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
 TARGETS = ("emulator", "serial", "qemu")
 
@@ -22,23 +23,29 @@ class DeviceSpec:
     target: str = "emulator"
     port: str | None = None
     baud: int = 115200
-    firmware: Path = DEFAULT_FIRMWARE
+    firmware: Path | None = None     # None: the target's default (host binary, or the STM32 ELF for qemu)
     timeout_s: float = 5.0
     log_dir: Path | None = None
 
     def resolved_target(self) -> str:
         return "serial" if (self.port and self.target == "emulator") else self.target
 
+    def firmware_path(self) -> Path:
+        if self.firmware is not None:
+            return Path(self.firmware)
+        return DEFAULT_STM32_ELF if self.resolved_target() == "qemu" else DEFAULT_FIRMWARE
+
 
 @contextmanager
 def open_device(spec: DeviceSpec, expected_model_hash: int | None = None) -> Iterator[object]:
     """Start (or connect to) the device, check its HELLO, and always stop it."""
     target = spec.resolved_target()
+    firmware = spec.firmware_path()
     if target == "emulator":
         from harness.device.emulator import EmulatorDevice
-        if not Path(spec.firmware).exists():
-            raise FileNotFoundError(f"firmware binary {spec.firmware} not found: run `make firmware`")
-        device = EmulatorDevice(Path(spec.firmware), log_dir=spec.log_dir)
+        if not firmware.is_file():
+            raise FileNotFoundError(f"firmware binary {firmware} not found: run `make firmware`")
+        device = EmulatorDevice(firmware, log_dir=spec.log_dir)
     elif target == "serial":
         from harness.device.serial_device import SerialDevice
         if not spec.port:
@@ -49,7 +56,10 @@ def open_device(spec: DeviceSpec, expected_model_hash: int | None = None) -> Ite
             from harness.device.qemu import QemuDevice  # type: ignore[import-not-found]
         except ImportError:
             raise NotImplementedError("the QEMU target is not available in this build") from None
-        device = QemuDevice(log_dir=spec.log_dir)
+        if not firmware.is_file():    # checked here: a missing ELF is a usage error (exit 2), not a device failure
+            raise FileNotFoundError(f"firmware ELF {firmware} not found: build it with `make stm32` "
+                                    "or pass --firmware PATH")
+        device = QemuDevice(elf=firmware, log_dir=spec.log_dir)
     else:
         raise ValueError(f"unknown target {target!r}; choose one of {TARGETS}")
     device.start()

@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from harness.campaign.plan import (CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, attach_firmware,
-                                   plan_campaign)
+from harness.campaign.plan import (CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, PlanError,
+                                   attach_firmware, plan_campaign)
 from harness.campaign.runner import ExecOptions, run_campaign
 from harness.session import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
@@ -60,9 +60,11 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                            latency_runs=args.latency_runs,
                            sim_model=Path(args.sim_model).resolve() if args.sim_model else None,
                            recorded_models=args.recorded_models)
-    if not opts.firmware.exists():
-        raise FileNotFoundError(f"firmware binary {opts.firmware} not found: run `make firmware`")
-    runs, notes = plan_campaign(opts)
+    if args.jobs < 1:
+        raise PlanError(f"--jobs must be >= 1, got {args.jobs}")
+    if not (0 < args.timeout <= 3600):
+        raise PlanError(f"--timeout must be in (0, 3600] s, got {args.timeout:g}")
+    runs, notes = plan_campaign(opts)      # validates the options: nothing has started yet
     try:
         runs = attach_firmware(runs)      # firmware images for non-default models (built once, cached)
     except RuntimeError as exc:

@@ -27,6 +27,7 @@ MODES = ("twr", "tdoa")
 TRAJECTORIES = ("circle", "circle-z")
 CONFIGS = tuple(PRESETS)            # ("none", "outlier", "outlier+nn")
 FIRST_EVAL_SEED = 1000              # training seeds are below this
+MAX_DURATION_S = 3600.0             # of one simulated flight (memory: the flight is built whole)
 # Held out from training (see the module docstring). Paths relative to the shared data directory.
 UTIL_HELD_OUT = (
     "util/const1/const1-trial5-tdoa2-extracted.csv",
@@ -127,10 +128,24 @@ class CampaignOptions:
     recorded_models: bool = True   # recorded flights on a firmware with the real-data network (if present)
 
     def validate(self) -> None:
+        """Everything that would make every worker fail is refused here, before any worker starts."""
+        from harness.flight.scenarios import SCENARIOS, min_duration_s
         if self.seeds < 0:
             raise PlanError(f"--seeds must be >= 0, got {self.seeds}")
-        if not self.duration_s > 0:
-            raise PlanError(f"--duration must be > 0, got {self.duration_s}")
+        if self.first_seed < 0:
+            raise PlanError(f"--first-seed must be >= 0, got {self.first_seed}")
+        shortest = min_duration_s(self.takeoff)
+        if self.seeds and not (shortest < self.duration_s <= MAX_DURATION_S):
+            raise PlanError(f"--duration {self.duration_s:g}: simulated flights need more than {shortest:g} s "
+                            f"({'take-off, landing and ' if self.takeoff else ''}the scenario itself) "
+                            f"and at most {MAX_DURATION_S:g} s")
+        for traj in self.trajectories:
+            if traj not in SCENARIOS:
+                raise PlanError(f"unknown trajectory {traj!r} in --trajectories; choose from {SCENARIOS}")
+        if not Path(self.firmware).is_file():
+            raise PlanError(f"firmware binary {self.firmware} not found: run `make firmware` (or pass --firmware)")
+        if self.sim_model is not None and not Path(self.sim_model).is_file():
+            raise PlanError(f"--sim-model {self.sim_model}: file not found")
         for mode in self.modes:
             if mode not in MODES:
                 raise PlanError(f"unknown mode {mode!r} in --modes; choose from {MODES}")

@@ -32,9 +32,9 @@ from harness.device.base import Device, FrameChannel
 from harness.errors import DeviceDied, DeviceError, LinkClosed, LinkTimeout
 from harness.link.base import DEFAULT_READ_SIZE, Link
 from harness.link.pty_link import make_raw
+from harness.session import DEFAULT_STM32_ELF
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-DEFAULT_ELF = REPO_ROOT / "firmware_sim" / "build" / "stm32" / "uwb-fw.elf"
+DEFAULT_ELF = DEFAULT_STM32_ELF
 
 _PTY_RE = re.compile(r"char device redirected to (/dev/pts/\d+) \(label (\w+)\)")
 _PROMPT = b"(qemu) "

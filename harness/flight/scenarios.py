@@ -37,17 +37,28 @@ class ScenarioError(ValueError):
     """Unknown scenario, mode, noise kind or option."""
 
 
+DEFAULT_TAKEOFF_S = 4.0
+DEFAULT_GROUND_WAIT_S = 1.0
+MIN_MAIN_S = 0.5          # the scenario itself, between take-off and landing
+
+
+def min_duration_s(takeoff: bool, takeoff_s: float = DEFAULT_TAKEOFF_S,
+                   ground_wait_s: float = DEFAULT_GROUND_WAIT_S) -> float:
+    """Shortest duration_s a scenario accepts (exclusive bound): callers validate options with it up front."""
+    return (2.0 * (takeoff_s + ground_wait_s) if takeoff else 0.0) + MIN_MAIN_S
+
+
 def _trajectory(name: str, duration_s: float, rng: np.random.Generator, arena: Arena,
                 kw: dict[str, Any]) -> Trajectory:
     takeoff = bool(kw.pop("takeoff", False))
     ramp = float(kw.pop("ramp_s", 2.0))
-    takeoff_s = float(kw.pop("takeoff_s", 4.0))
-    wait_s = float(kw.pop("ground_wait_s", 1.0))
+    takeoff_s = float(kw.pop("takeoff_s", DEFAULT_TAKEOFF_S))
+    wait_s = float(kw.pop("ground_wait_s", DEFAULT_GROUND_WAIT_S))
     ground_z = float(kw.pop("ground_z", 0.05)) if takeoff else None
-    main_s = duration_s - (2.0 * (takeoff_s + wait_s) if takeoff else 0.0)
-    if main_s <= 0.5:
+    main_s = duration_s - (min_duration_s(takeoff, takeoff_s, wait_s) - MIN_MAIN_S)
+    if main_s <= MIN_MAIN_S:
         raise ScenarioError(f"duration_s={duration_s} too short for scenario {name!r} "
-                            f"(needs > {duration_s - main_s + 0.5:.1f} s)")
+                            f"(needs > {min_duration_s(takeoff, takeoff_s, wait_s):.1f} s)")
     ramp = min(ramp, main_s / 4.0)   # short flights: shorter speed ramps
     center = arena.center
     height = float(kw.pop("height", 1.2))
@@ -212,4 +223,4 @@ def scenario_flight(name: str, mode: str = "twr", duration_s: float = 30.0, seed
     return flight
 
 
-__all__ = ["SCENARIOS", "NOISE_KINDS", "MODES", "ScenarioError", "scenario_flight"]
+__all__ = ["min_duration_s", "SCENARIOS", "NOISE_KINDS", "MODES", "ScenarioError", "scenario_flight"]
