@@ -31,7 +31,8 @@ def make_flight(args: argparse.Namespace) -> Flight:
     if args.recording:
         from harness.flight.loaders import load_recording
         anchors = Path(args.anchors) if args.anchors else None
-        return load_recording(Path(args.recording), anchors=anchors)
+        return load_recording(Path(args.recording), anchors=anchors, constellation=getattr(args, "constellation", None),
+                              check=not getattr(args, "force", False))
     from harness.flight.scenarios import scenario_flight
     return scenario_flight(args.scenario, mode=args.mode, duration_s=args.duration, seed=args.seed)
 
@@ -95,7 +96,8 @@ def _model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None
     return spec, model.hash
 
 
-_SOURCE_KEYS = ("scenario", "mode", "duration", "seed", "recording", "anchors", "stages", "uwb_only", "model", "set")
+_SOURCE_KEYS = ("scenario", "mode", "duration", "seed", "recording", "anchors", "constellation", "force", "stages",
+                "uwb_only", "model", "set")
 
 
 def _run_source(args: argparse.Namespace) -> dict[str, Any]:
@@ -254,6 +256,11 @@ def _add_flight_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=int, default=1)
     g.add_argument("--recording", help="replay a recorded flight instead (UTIL CSV, rcv_twr sequence, .npz)")
     g.add_argument("--anchors", help="anchor file for the recording (UTIL anchors.csv, YAML)")
+    g.add_argument("--constellation", type=int, metavar="N",
+                   help="constellation of a multi-constellation anchors.csv (default: constN in the file name)")
+    g.add_argument("--force", action="store_true",
+                   help="replay a recording that fails the plausibility checks (units, anchor geometry, gross "
+                        "errors, time overlap)")
 
 
 def _add_pacing_options(p: argparse.ArgumentParser) -> None:

@@ -304,7 +304,8 @@ def test_native_round_trip_is_exact(tmp_path: Path, rcv: Path, make) -> None:  #
     flight = make(rcv)
     path = save_flight(flight, tmp_path / "flight.npz")
     _assert_same(flight, load_flight(path))
-    _assert_same(flight, load_recording(path))              # dispatch by content
+    _assert_same(flight, load_recording(path, check=False))  # dispatch by content (the synthetic flight is
+                                                             # random arrays: a format test, not a flight)
     with np.load(path, allow_pickle=False) as z:             # plain arrays, no pickles
         assert "flight_json" in z.files
 

@@ -25,8 +25,9 @@ from harness.flight.formats.rcv_twr import (ANCHOR_COLUMNS, DEFAULT_ANCHOR_OFFSE
 from harness.flight.formats.util import constellation_from_name, load_util_csv, util_layout
 from harness.flight.model import Anchors, Flight, FlightError
 from harness.flight.native import is_native, load_flight, save_flight
+from harness.flight.plausibility import ImplausibleRecording, check_recording
 
-__all__ = ["RecordingError", "load_recording", "load_anchors", "load_anchors_csv", "load_survey_npz",
+__all__ = ["RecordingError", "ImplausibleRecording", "load_recording", "load_anchors", "load_anchors_csv", "load_survey_npz",
            "load_survey_txt", "load_anchor_yaml", "load_util_csv", "load_rcv_twr", "load_flight", "save_flight",
            "find_anchor_file", "time_slice", "DEFAULT_ANCHOR_OFFSET"]
 
@@ -34,8 +35,11 @@ AnchorsArg = Anchors | Path | str | None
 
 
 def load_recording(path: Path | str, anchors: AnchorsArg = None, *, constellation: int | None = None,
-                   anchor_offset: tuple[float, float, float] | None = DEFAULT_ANCHOR_OFFSET) -> Flight:
-    """Load any supported recording.
+                   anchor_offset: tuple[float, float, float] | None = DEFAULT_ANCHOR_OFFSET,
+                   check: bool = True) -> Flight:
+    """Load any supported recording, then check it is plausible (harness/flight/plausibility.py: units,
+    anchor geometry, gross errors, time overlap; `ImplausibleRecording` names the file and the likely
+    cause). check=False (the CLI's --force) skips that check, never the format checks.
 
     anchors: an `Anchors`, or an anchor file. UTIL CSVs need one; when None, an `anchors.csv` next to the
         recording or up to two directories above it is used. The constellation of a multi-constellation
@@ -44,7 +48,14 @@ def load_recording(path: Path | str, anchors: AnchorsArg = None, *, constellatio
         stored ones.
     anchor_offset: rcv_twr only, added to the anchor positions (the source's antenna offset; None = none).
     """
-    path = Path(path)
+    flight = _load(Path(path), anchors, constellation, anchor_offset)
+    if check:
+        check_recording(flight, path)
+    return flight
+
+
+def _load(path: Path, anchors: AnchorsArg, constellation: int | None,
+          anchor_offset: tuple[float, float, float] | None) -> Flight:
     if not path.exists():
         raise FileNotFoundError(f"recording {path} not found")
     if path.is_dir():
@@ -192,15 +203,17 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import sys
     ap = argparse.ArgumentParser(prog="python -m harness.flight.loaders", description=main.__doc__)
-    ap.add_argument("recording")
-    ap.add_argument("--anchors")
-    ap.add_argument("--constellation", type=int)
+    ap.add_argument("recording", help="UTIL CSV, rcv_twr sequence directory or native .npz")
+    ap.add_argument("--anchors", help="anchor file (UTIL anchors.csv, survey .npz/.txt, anchor.yaml)")
+    ap.add_argument("--constellation", type=int, help="constellation N of a multi-constellation anchors.csv")
     ap.add_argument("--no-anchor-offset", action="store_true", help="rcv_twr: use the surveyed anchor positions")
     ap.add_argument("--save", help="write the flight in the native format (.npz)")
+    ap.add_argument("--force", action="store_true", help="load an implausible recording anyway (units, geometry)")
     args = ap.parse_args(argv)
     try:
         flight = load_recording(args.recording, args.anchors, constellation=args.constellation,
-                                anchor_offset=None if args.no_anchor_offset else DEFAULT_ANCHOR_OFFSET)
+                                anchor_offset=None if args.no_anchor_offset else DEFAULT_ANCHOR_OFFSET,
+                                check=not args.force)
     except (RecordingError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -72,12 +72,15 @@ def load_anchors_csv(path: Path, constellation: int | None = None) -> Anchors:
         raise RecordingError("no anchors (header only)", path=path)
     ids = table.ints("anchor_id", hi=MAX_ANCHOR_ID)
     pos = np.stack([table.floats(c) for c in ("x_m", "y_m", "z_m")], axis=1)
+    if not has_const:
+        # one constellation per file: it is whichever the recording names (constN), so no selection
+        constellation = None
     const = table.ints("constellation", hi=1 << 30) if has_const else np.zeros(len(table), dtype=np.int64)
     available = sorted(set(int(c) for c in const))
     if constellation is None:
         if len(available) > 1:
             raise RecordingError(f"holds constellations {available}; say which one (the recording's file name "
-                                 "names it as constN, or pass constellation=N)", path=path)
+                                 "names it as constN, or pass --constellation N)", path=path)
         constellation = available[0]
     if constellation not in available:
         raise RecordingError(f"no constellation {constellation} in this file (it has {available})", path=path,
