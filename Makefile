@@ -4,7 +4,7 @@ VENV    := .venv
 PY      := $(VENV)/bin/python
 STAMP   := $(VENV)/.installed-stamp
 
-.PHONY: all demo test test-c test-py firmware bench protocol clean help
+.PHONY: all demo test test-c test-py test-light-install firmware bench protocol clean help
 all: firmware
 
 help:
@@ -18,10 +18,12 @@ help:
 	@echo "make longflight  1-hour simulated flight with faults through the firmware"
 	@echo "make campaign  the paper's experiments through the firmware + report (CAMPAIGN_DIR, CAMPAIGN_ARGS)"
 
-$(STAMP): pyproject.toml
+# Extras (pyproject.toml): [train] = PyTorch (uwb-hil train / models, the M4 bench's check), [test] = what
+# the test suite adds. constraints.txt pins torch to the CPU build on disk.
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e . pytest-timeout
+	$(PY) -m pip install -q -c constraints.txt -e '.[train,test]'
 	touch $@
 
 firmware:
@@ -36,8 +38,16 @@ demo: $(STAMP) firmware
 test-c:
 	$(MAKE) -C firmware_sim test
 
-test-py: $(STAMP) firmware stm32
+# No root needed: the STM32 build (which may apt-get the ARM toolchain) is not a prerequisite; without the
+# toolchain the QEMU tests skip with the reason. `make test` (CI) builds it first, so they run there.
+test-py: $(STAMP) firmware
 	$(PY) -m pytest -q
+
+# `pip install -e .` without extras in a fresh virtualenv (no PyTorch): demo and run work, train says how to
+# get torch. LIGHT_VENV is rebuilt each time (local wheels: about a minute).
+LIGHT_VENV ?= build/light-venv
+test-light-install: firmware
+	bash scripts/check_light_install.sh $(LIGHT_VENV)
 
 # Fuzzing (clang + libFuzzer, installed when missing): `make test` runs a bounded fuzz (TEST_FUZZ_SECONDS
 # in total across the targets); `make fuzz FUZZ_SECONDS=600` fuzzes longer. Any crash, leak or
@@ -55,7 +65,7 @@ test-fuzz:
 longflight: $(STAMP) firmware
 	UWB_LONGFLIGHT_S=3600 $(PY) -m pytest -q -s tests/test_long_flight.py --timeout=7200
 
-test: test-c test-fuzz test-py
+test: test-c test-fuzz stm32 test-py test-light-install
 
 bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench

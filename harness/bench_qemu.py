@@ -245,7 +245,8 @@ class NetTables:
 
 def torch_reference(net: NetTables, feats: np.ndarray) -> np.ndarray:
     """The network in PyTorch (float32 nn.Linear/ReLU), with the firmware's input/output scaling and clamp."""
-    import torch
+    from harness.optional import require_torch
+    torch = require_torch("the M4 network bench's agreement check (PyTorch reference)")
     hidden = net.b1.size
     seq = torch.nn.Sequential(torch.nn.Linear(net.n_in, hidden), torch.nn.ReLU(),
                               torch.nn.Linear(hidden, hidden), torch.nn.ReLU(), torch.nn.Linear(hidden, 1))

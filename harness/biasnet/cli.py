@@ -16,6 +16,7 @@ from harness.biasnet.model import BiasModel
 from harness.biasnet.recipes import SimRecipe, load_recordings
 from harness.biasnet.train import TrainConfig, TrainReport, train_network
 from harness.flight.model import KIND_TWR, Flight
+from harness.optional import require_torch
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
 LAYOUTS = {("twr", "pose"): LAYOUT_TWR_POSE, ("twr", "pos"): LAYOUT_TWR_POS,
@@ -86,6 +87,7 @@ def _training_flights(args: argparse.Namespace) -> tuple[list[Flight], str, list
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    require_torch("uwb-hil train")       # before loading any data: say at once what is missing
     flights, kind, sources = _training_flights(args)
     layout = LAYOUTS[(kind, args.layout)] if args.layout else None
     net, report, samples = train_kind(flights, layout, _train_config(args), kind, xi=args.xi)
@@ -196,6 +198,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------------------------------ shipped models
 def cmd_models(args: argparse.Namespace) -> int:
+    require_torch("uwb-hil models (training the shipped networks)")
     from harness.biasnet.shipped import build_shipped_models
     summary = build_shipped_models(Path(args.data), quick=args.quick, only=args.only,
                                    write_summary=not args.keep_summary)

@@ -16,6 +16,7 @@ import numpy as np
 
 from harness.biasnet.dataset import Samples, split_by_flight
 from harness.biasnet.model import HIDDEN, BiasNetwork
+from harness.optional import require_torch
 
 
 @dataclass(frozen=True)
@@ -76,8 +77,8 @@ def _ranges(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float
 def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Samples | None = None,
                   progress: ProgressFn | None = None) -> tuple[BiasNetwork, TrainReport]:
     """Train on ``samples``; validate on ``val`` or, if None, on whole flights split off ``samples``."""
-    import torch
-    from torch import nn
+    torch = require_torch("training a bias network")
+    nn = torch.nn
 
     cfg.validate()
     if val is None:
@@ -172,8 +173,8 @@ def to_network(net: object, layout: int, in_min: np.ndarray, in_max: np.ndarray,
 
 def to_torch(net: BiasNetwork) -> object:
     """The same function as a float32 PyTorch module (scaling included): the reference for C vs torch."""
-    import torch
-    from torch import nn
+    torch = require_torch("the PyTorch reference of a bias network")
+    nn = torch.nn
 
     class Scaled(nn.Module):
         def __init__(self) -> None:
