@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from harness.biasnet.baselines import PairConstant, VoxelTable
+from harness.biasnet.ceiling import HALF_WINDOW_S, fast_residual
 from harness.biasnet.dataset import XI_DEFAULT, Samples, build_samples
 from harness.biasnet.evaluate import Evaluation, evaluate
 from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
@@ -121,26 +122,30 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------------------------- evaluation
-def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float = XI_DEFAULT) -> dict[str, Any]:
-    """The network and the two baselines (fitted on ``train``) on the measurements of ``test``."""
+def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float = XI_DEFAULT,
+            half_window_s: float = HALF_WINDOW_S) -> dict[str, Any]:
+    """The network and the two baselines (fitted on ``train``) on the measurements of ``test``, each with
+    the floor and its share of the ceiling (ceiling.py, moving average over +-half_window_s)."""
     kind = "twr" if test[0].uwb.kind == KIND_TWR else "tdoa"
     net = model.network(kind)
     if net is None:
         raise ValueError(f"the model has no {kind} network")
     ts = build_samples(test, net.layout, xi)
+    fast = fast_residual(ts, half_window_s)
     out: dict[str, Any] = {"kind": kind, "layout": net.layout, "model_hash": model.hash_hex,
-                           "test": [f.name for f in test]}
-    evals: list[Evaluation] = [evaluate("network", ts, lambda s: net.predict_batch(s.x))]
+                           "test": [f.name for f in test], "half_window_s": half_window_s}
+    evals: list[Evaluation] = [evaluate("network", ts, lambda s: net.predict_batch(s.x), fast=fast)]
     if train:
         tr = build_samples(train, net.layout, xi)
         out["baseline_train"] = [f.name for f in train]
         for baseline in (PairConstant(), VoxelTable()):
             fitted = baseline.fit(tr)
-            evals.append(evaluate(baseline.name, ts, fitted.predict))
+            evals.append(evaluate(baseline.name, ts, fitted.predict, fast=fast))
     out["methods"] = {e.method: e.as_dict() for e in evals}
     net_eval = evals[0].overall
     out.update(n=net_eval.n, rmse_raw=net_eval.rmse_raw, rmse_corrected=net_eval.rmse_corrected,
-               mae_raw=net_eval.mae_raw, mae_corrected=net_eval.mae_corrected, reduction=net_eval.reduction)
+               mae_raw=net_eval.mae_raw, mae_corrected=net_eval.mae_corrected, reduction=net_eval.reduction,
+               floor=net_eval.rmse_floor, share_of_ceiling=net_eval.share_of_ceiling)
     return out
 
 
@@ -148,12 +153,15 @@ def _print_compare(res: dict[str, Any]) -> None:
     from rich.console import Console
     from rich.table import Table
     table = Table(title=f"{res['kind'].upper()} measurement error on {', '.join(Path(t).name for t in res['test'])} "
-                        f"(|e| < {XI_DEFAULT} m, model {res['model_hash']})")
-    for col in ("method", "n", "RMSE raw", "RMSE corr.", "MAE raw", "MAE corr.", "reduction"):
+                        f"(|e| < {XI_DEFAULT} m, model {res['model_hash']}; floor: error minus its per-pair "
+                        f"moving average over +-{res['half_window_s']:g} s)")
+    for col in ("method", "n", "RMSE raw", "RMSE corr.", "floor", "MAE raw", "MAE corr.", "reduction",
+                "share of ceiling"):
         table.add_column(col, justify="left" if col == "method" else "right")
     for name, m in res["methods"].items():
-        table.add_row(name, str(m["n"]), f"{m['rmse_raw']:.4f}", f"{m['rmse_corrected']:.4f}", f"{m['mae_raw']:.4f}",
-                      f"{m['mae_corrected']:.4f}", f"{100 * m['reduction']:.1f} %")
+        table.add_row(name, str(m["n"]), f"{m['rmse_raw']:.4f}", f"{m['rmse_corrected']:.4f}", f"{m['floor']:.4f}",
+                      f"{m['mae_raw']:.4f}", f"{m['mae_corrected']:.4f}", f"{100 * m['reduction']:.1f} %",
+                      f"{100 * m['share_of_ceiling']:.1f} %")
     pairs = Table(title="network, per anchor pair")
     for col in ("pair", "n", "RMSE raw", "RMSE corr.", "MAE raw", "MAE corr."):
         pairs.add_column(col, justify="right")
@@ -166,6 +174,8 @@ def _print_compare(res: dict[str, Any]) -> None:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    if not args.window > 0.0:
+        raise ValueError(f"--window must be a positive half width in seconds, got {args.window}")
     model = BiasModel.load(Path(args.model))
     anchors = Path(args.anchors) if args.anchors else None
     test = load_recordings([Path(p) for p in args.recording], anchors)
@@ -180,7 +190,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if missing:
         raise FileNotFoundError(f"baseline training recordings not found: {missing}")
     train = load_recordings([Path(p) for p in train_paths], anchors) if train_paths else []
-    res = compare(model, test, train, args.xi)
+    res = compare(model, test, train, args.xi, args.window)
     if args.plot:
         from harness.biasnet.plots import bias_vs_azimuth
         trained_on = {Path(p).resolve() for p in model.meta.get(f"{kind}_trained_on", []) if not str(p).startswith("sim:")}
@@ -255,6 +265,9 @@ def add_commands(sub: Any) -> None:
     ev.add_argument("--train", nargs="*", default=None,
                     help="recordings to fit the baselines on (default: those the model was trained on)")
     ev.add_argument("--xi", type=float, default=XI_DEFAULT)
+    ev.add_argument("--window", type=float, default=HALF_WINDOW_S,
+                    help=f"half width [s] of the per-pair moving average that defines the floor "
+                         f"(default {HALF_WINDOW_S})")
     ev.add_argument("--plot", help="save measured error and predicted bias vs azimuth (paper Fig. 5) here")
     ev.add_argument("--json", action="store_true")
     ev.set_defaults(func=cmd_eval)

@@ -32,6 +32,7 @@ class Samples:
     names: tuple[str, ...]
     anchor_pos: np.ndarray | None = None  # (N, 6) positions of anchors a and b (b = NaN for TWR)
     row: np.ndarray | None = None         # (N,) index of the measurement within its flight
+    t_s: np.ndarray | None = None         # (N,) measurement time [s] (ceiling.py: windows within one flight)
 
     def pair_keys(self) -> np.ndarray:
         """One integer per physical anchor pair: ids alone would mix different constellations."""
@@ -50,7 +51,8 @@ class Samples:
     def subset(self, mask: np.ndarray) -> "Samples":
         return Samples(self.layout, self.x[mask], self.bias[mask], self.flight[mask], self.pair[mask], self.names,
                        None if self.anchor_pos is None else self.anchor_pos[mask],
-                       None if self.row is None else self.row[mask])
+                       None if self.row is None else self.row[mask],
+                       None if self.t_s is None else self.t_s[mask])
 
     @staticmethod
     def concat(parts: list["Samples"]) -> "Samples":
@@ -66,8 +68,10 @@ class Samples:
             names.extend(p.names)
         apos = None if any(p.anchor_pos is None for p in parts) else np.concatenate([p.anchor_pos for p in parts])
         rows = None if any(p.row is None for p in parts) else np.concatenate([p.row for p in parts])
+        t_s = None if any(p.t_s is None for p in parts) else np.concatenate([p.t_s for p in parts])
         return Samples(parts[0].layout, np.concatenate([p.x for p in parts]), np.concatenate([p.bias for p in parts]),
-                       np.concatenate(flights), np.concatenate([p.pair for p in parts]), tuple(names), apos, rows)
+                       np.concatenate(flights), np.concatenate([p.pair for p in parts]), tuple(names), apos, rows,
+                       t_s)
 
 
 def quat_to_rpy(q: np.ndarray) -> np.ndarray:
@@ -143,7 +147,8 @@ def flight_samples(flight: Flight, layout: int | None = None, xi: float = XI_DEF
           else np.full((len(u), 3), np.nan))
     anchor_pos = np.concatenate([pa, pb], axis=1)
     return Samples(layout, x[keep], bias[keep], np.full(int(keep.sum()), index, dtype=np.int64), pair[keep],
-                   (flight.name,), anchor_pos[keep], np.nonzero(keep)[0])
+                   (flight.name,), anchor_pos[keep], np.nonzero(keep)[0],
+                   u.t_us[keep].astype(np.float64) * 1e-6)
 
 
 def build_samples(flights: list[Flight], layout: int | None = None, xi: float = XI_DEFAULT) -> Samples:

@@ -86,7 +86,8 @@ def _repo_path(path: Path) -> str:
 
 
 def _short(m: dict[str, Any]) -> dict[str, Any]:
-    return {k: m[k] for k in ("n", "rmse_raw", "rmse_corrected", "mae_raw", "mae_corrected", "reduction")}
+    return {k: m[k] for k in ("n", "rmse_raw", "rmse_corrected", "mae_raw", "mae_corrected", "reduction", "floor",
+                              "share_of_ceiling")}
 
 
 def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: list[Path], layout: int,

@@ -1,0 +1,67 @@
+"""How much any pose-dependent correction could remove: the floor and each method's share of the ceiling.
+
+A correction computed from where the tag is can follow the slowly varying part of the error, never the
+fast one. Per flight and anchor pair, the error minus its own moving average over +-``half_window_s``
+(0.25 s by default) is that fast part; its RMSE over all samples is the *floor*, and
+
+    share_of_ceiling = (rmse_raw - rmse_corrected) / (rmse_raw - floor)
+
+is the part of the reachable cut a method achieves (1.0 = everything slow removed). The window is a
+choice, not a law: a shorter one lowers the ceiling estimate's floor towards the white noise, a longer one
+counts slow drifts as removable; evaluations name the window they used.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from harness.biasnet.dataset import Samples
+
+HALF_WINDOW_S = 0.25
+
+
+def moving_average(t_s: np.ndarray, e: np.ndarray, half_window_s: float) -> np.ndarray:
+    """Mean of ``e`` over the samples with |t - t_i| <= half_window_s, for each i (t non-decreasing)."""
+    if len(e) == 0:
+        return np.zeros(0)
+    c = np.concatenate([[0.0], np.cumsum(e, dtype=np.float64)])
+    lo = np.searchsorted(t_s, t_s - half_window_s, side="left")
+    hi = np.searchsorted(t_s, t_s + half_window_s, side="right")
+    return (c[hi] - c[lo]) / (hi - lo)
+
+
+def fast_residual(samples: Samples, half_window_s: float = HALF_WINDOW_S) -> np.ndarray:
+    """Each sample's error minus the moving average of its own (flight, anchor pair) series."""
+    if samples.t_s is None:
+        raise ValueError("the samples carry no measurement times: the floor needs them")
+    if not half_window_s > 0.0:
+        raise ValueError(f"the moving-average half window must be > 0 s, got {half_window_s}")
+    keys = np.stack([samples.pair_keys(), samples.flight.astype(np.int64)], axis=1)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    group = group.ravel()
+    order = np.lexsort((samples.t_s, group))  # by group, then time
+    g_sorted = group[order]
+    starts = np.flatnonzero(np.r_[True, g_sorted[1:] != g_sorted[:-1]])
+    ends = np.r_[starts[1:], len(order)]
+    out = np.empty(len(samples))
+    for a, b in zip(starts, ends):
+        idx = order[a:b]
+        e = samples.bias[idx]
+        out[idx] = e - moving_average(samples.t_s[idx], e, half_window_s)
+    return out
+
+
+def floor_rmse(samples: Samples, half_window_s: float = HALF_WINDOW_S) -> float:
+    """RMSE of the fast residual: what no pose-dependent correction can remove."""
+    if len(samples) == 0:
+        return float("nan")
+    r = fast_residual(samples, half_window_s)
+    return float(np.sqrt(np.mean(r ** 2)))
+
+
+def share_of_ceiling(rmse_raw: float, rmse_corrected: float, floor: float) -> float:
+    """(raw - corrected) / (raw - floor); NaN when there is nothing to remove (raw <= floor)."""
+    gap = rmse_raw - floor
+    if not np.isfinite(gap) or gap <= 0.0:
+        return float("nan")
+    return float((rmse_raw - rmse_corrected) / gap)

@@ -1,0 +1,88 @@
+"""The floor (fast part of the error, per flight and anchor pair) and share_of_ceiling, on data whose answer
+is known by construction."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from harness.biasnet.ceiling import fast_residual, floor_rmse, moving_average, share_of_ceiling
+from harness.biasnet.dataset import Samples
+from harness.biasnet.evaluate import evaluate
+
+DT = 1.0 / 64.0  # exact in binary: a +-0.25 s window holds exactly 16 samples on each side
+
+
+def make_samples(errors: list[tuple[int, int, int, np.ndarray]]) -> Samples:
+    """(flight, anchor a, anchor b, error series sampled every DT from t = 0) -> Samples."""
+    parts = []
+    for flight, a, b, e in errors:
+        n = len(e)
+        parts.append(Samples(layout=4, x=np.zeros((n, 6)), bias=np.asarray(e, float),
+                             flight=np.full(n, flight), pair=np.tile([a, b], (n, 1)), names=("f",),
+                             row=np.arange(n), t_s=np.arange(n) * DT))
+    s = Samples.concat(parts)
+    # concat renumbers flights one per part; restore the intended flight ids
+    return Samples(s.layout, s.x, s.bias, np.concatenate([np.full(len(e), f) for f, _, _, e in errors]),
+                   s.pair, s.names, None, s.row, s.t_s)
+
+
+def brute_moving_average(t: np.ndarray, e: np.ndarray, w: float) -> np.ndarray:
+    return np.array([np.mean(e[np.abs(t - ti) <= w]) for ti in t])
+
+
+def test_moving_average_equals_brute_force_on_irregular_times() -> None:
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.001, 0.05, 400))
+    e = rng.standard_normal(400)
+    np.testing.assert_allclose(moving_average(t, e, 0.25), brute_moving_average(t, e, 0.25), atol=1e-12)
+    np.testing.assert_allclose(moving_average(t, e, 0.05), brute_moving_average(t, e, 0.05), atol=1e-12)
+
+
+def test_constant_per_pair_and_flight_has_a_zero_floor_even_with_shared_times() -> None:
+    # Same pair, same times, different constants in two flights: mixing them would leave a residual.
+    n = 640
+    s = make_samples([(0, 1, 2, np.full(n, 0.10)), (1, 1, 2, np.full(n, -0.20)), (0, 3, 4, np.full(n, 0.05))])
+    assert np.max(np.abs(fast_residual(s))) < 1e-12
+    assert floor_rmse(s) < 1e-12
+
+
+def test_alternating_noise_on_constants_gives_the_known_floor_and_share() -> None:
+    # error = c_pair + a * (-1)^k. A window of 33 samples (16 + 1 + 16) averages the alternation to
+    # +-a/33, so inside the series the fast residual is +-a * 32/33 exactly; the 2 x 16 samples at each
+    # series' ends see a truncated window and are excluded from the exact check.
+    n, a = 6400, 0.05
+    alt = a * (-1.0) ** np.arange(n)
+    consts = (0.12, -0.08)
+    s = make_samples([(0, 1, 2, consts[0] + alt), (0, 1, 3, consts[1] + alt)])
+    r = fast_residual(s)
+    inner = np.concatenate([np.arange(16, n - 16), n + np.arange(16, n - 16)])
+    np.testing.assert_allclose(np.abs(r[inner]), a * 32.0 / 33.0, rtol=1e-9)
+    assert floor_rmse(s) == pytest.approx(a * 32.0 / 33.0, rel=2e-3)
+    # A correction that knows each pair's constant removes all the slow part: corrected RMSE = a.
+    perfect = evaluate("perfect", s, lambda x: np.where(x.pair[:, 1] == 2, consts[0], consts[1]))
+    raw = np.sqrt(np.mean(np.square(consts)) + a * a)
+    assert perfect.overall.rmse_raw == pytest.approx(raw, rel=1e-9)
+    assert perfect.overall.rmse_corrected == pytest.approx(a, rel=1e-9)
+    expected = (raw - a) / (raw - a * 32.0 / 33.0)
+    assert perfect.overall.share_of_ceiling == pytest.approx(expected, rel=5e-3)
+    # Half of each constant: the cut in RMSE terms, measured against the same floor.
+    half = evaluate("half", s, lambda x: 0.5 * np.where(x.pair[:, 1] == 2, consts[0], consts[1]))
+    corr = np.sqrt(np.mean(np.square(consts)) / 4 + a * a)
+    assert half.overall.share_of_ceiling == pytest.approx((raw - corr) / (raw - a * 32 / 33), rel=5e-3)
+    assert half.per_pair["1-2"].rmse_floor == pytest.approx(a * 32 / 33, rel=5e-3)
+    nothing = evaluate("none", s, lambda x: np.zeros(len(x)))
+    assert nothing.overall.share_of_ceiling == pytest.approx(0.0, abs=1e-12)
+
+
+def test_window_option_and_degenerate_cases() -> None:
+    n = 640
+    s = make_samples([(0, 1, 2, 0.05 * (-1.0) ** np.arange(n))])
+    # +-0.5 s: 65 samples -> residual a * 64/65
+    assert floor_rmse(s, 0.5) == pytest.approx(0.05 * 64 / 65, rel=5e-3)
+    with pytest.raises(ValueError, match="half window"):
+        fast_residual(s, 0.0)
+    assert np.isnan(share_of_ceiling(0.05, 0.04, 0.06))  # nothing removable: undefined, not a number
+    no_times = Samples(4, s.x, s.bias, s.flight, s.pair, s.names)
+    with pytest.raises(ValueError, match="times"):
+        floor_rmse(no_times)
