@@ -86,3 +86,11 @@ def test_window_option_and_degenerate_cases() -> None:
     no_times = Samples(4, s.x, s.bias, s.flight, s.pair, s.names)
     with pytest.raises(ValueError, match="times"):
         floor_rmse(no_times)
+
+
+def test_report_table_quotes_the_share_of_ceiling() -> None:
+    from harness.biasnet.report_section import _heldout_rows
+    methods = {"network": {"n": 10, "rmse_raw": 0.09, "reduction": 0.3, "share_of_ceiling": 0.814},
+               "pair-constant": {"reduction": 0.25}, "voxel-table": {"reduction": 0.31}}
+    rows = _heldout_rows({"util_tdoa_pos": {"heldout": {"t5": methods}}})
+    assert rows == [["util_tdoa_pos t5", "10", "0.0900", "30.0 %", "25.0 %", "31.0 %", "81 %", "-"]]

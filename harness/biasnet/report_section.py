@@ -38,8 +38,15 @@ def _heldout_rows(summary: dict[str, Any]) -> list[list[str]]:
             net = methods.get("network", {})
             rows.append([label, str(net.get("n", "-")), f"{net.get('rmse_raw', float('nan')):.4f}"]
                         + [f"{100 * methods[m]['reduction']:.1f} %" if m in methods else "-"
-                           for m in ("network", "pair-constant", "voxel-table")])
+                           for m in ("network", "pair-constant", "voxel-table")]
+                        + [_share(methods.get(m, {})) for m in ("network", "voxel-table")])
     return rows
+
+
+def _share(m: dict[str, Any]) -> str:
+    """share_of_ceiling (ceiling.py) when the summary has it (models.json written since it exists)."""
+    v = m.get("share_of_ceiling")
+    return f"{100 * v:.0f} %" if isinstance(v, (int, float)) and v == v else "-"
 
 
 def bias_section(ctx: "ReportContext") -> "Section | None":
@@ -68,7 +75,8 @@ def bias_section(ctx: "ReportContext") -> "Section | None":
         rows = _heldout_rows(summary)
         if rows:
             sec.tables.append(Table(["network / held-out data", "n", "RMSE raw [m]", "network", "pair constant",
-                                     "voxel table"], rows))
+                                     "voxel table", "network: share of ceiling", "voxel table: share of ceiling"],
+                                    rows))
             sec.data = {"models": {k: summary[k].get("hash") for k in ("sim", "util_tdoa_pos", "rcv_twr")
                                    if isinstance(summary.get(k), dict)}}
     return sec
