@@ -40,6 +40,7 @@ test-c:
 
 # No root needed: the STM32 build (which may apt-get the ARM toolchain) is not a prerequisite; without the
 # toolchain the QEMU tests skip with the reason. `make test` (CI) builds it first, so they run there.
+# Same for ser2net (net-tools): `make test` installs it first; without it the RFC 2217 tests skip.
 test-py: $(STAMP) firmware
 	$(PY) -m pytest -q
 
@@ -65,7 +66,7 @@ test-fuzz:
 longflight: $(STAMP) firmware
 	UWB_LONGFLIGHT_S=3600 $(PY) -m pytest -q -s tests/test_long_flight.py --timeout=7200
 
-test: test-c test-fuzz stm32 test-py test-light-install
+test: test-c test-fuzz stm32 net-tools test-py test-light-install
 
 bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench
@@ -74,9 +75,14 @@ bench: $(STAMP) firmware stm32
 # STM32F405 (Crazyflie MCU) build, run under QEMU by tests/test_qemu.py and harness/bench_qemu.py
 # (docs/qemu.md). The ARM toolchain and QEMU come from Debian when missing: the script runs
 # apt-get update + install (root or password-less sudo; UWB_NO_INSTALL=1 only checks).
-.PHONY: arm-tools stm32 size
+.PHONY: arm-tools stm32 size net-tools
 arm-tools:
 	bash scripts/ensure_arm_tools.sh
+
+# ser2net (Debian) serves the host firmware's pty as RFC 2217 for tests/test_remote_link.py; when it
+# cannot be installed (not root, no apt) those tests are skipped with the reason, `make test` goes on.
+net-tools:
+	-bash scripts/ensure_ser2net.sh
 
 stm32: arm-tools
 	$(MAKE) -C firmware_sim/stm32 fw selftest nnbench

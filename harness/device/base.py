@@ -83,6 +83,8 @@ class FrameChannel:
                 raise self._death_or(exc) from exc
             if data:
                 self._pending.extend(self.decoder.feed(data))
+                if not self._pending and deadline - time.monotonic() <= 0:
+                    return None    # a peer that floods bytes without a frame must not hold us past the deadline
                 continue
             dead = self._died(0.0)  # input is drained: a dead device has nothing more to say
             if dead is not None:
@@ -101,7 +103,8 @@ class FrameChannel:
                 return frame
             if frame is not None:
                 self.skipped += 1
-            elif time.monotonic() >= deadline:
+            # checked after every frame too: a peer sending other frames back to back must not hold us
+            if time.monotonic() >= deadline:
                 raise DeviceTimeout.for_request(request, time.monotonic() - start, self.diagnosis())
 
     def _death_or(self, exc: LinkClosed) -> Exception:

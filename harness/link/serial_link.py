@@ -4,16 +4,22 @@ The pyserial object is kept non-blocking (timeout 0): read() waits with select()
 has one (device files, socket://, spy://) and polls `in_waiting` otherwise (loop://, rfc2217://),
 so a read returns as soon as data is there and changing the wait never re-configures the port
 (pyserial re-applies termios, or re-negotiates RFC 2217, on every timeout change).
-Writes use pyserial's write timeout; a stuck peer raises LinkTimeout.
+Writes use pyserial's write timeout; a stuck peer raises LinkTimeout. Backends that refuse a write
+timeout (pyserial's RFC 2217 driver: "write_timeout is currently not supported") are opened without
+one and the timeout is emulated: the blocking write runs in a helper thread and the caller waits for it
+with the deadline; past it the port is closed (which unblocks the thread) and LinkTimeout is raised.
 """
 
 from __future__ import annotations
 
 import select
+import socket
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import parse_qs, urlsplit, urlunsplit
 
 import serial
 
@@ -21,6 +27,8 @@ from harness.errors import LinkClosed, LinkError, LinkTimeout
 from harness.link.base import DEFAULT_READ_SIZE, Link
 
 _POLL_S = 0.001
+#: pyserial drivers that refuse a write timeout ("write_timeout is currently not supported")
+_NO_WRITE_TIMEOUT = frozenset({"serial.rfc2217"})
 
 
 @dataclass(frozen=True)
@@ -39,9 +47,12 @@ class SerialLink(Link):
         self.url = url
         self.options = options
         self._fileno = _fileno(port)
+        # pyserial's own write timeout where the backend has one, else the emulation (module doc)
+        self._writer = None if port.write_timeout is not None else _BoundedWriter(url)
         self._info: dict[str, Any] = {"name": url, "kind": "serial", "url": url, "baud": options.baud,
                                       "handler": f"{type(port).__module__}.{type(port).__name__}",
                                       "write_timeout_s": options.write_timeout_s,
+                                      "write_timeout": "driver" if self._writer is None else "emulated",
                                       "wait": "select" if self._fileno is not None else "poll"}
         self._info.update(_set_low_latency(port, url) if options.low_latency else {"low_latency": False})
 
@@ -53,9 +64,13 @@ class SerialLink(Link):
         if _is_device_file(url):
             extra["exclusive"] = options.exclusive
         try:
-            port = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=options.write_timeout_s,
-                                         **extra)
-        except (serial.SerialException, ValueError, OSError) as exc:
+            port = serial.serial_for_url(_driver_url(url), baudrate=baud, timeout=0, do_not_open=True, **extra)
+            # Opening with a write timeout would fail only after the telnet negotiation (and a second
+            # connection right after is refused by ser2net): decide by the driver before opening.
+            native = type(port).__module__ not in _NO_WRITE_TIMEOUT
+            port.write_timeout = options.write_timeout_s if native else None
+            port.open()
+        except (serial.SerialException, ValueError, OSError, NotImplementedError) as exc:
             raise LinkError(f"cannot open {url} at {baud} baud: {exc}") from exc
         return cls(port, url, options)
 
@@ -81,11 +96,19 @@ class SerialLink(Link):
     def write(self, data: bytes) -> None:
         port = self.port
         try:
-            written = port.write(data)  # no flush(): tcdrain() has no timeout
-        except serial.SerialTimeoutException as exc:
+            if self._writer is None:
+                written = port.write(data)  # no flush(): tcdrain() has no timeout
+            else:
+                written = self._writer.write(port, data, self.options.write_timeout_s)
+        except (serial.SerialTimeoutException, _WriteStuck) as exc:
+            if isinstance(exc, _WriteStuck):
+                self.close()      # unblocks the helper thread; the link is unusable anyway
             raise LinkTimeout(f"{self.url}: write did not complete within {self.options.write_timeout_s:.2f} s",
                               waited_s=self.options.write_timeout_s) from exc
         except (serial.SerialException, OSError) as exc:
+            if isinstance(exc.__context__, socket.timeout) or isinstance(exc, socket.timeout):
+                # the driver's own socket timeout (RFC 2217: 5 s) hit first: still a stuck peer
+                raise LinkTimeout(f"{self.url}: write made no progress: {exc}") from exc
             raise LinkClosed(f"{self.url}: write failed: {exc}") from exc
         if written is not None and written != len(data):
             raise LinkTimeout(f"{self.url}: wrote {written} of {len(data)} bytes",
@@ -116,6 +139,73 @@ class SerialLink(Link):
                 port.close()
             except (serial.SerialException, OSError):
                 pass
+        if self._writer is not None:
+            self._writer.stop()
+
+
+class _WriteStuck(Exception):
+    """The emulated write timeout expired (the helper thread is still blocked in the driver)."""
+
+
+class _BoundedWriter:
+    """A write timeout for drivers without one: writes run in one helper thread, the caller waits with
+    a deadline. Jobs are handed over one at a time (the link is not shared between threads)."""
+
+    def __init__(self, name: str) -> None:
+        self._cv = threading.Condition()
+        self._job: tuple[serial.SerialBase, bytes] | None = None
+        self._done = False
+        self._result: int | None = None
+        self._error: BaseException | None = None
+        self._stopped = False
+        self._thread = threading.Thread(target=self._loop, name=f"uwb-hil writer {name}", daemon=True)
+        self._thread.start()
+
+    def write(self, port: serial.SerialBase, data: bytes, timeout_s: float) -> int | None:
+        with self._cv:
+            if self._job is not None:
+                raise _WriteStuck("a previous write is still blocked")
+            self._job, self._done, self._error = (port, data), False, None
+            self._cv.notify_all()
+            if not self._cv.wait_for(lambda: self._done, timeout=max(0.0, timeout_s)):
+                raise _WriteStuck(f"no completion within {timeout_s:.2f} s")
+            if self._error is not None:
+                raise self._error
+            return self._result
+
+    def stop(self) -> None:
+        with self._cv:
+            self._stopped = True
+            self._cv.notify_all()
+
+    def _loop(self) -> None:
+        while True:
+            with self._cv:
+                self._cv.wait_for(lambda: self._stopped or self._job is not None)
+                if self._job is None:
+                    return
+                port, data = self._job
+            result: int | None = None
+            error: BaseException | None = None
+            try:
+                result = port.write(data)
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller, which classifies it
+                error = exc
+            with self._cv:
+                self._job, self._result, self._error, self._done = None, result, error, True
+                self._cv.notify_all()
+
+
+def _driver_url(url: str) -> str:
+    """The URL handed to pyserial. RFC 2217: the harness never relies on the modem lines, so it does not
+    wait for the server to acknowledge DTR/RTS (`ign_set_control`; still sent): a server whose port
+    cannot set them (ser2net on a pty, some USB CDC bridges) never answers and the open would fail."""
+    if not url.startswith("rfc2217://"):
+        return url
+    parts = urlsplit(url)
+    if "ign_set_control" in parse_qs(parts.query, keep_blank_values=True):
+        return url
+    return urlunsplit(parts._replace(query="&".join(q for q in (parts.query, "ign_set_control") if q)))
 
 
 def _is_device_file(url: str) -> bool:

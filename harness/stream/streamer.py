@@ -339,7 +339,7 @@ class Streamer:
         got, frames = self._read(wait_s)
         if len(got) or frames:
             self._absorb(got, frames, state, writer, time.perf_counter_ns())
-            return
+        # only answers to our measurements reset last_rx: other frames or bytes (a flooding peer) do not
         if time.monotonic() - state.last_rx > self.timeout_s:
             self._probe(state, writer)
 
