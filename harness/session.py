@@ -47,10 +47,11 @@ def open_device(spec: DeviceSpec, expected_model_hash: int | None = None) -> Ite
             raise FileNotFoundError(f"firmware binary {firmware} not found: run `make firmware`")
         device = EmulatorDevice(firmware, log_dir=spec.log_dir)
     elif target == "serial":
-        from harness.device.serial_device import SerialDevice
+        from harness.device.serial_device import SerialDevice, SerialDeviceOptions
         if not spec.port:
             raise ValueError("target 'serial' needs a port (--port /dev/ttyACM0, rfc2217://host:port, ...)")
-        device = SerialDevice(spec.port, spec.baud)
+        # --timeout bounds writes too: a board (or serial server) that stops reading fails the run
+        device = SerialDevice(spec.port, spec.baud, SerialDeviceOptions(write_timeout_s=spec.timeout_s))
     elif target == "qemu":
         try:
             from harness.device.qemu import QemuDevice  # type: ignore[import-not-found]
