@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.errors import UwbHilError
+from harness.errors import ResultsFileError, UsageError, UwbHilError
 from harness.flight.model import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.session import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, TARGETS, DeviceSpec, config_for, kind_name, open_device
@@ -109,24 +109,54 @@ def _run_source(args: argparse.Namespace) -> dict[str, Any]:
     return src
 
 
+def _run_config(args: argparse.Namespace, flight: Flight) -> EstimatorConfig:
+    """The estimator configuration of `run` (and of `run --resume`, which checks the recorded one against
+    it: an option that changes it must also be in _SOURCE_KEYS)."""
+    return config_for(flight, _config_with(args.set), stages=PRESETS[args.stages], uwb_only=args.uwb_only)
+
+
+#: options that `run --resume` takes from the results file's header and so refuses on its command line
+_RESUME_FIXED = (*_SOURCE_KEYS, "pacing", "window", "speed", "results", "overwrite")
+
+
+def _refuse_resume_conflicts(args: argparse.Namespace) -> None:
+    defaults = vars(build_parser().parse_args(["run"]))
+    given = [k for k in _RESUME_FIXED if k in defaults and getattr(args, k, None) != defaults[k]]
+    if given:
+        flags = ", ".join("--" + k.replace("_", "-") for k in given)
+        raise UsageError(f"--resume {args.resume} takes the flight, configuration and pacing from the file's header; "
+                         f"drop {flags} (or start a new run without --resume)")
+
+
 def cmd_resume(args: argparse.Namespace) -> int:
     """Continue an interrupted run from its results file (see harness/stream/resume.py)."""
-    from harness.stream.resume import ResumeError, read_results, resume_run
-    rec = read_results(Path(args.resume))
-    src = rec.header.get("source")
-    if not isinstance(src, dict):
-        raise ResumeError(f"{rec.path}:1: header has no 'source' (not written by `uwb-hil run`): "
-                          "cannot rebuild the flight")
-    fargs = argparse.Namespace(**{**vars(args), **src})
-    flight = make_flight(fargs)
-    spec, want_hash = _model_device_spec(fargs)
-    with open_device(spec, expected_model_hash=want_hash) as device:
-        hello = device.hello(timeout=args.timeout)
-        update, stop = _progress_bar(f"{flight.name} (resume at {rec.next_index})")
-        try:
-            run, info = resume_run(device, rec, flight, timeout_s=args.timeout, progress=update)
-        finally:
-            stop()
+    from harness.stream.resume import ResumeError, check_resumable, read_results, resume_run
+    from harness.stream.results_file import LockedResults
+    _refuse_resume_conflicts(args)
+    locked = LockedResults.existing(Path(args.resume))     # held until the resume is done
+    try:
+        rec = read_results(Path(args.resume))
+        src = rec.header.get("source")
+        if not isinstance(src, dict):
+            raise ResumeError(f"{rec.path}:1: header has no 'source' (not written by `uwb-hil run`): "
+                              "cannot rebuild the flight")
+        fargs = argparse.Namespace(**{**vars(args), **src})
+        flight = make_flight(fargs)
+        cfg = _run_config(fargs, flight)
+        spec, want_hash = _model_device_spec(fargs)
+        with open_device(spec, expected_model_hash=want_hash) as device:
+            hello = device.hello(timeout=args.timeout)
+            check_resumable(rec, flight, cfg, _hello_dict(hello))
+            update, stop = _progress_bar(f"{flight.name} (resume at {rec.next_index})")
+            try:
+                run, info = resume_run(device, rec, flight, locked, timeout_s=args.timeout, progress=update)
+            finally:
+                stop()
+    finally:
+        locked.close()
+    if info.get("partial_line_bytes_dropped"):
+        print(f"uwb-hil: {rec.path}: cut a partial last line ({info['partial_line_bytes_dropped']} bytes, written "
+              "when the run was killed); its measurement was run again", file=sys.stderr)
     summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
     summary["config"] = src.get("stages")
     summary["device"] = _hello_dict(hello)
@@ -135,26 +165,44 @@ def cmd_resume(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2, default=float))
     else:
         print(f"resumed {rec.path} at measurement {info['resumed_at']}: replayed {info['replayed']} "
-              f"({info['replay_mismatches']} differ from the record), appended {info['appended']}")
+              f"(identical to the record), appended {info['appended']}")
         print_run(summary)
     return 0
+
+
+def _results_path(args: argparse.Namespace) -> Path | None:
+    """The --results file, refused before any device starts if it is a directory or an unfinished run."""
+    if not args.results:
+        return None
+    from harness.stream.results_file import describe_existing
+    path = Path(args.results)
+    if path.is_dir():
+        raise ResultsFileError(f"results file {path} is a directory: give a file name, e.g. {path / 'run.jsonl'}")
+    why = describe_existing(path)
+    if why is not None and not args.overwrite:
+        raise ResultsFileError(f"results file {path} not overwritten: {why}, or pass --overwrite")
+    return path
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     if getattr(args, "resume", None):
         return cmd_resume(args)
     flight = make_flight(args)
-    cfg = config_for(flight, _config_with(args.set), stages=PRESETS[args.stages], uwb_only=args.uwb_only)
+    cfg = _run_config(args, flight)
     pacing = Pacing(mode=args.pacing, window=args.window, speed=args.speed)
-    results_path = Path(args.results) if args.results else None
+    results_path = _results_path(args)
     spec, want_hash = _model_device_spec(args)
     with open_device(spec, expected_model_hash=want_hash) as device:
         hello = device.hello(timeout=args.timeout)
         update, stop = _progress_bar(f"{flight.name} ({args.stages})")
+        header = {"source": _run_source(args), "device": _hello_dict(hello)}
+        if results_path is not None:
+            from harness.stream.results_file import flight_digest
+            header["flight_digest"] = flight_digest(flight)
         try:
             run = Streamer(device, timeout_s=args.timeout).run(flight, cfg, pacing, results_path=results_path,
-                                                                progress=update,
-                                                                header_extra={"source": _run_source(args)})
+                                                                progress=update, header_extra=header,
+                                                                overwrite=args.overwrite)
         finally:
             stop()
     summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
@@ -285,7 +333,10 @@ def build_parser() -> argparse.ArgumentParser:
                                      "with it, any other device is refused if its HELLO reports another model")
     run.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                      help="override an estimator setting, e.g. --set std_tdoa=0.1 (repeatable)")
-    run.add_argument("--results", help="write per-measurement results as JSON Lines here")
+    run.add_argument("--results", help="write per-measurement results as JSON Lines here (locked while written; "
+                                       "a file holding an unfinished run is kept unless --overwrite)")
+    run.add_argument("--overwrite", action="store_true",
+                     help="let --results replace a file that holds an unfinished (resumable) run")
     run.add_argument("--resume", metavar="RESULTS.jsonl",
                      help="continue an interrupted run recorded in this results file (same flight, config and "
                           "pacing from its header; new results appended; summary over the whole flight)")

@@ -17,6 +17,19 @@ class UwbHilError(Exception):
     """Base of every error the harness raises on purpose."""
 
 
+# ------------------------------------------------------------------------------------------ input
+class InputError(UwbHilError, ValueError):
+    """Bad input from the user: an option, a data file, a results file (CLI exit code 2)."""
+
+
+class UsageError(InputError):
+    """Options that contradict each other or are out of range."""
+
+
+class ResultsFileError(InputError):
+    """A results file cannot be written, is in use, or would be overwritten / resumed unsafely."""
+
+
 # ------------------------------------------------------------------------------------------- link
 class LinkError(UwbHilError):
     """The byte transport failed."""

@@ -10,11 +10,13 @@ How resume re-initialises the device: the device is fresh (power-up state), so t
 REPLAYS the recorded part of the flight (measurements 0..k0-1 with their IMU samples, windowed pacing,
 nothing recorded) with the same CONFIG (reset) and anchors. The firmware is deterministic, so this
 rebuilds exactly the filter state the interrupted run had after measurement k0-1; the replayed results
-are compared with the recorded lines and the number of differences is written to the file (a
-different firmware build or a real board with another rounding would show up there). Then the rest of
-the flight is streamed with the recorded pacing, after a CONFIG *without* reset (the filter carries
-on), and its results are appended to the same file with their global indices. The final summary is
-computed over the whole flight from the file.
+are compared with the recorded lines: any difference beyond float tolerance refuses the resume (the
+file was edited, or another firmware computed it) and leaves the file unchanged. Before that, the
+rebuilt flight (its digest), configuration and the device (firmware build, model hash) must be the
+ones in the header. Then the rest of the flight is streamed with the recorded pacing, after a CONFIG
+*without* reset (the filter carries on), and its results are appended to the same file with their
+global indices (a partial last line is cut first, and reported). The file is locked throughout
+(results_file.py). The final summary is computed over the whole flight from the file.
 """
 
 from __future__ import annotations
@@ -28,18 +30,25 @@ from typing import Any, Callable
 import numpy as np
 
 from harness.config import EstimatorConfig
-from harness.errors import UwbHilError
+from harness.errors import ResultsFileError
 from harness.flight.model import Flight
 from harness.stream.streamer import (OUTCOME_PENDING, OUTCOME_RESULT, RESULTS_DTYPE, Pacing, ResultsWriter,
                                      RunResult, Streamer)
+from harness.stream.results_file import LockedResults, flight_digest, truncate_partial_line
 from protocol import messages as m
 from protocol.framing import DecoderErrors
 
-#: fields that must be equal between a replayed prefix and the recorded results
-REPLAY_FIELDS = ("status", "px", "py", "pz", "var_x", "var_y", "var_z")
+#: fields that must be equal between a replayed prefix and the recorded results: exactly (integers) or
+#: within REPLAY_RTOL / REPLAY_ATOL (floats: a board may round differently in the last bit)
+REPLAY_EXACT = ("status", "t_us")
+REPLAY_FIELDS = ("innovation", "innovation_var", "bias", "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz",
+                 "var_x", "var_y", "var_z", "var_vx", "var_vy", "var_vz")
+REPLAY_RTOL, REPLAY_ATOL = 1e-5, 1e-6
+#: header entries of the device that recorded the run, which the resuming device must match
+DEVICE_KEYS = ("proto_version", "firmware", "build_id", "target", "model_hash")
 
 
-class ResumeError(UwbHilError, ValueError):
+class ResumeError(ResultsFileError):
     """The results file cannot be resumed (missing, malformed, or inconsistent with its flight)."""
 
 
@@ -123,6 +132,7 @@ def read_results(path: Path) -> RecordedRun:
         for key in ("index", *names):
             if key not in rec:
                 raise ResumeError(f"{path}:{lineno}: result field {key!r} missing")
+            _check_number(rec[key], key, path, lineno)
         if rec["index"] != len(rows):
             raise ResumeError(f"{path}:{lineno}: result index {rec['index']}, expected {len(rows)} "
                               "(results are written in measurement order)")
@@ -130,6 +140,14 @@ def read_results(path: Path) -> RecordedRun:
     if len(rows) > int(header["n_measurements"]):
         raise ResumeError(f"{path}: {len(rows)} results for a flight of {header['n_measurements']} measurements")
     return RecordedRun(path=path, header=header, rows=rows, segments=segments, ignored_partial_line=partial)
+
+
+def _check_number(value: Any, key: str, path: Path, lineno: int) -> None:
+    kind = RESULTS_DTYPE[key].kind if key in (RESULTS_DTYPE.names or ()) else "i"
+    ok = isinstance(value, int) if kind in "iu" else isinstance(value, (int, float))
+    if not ok or isinstance(value, bool):
+        raise ResumeError(f"{path}:{lineno}: result field {key!r} is {value!r}, expected "
+                          f"{'an integer' if kind in 'iu' else 'a number'} (edited by hand?)")
 
 
 def split_flight(flight: Flight, k0: int) -> tuple[Flight | None, Flight | None]:
@@ -162,35 +180,78 @@ def split_flight(flight: Flight, k0: int) -> tuple[Flight | None, Flight | None]
 
 
 class AppendWriter(ResultsWriter):
-    """Appends to an existing results file: a 'resume' record, then rows with global indices."""
+    """Appends to a locked results file: a 'resume' record, then rows with global indices."""
 
-    def __init__(self, path: Path, offset: int, record: dict[str, Any]) -> None:
+    def __init__(self, locked: LockedResults, offset: int, record: dict[str, Any]) -> None:
         super().__init__(None, {})
         self.offset = offset
-        self._fh = open(path, "a", encoding="utf-8")
-        self._fh.write(json.dumps({"type": "resume", **record}) + "\n")
-        self._fh.flush()
+        self._fh = locked
+        locked.fh.seek(0, 2)
+        self._write(json.dumps({"type": "resume", **record}) + "\n")
 
     def write_rows(self, idx: np.ndarray, rows: np.ndarray) -> None:
         super().write_rows(np.asarray(idx) + self.offset, rows)
 
 
-def replay_mismatches(replayed: np.ndarray, recorded: np.ndarray) -> int:
-    """Measurements whose replayed RESULT differs from the recorded one (both answered)."""
+def replay_differences(replayed: np.ndarray, recorded: np.ndarray) -> tuple[int, str]:
+    """Measurements whose replay differs from the record beyond float tolerance (a recorded result the
+    replay does not reproduce, or a field off), and a description of the first one."""
+    diff = replayed["outcome"] != recorded["outcome"]
     both = (replayed["outcome"] == OUTCOME_RESULT) & (recorded["outcome"] == OUTCOME_RESULT)
-    diff = np.zeros(len(replayed), bool)
-    for name in REPLAY_FIELDS:
-        diff |= replayed[name] != recorded[name]
-    return int(np.count_nonzero(diff & both))
+    first: dict[int, str] = {}
+    for name in (*REPLAY_EXACT, *REPLAY_FIELDS):
+        a, b = replayed[name], recorded[name]
+        bad = both & ((a != b) if name in REPLAY_EXACT else
+                      ~np.isclose(a, b, rtol=REPLAY_RTOL, atol=REPLAY_ATOL, equal_nan=True))
+        diff |= bad
+        k = np.flatnonzero(bad)
+        if k.size and int(k[0]) not in first:
+            first[int(k[0])] = f"{name} replayed {a[k[0]]!r}, recorded {b[k[0]]!r}"
+    for k in np.flatnonzero(replayed["outcome"] != recorded["outcome"])[:1]:
+        first.setdefault(int(k), f"outcome replayed {int(replayed['outcome'][k])}, recorded "
+                                 f"{int(recorded['outcome'][k])}")
+    n = int(np.count_nonzero(diff))
+    return n, (f"measurement {min(first)}: {first[min(first)]}" if first else "")
 
 
-def resume_run(device: Any, rec: RecordedRun, flight: Flight, timeout_s: float = 5.0,
-               progress: Callable[[int, int], None] | None = None) -> tuple[RunResult, dict[str, Any]]:
-    """Replay the recorded part, stream the rest, append to the file. Returns the whole-flight RunResult
-    (read back from the file) and what the resume did."""
+def replay_mismatches(replayed: np.ndarray, recorded: np.ndarray) -> int:
+    return replay_differences(replayed, recorded)[0]
+
+
+def check_resumable(rec: RecordedRun, flight: Flight, config: EstimatorConfig,
+                    device: dict[str, Any] | None) -> None:
+    """Refuse to resume with another flight, configuration or firmware than the file records."""
+    where = f"{rec.path}:1"
+    if str(rec.header["flight"]) != flight.name:
+        raise ResumeError(f"{where}: the file records flight {rec.header['flight']!r}, its source now gives "
+                          f"{flight.name!r}: refusing to mix two flights in one file")
     if len(flight.uwb) != rec.n_measurements:
-        raise ResumeError(f"{rec.path}: header says {rec.n_measurements} measurements, the rebuilt flight "
+        raise ResumeError(f"{where}: header says {rec.n_measurements} measurements, the rebuilt flight "
                           f"{flight.name!r} has {len(flight.uwb)} (different data or simulator version)")
+    recorded = rec.header.get("flight_digest")
+    if recorded is not None and recorded != flight_digest(flight):
+        raise ResumeError(f"{where}: the flight rebuilt from the header's source differs from the one recorded "
+                          f"(digest {flight_digest(flight)}, recorded {recorded}): the recording was edited or "
+                          "replaced, or the simulator changed; start a new run")
+    if rec.config() != config:
+        diff = [f"{k} {v!r} (now {getattr(config, k)!r})" for k, v in vars(rec.config()).items()
+                if getattr(config, k) != v]
+        raise ResumeError(f"{where}: the recorded configuration differs from the one its source gives: "
+                          f"{', '.join(diff)}")
+    want = rec.header.get("device")
+    if isinstance(want, dict) and device is not None:
+        diff = [f"{k} {want.get(k)!r} (this device: {device.get(k)!r})" for k in DEVICE_KEYS
+                if k in want and want.get(k) != device.get(k)]
+        if diff:
+            raise ResumeError(f"{where}: recorded with another firmware than this device's: {', '.join(diff)}; "
+                              "resume on the same firmware (or start a new run)")
+
+
+def resume_run(device: Any, rec: RecordedRun, flight: Flight, locked: LockedResults, timeout_s: float = 5.0,
+               progress: Callable[[int, int], None] | None = None) -> tuple[RunResult, dict[str, Any]]:
+    """Replay the recorded part, stream the rest, append to the (locked) file. Returns the whole-flight
+    RunResult (read back from the file) and what the resume did. A replay that differs from the record
+    raises ResumeError before anything is written."""
     cfg, pacing = rec.config(), rec.pacing()
     k0 = rec.next_index
     info: dict[str, Any] = {"resumed_at": k0, "replayed": 0, "replay_mismatches": 0, "appended": 0}
@@ -203,12 +264,17 @@ def resume_run(device: Any, rec: RecordedRun, flight: Flight, timeout_s: float =
     if prefix is not None:
         window = pacing.window if pacing.mode != "lockstep" else 64
         replay = streamer.run(prefix, cfg, Pacing("windowed", window), results_path=None)
+        n_diff, first = replay_differences(replay.results, rec.results_array()[:k0])
+        if n_diff:
+            raise ResumeError(f"{rec.path}: the replay of the recorded part differs from its records at {n_diff} of "
+                              f"{k0} measurements beyond float tolerance (first: {first}): the file was edited or "
+                              "another firmware wrote it; file left unchanged")
         info["replayed"] = k0
-        info["replay_mismatches"] = replay_mismatches(replay.results, rec.results_array()[:k0])
         info["replay_s"] = round(time.perf_counter() - t0, 3)
     assert suffix is not None
-    writer = AppendWriter(rec.path, offset=k0, record={**info, "segment": rec.segments + 1,
-                                                       "time": time.strftime("%Y-%m-%dT%H:%M:%S")})
+    info["partial_line_bytes_dropped"] = truncate_partial_line(locked.fh, rec.path)
+    writer = AppendWriter(locked, offset=k0, record={**info, "segment": rec.segments + 1,
+                                                     "time": time.strftime("%Y-%m-%dT%H:%M:%S")})
     streamer.run(suffix, cfg, pacing, writer=writer, reset=prefix is None, progress=progress)
     info["appended"] = len(suffix.uwb)
     return run_from_file(rec.path, flight), info

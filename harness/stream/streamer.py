@@ -25,6 +25,7 @@ from harness.errors import DeviceDied, DeviceTimeout, LinkClosed
 from harness.flight.model import Flight
 from harness.stream.batch import body_dtype, decode_rows
 from harness.stream.prepare import PreparedFlight, prepare, setup_frames
+from harness.stream.results_file import LockedResults
 from protocol import encode_frame
 from protocol import messages as m
 from protocol.framing import DecoderErrors, Frame, FrameDecoder
@@ -148,15 +149,27 @@ class _State:
 
 
 class ResultsWriter:
-    """JSON Lines on disk, appended and flushed as results arrive (an interrupted run keeps them)."""
+    """JSON Lines on disk, appended and flushed as results arrive (an interrupted run keeps them; a killed
+    harness loses at most the line being written). The file is locked while written (results_file.py);
+    `overwrite=False` refuses a file holding an unfinished run."""
 
-    def __init__(self, path: Path | None, header: dict[str, Any]) -> None:
-        self._fh = None
+    def __init__(self, path: Path | None, header: dict[str, Any], overwrite: bool = True) -> None:
+        self._fh: LockedResults | None = None
         if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            self._fh = open(path, "w", encoding="utf-8")
-            self._fh.write(json.dumps({"type": "header", **header}) + "\n")
-            self._fh.flush()
+            self._fh = LockedResults(Path(path), overwrite=overwrite)
+            self._write(json.dumps({"type": "header", **header}) + "\n")
+
+    def _write(self, text: str) -> None:
+        assert self._fh is not None
+        try:
+            self._fh.write(text)
+        except BaseException:
+            fh, self._fh = self._fh, None
+            try:
+                fh.fh.close()        # releases the lock; the unwritten buffer is lost with the error raised
+            except OSError:
+                pass
+            raise
 
     def write_rows(self, idx: np.ndarray, rows: np.ndarray) -> None:
         if self._fh is None or len(idx) == 0:
@@ -167,18 +180,16 @@ class ResultsWriter:
             rec = {"type": "result", "index": k}
             rec.update(zip(names, row))
             lines.append(json.dumps(rec))
-        self._fh.write("\n".join(lines) + "\n")
-        self._fh.flush()
+        self._write("\n".join(lines) + "\n")
 
     def write_record(self, record: dict[str, Any]) -> None:
         if self._fh is not None:
-            self._fh.write(json.dumps(record) + "\n")
-            self._fh.flush()
+            self._write(json.dumps(record) + "\n")
 
     def close(self) -> None:
         if self._fh is not None:
-            self._fh.close()
-            self._fh = None
+            fh, self._fh = self._fh, None
+            fh.close()
 
 
 class Streamer:
@@ -248,7 +259,7 @@ class Streamer:
     def run(self, flight: Flight, config: EstimatorConfig, pacing: Pacing = Pacing(),
             results_path: Path | None = None, progress: Callable[[int, int], None] | None = None,
             include_imu: bool = True, header_extra: dict[str, Any] | None = None,
-            writer: ResultsWriter | None = None, reset: bool = True) -> RunResult:
+            writer: ResultsWriter | None = None, reset: bool = True, overwrite: bool = True) -> RunResult:
         """`header_extra` goes into the results header (e.g. how to rebuild the flight for --resume);
         `writer` replaces the results file writer (resume appends); `reset=False` keeps the device's
         filter state (the CONFIG is sent without reset: a resumed run continues a replayed prefix)."""
@@ -261,7 +272,7 @@ class Streamer:
         if writer is None:
             writer = ResultsWriter(results_path, {"flight": flight.name, "config": asdict(config),
                                                   "pacing": asdict(pacing), "n_measurements": n,
-                                                  **(header_extra or {})})
+                                                  **(header_extra or {})}, overwrite=overwrite)
         t_start = time.perf_counter()
         try:
             self._write(setup)
