@@ -7,12 +7,13 @@ computed live from the in-memory flight.
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
 import re
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import pytest
@@ -47,17 +48,23 @@ def campaign(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     k = next(i for i, r in enumerate(runs) if r.run_id == f"sim-tdoa-circle-z-s{FIRST_EVAL_SEED + 1}-none")
     runs[k] = replace(runs[k], firmware=BOGUS)
     logs: list[str] = []
-    outcome = run_campaign(root, runs, ExecOptions(jobs=2, timeout_s=20.0), options=OPTS, log=logs.append)
+    # keep_jsonl: the tests below recompute every figure from the raw JSON Lines (kept gzip-compressed)
+    outcome = run_campaign(root, runs, ExecOptions(jobs=2, timeout_s=20.0, keep_jsonl=True), options=OPTS,
+                           log=logs.append)
     files, summary = build_report(root, extra_sections=(_extra_section,))
     return {"root": root, "runs": runs, "outcome": outcome, "files": files, "summary": summary, "logs": logs,
             "bogus": runs[k].run_id}
 
 
 # ------------------------------------------------------------------------------- independent recomputation
+def _jsonl(root: Path, run_id: str) -> IO[str]:
+    return gzip.open(root / "runs" / f"{run_id}.jsonl.gz", "rt", encoding="utf-8")
+
+
 def _raw_rmse(root: Path, run_id: str, flight_id: str) -> float:
     truth = np.load(root / "flights" / f"{flight_id}.npz")
     t, p = [], []
-    with open(root / "runs" / f"{run_id}.jsonl", encoding="utf-8") as fh:
+    with _jsonl(root, run_id) as fh:
         for line in fh:
             rec = json.loads(line)
             if rec["type"] == "result" and rec["outcome"] == 1:
@@ -98,7 +105,8 @@ def test_every_run_streamed_its_results_and_summary(campaign: dict[str, Any]) ->
             continue
         s = json.loads((root / "runs" / f"{run.run_id}.json").read_text())
         assert s["status"] == "ok" and s["fingerprint"] == run.fingerprint()
-        res = load_results(root / "runs" / f"{run.run_id}.jsonl")
+        assert not (root / "runs" / f"{run.run_id}.jsonl").exists()      # compressed once complete
+        res = load_results(root / "runs" / f"{run.run_id}.jsonl.gz")
         n = s["flight"]["measurements"]
         assert len(res) == n > 1000 * (1 if run.flight.mode == "twr" else 2)
         assert np.array_equal(res.columns["index"], np.arange(n))
@@ -144,7 +152,7 @@ def test_report_latency_matches_raw_results(campaign: dict[str, Any]) -> None:
         for r in campaign["runs"]:
             if r.flight.mode != mode or r.firmware == BOGUS:
                 continue
-            for line in open(root / "runs" / f"{r.run_id}.jsonl", encoding="utf-8"):
+            for line in _jsonl(root, r.run_id):
                 rec = json.loads(line)
                 if rec["type"] == "result" and rec["outcome"] == 1:
                     assert rec["kind"] == kind
@@ -195,7 +203,7 @@ def test_report_provenance_and_extension_sections(campaign: dict[str, Any]) -> N
 def _raw_nees(root: Path, run_id: str, flight_id: str, skip_s: float) -> np.ndarray:
     truth = np.load(root / "flights" / f"{flight_id}.npz")
     rows = []
-    with open(root / "runs" / f"{run_id}.jsonl", encoding="utf-8") as fh:
+    with _jsonl(root, run_id) as fh:
         for line in fh:
             rec = json.loads(line)
             if rec["type"] == "result" and rec["outcome"] == 1:
@@ -230,16 +238,17 @@ def test_report_nees_matches_a_recomputation_from_raw_results(campaign: dict[str
 def test_rerun_resumes_and_retries_only_what_is_not_done(campaign: dict[str, Any]) -> None:
     root, runs = campaign["root"], campaign["runs"]
     done = [r for r in runs if r.firmware != BOGUS]
-    mtimes = {r.run_id: os.stat(root / "runs" / f"{r.run_id}.jsonl").st_mtime_ns for r in done}
+    mtimes = {r.run_id: os.stat(root / "runs" / f"{r.run_id}.npy").st_mtime_ns for r in done}
     # Simulate an interruption in the middle of one run: its summary never got written.
     victim = next(r for r in done if r.run_id.endswith("-outlier") and r.flight.mode == "twr")
     (root / "runs" / f"{victim.run_id}.json").unlink()
     logs: list[str] = []
-    out = run_campaign(root, runs, ExecOptions(jobs=2, timeout_s=20.0), options=OPTS, log=logs.append)
+    out = run_campaign(root, runs, ExecOptions(jobs=2, timeout_s=20.0, keep_jsonl=True), options=OPTS,
+                       log=logs.append)
     assert out.skipped == len(done) - 1
     assert out.ok == 1 and [f["run_id"] for f in out.failed] == [campaign["bogus"]]
     for r in done:
-        changed = os.stat(root / "runs" / f"{r.run_id}.jsonl").st_mtime_ns != mtimes[r.run_id]
+        changed = os.stat(root / "runs" / f"{r.run_id}.npy").st_mtime_ns != mtimes[r.run_id]
         assert changed == (r.run_id == victim.run_id), r.run_id
     assert CampaignDir(root).is_complete(victim.run_id, victim.fingerprint())
 

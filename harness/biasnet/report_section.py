@@ -1,15 +1,14 @@
 """The campaign report's bias-network section: the paper's Fig. 5 (measured error and predicted bias vs
-azimuth) on a simulated spin in place with the shipped default network, and on the real heading sweep
-(rcv_twr sequence 3) with the shipped rcv_twr network when the shared data is there; plus the shipped
-networks' held-out measurement figures from firmware_sim/models/models.json."""
+azimuth) on a simulated spin in place with the campaign's default network, and on the real heading sweep
+(rcv_twr sequence 3) with its rcv_twr network; plus those networks' held-out measurement figures.
+
+Everything comes from the campaign directory (DIR/models, written by harness/campaign/models.py when the
+campaign ran), never from the checkout: the same directory always gives the same report."""
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from harness.biasnet.export import DEFAULT_NPZ
 from harness.biasnet.model import BiasModel
 
 if TYPE_CHECKING:
@@ -50,33 +49,33 @@ def _share(m: dict[str, Any]) -> str:
 
 
 def bias_section(ctx: "ReportContext") -> "Section | None":
+    from harness.campaign.models import model_path, read_index
     from harness.flight.scenarios import scenario_flight
     from harness.report.html import Section, Table
-    from harness.session import SHARED_DATA
-    if not DEFAULT_NPZ.is_file():
-        return None
+    root = ctx.data.root
+    index = read_index(root)
+    default = model_path(root, index, index.get("default")) if index else None
+    if index is None or default is None:
+        return None        # a campaign directory without its networks: nothing to show about them
     sec = Section("bias-network", "Bias network: predicted bias vs azimuth (paper Fig. 5)")
-    default = BiasModel.load(DEFAULT_NPZ)
+    model = BiasModel.load(default)
     spin = scenario_flight("spin", mode="twr", duration_s=30.0, seed=SPIN_SEED)
-    sec.figures += _figure(ctx, default, spin, "fig5_sim_spin",
+    sec.figures += _figure(ctx, model, spin, "fig5_sim_spin",
                            f"Simulated spin in place (seed {SPIN_SEED}, unseen in training): measured TWR error "
-                           f"and the shipped network's bias (model {default.hash_hex}).")
-    rcv_model = DEFAULT_NPZ.parent / "rcv_twr.npz"
-    seq3 = SHARED_DATA / "rcv_twr" / "sequence3"
-    if rcv_model.is_file() and seq3.is_dir():
-        from harness.flight.loaders import load_recording
-        model = BiasModel.load(rcv_model)
-        sec.figures += _figure(ctx, model, load_recording(seq3), "fig5_rcv_heading_sweep",
+                           f"and the campaign's default network's bias (model {model.hash_hex}).")
+    rcv_model = model_path(root, index, (index.get("families") or {}).get("rcv_twr"))
+    if rcv_model is not None and index.get("fig5_rcv_flight"):
+        from harness.flight.native import load_flight
+        sec.figures += _figure(ctx, BiasModel.load(rcv_model), load_flight(root / "models" / index["fig5_rcv_flight"]),
+                               "fig5_rcv_heading_sweep",
                                "Real heading sweep (rcv_twr sequence 3, part of that network's training set): "
                                "measured TWR error and the network's bias.")
-    summary_path = DEFAULT_NPZ.parent / "models.json"
-    if summary_path.is_file():
-        summary = json.loads(summary_path.read_text())
-        rows = _heldout_rows(summary)
-        if rows:
-            sec.tables.append(Table(["network / held-out data", "n", "RMSE raw [m]", "network", "pair constant",
-                                     "voxel table", "network: share of ceiling", "voxel table: share of ceiling"],
-                                    rows))
-            sec.data = {"models": {k: summary[k].get("hash") for k in ("sim", "util_tdoa_pos", "rcv_twr")
-                                   if isinstance(summary.get(k), dict)}}
+    summary = index.get("summary") or {}
+    rows = _heldout_rows(summary)
+    if rows:
+        sec.tables.append(Table(["network / held-out data", "n", "RMSE raw [m]", "network", "pair constant",
+                                 "voxel table", "network: share of ceiling", "voxel table: share of ceiling"],
+                                rows))
+    sec.data = {"models": {k: v for k, v in sorted((index.get("families") or {}).items())},
+                "default_model": index.get("default")}
     return sec

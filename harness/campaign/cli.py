@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.campaign.plan import (CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, PlanError,
-                                   attach_firmware, plan_campaign)
+                                   attach_firmware, parse_shard, plan_campaign)
 from harness.campaign.runner import ExecOptions, run_campaign
 from harness.session import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
@@ -47,7 +47,12 @@ def add_parser(sub: Any) -> None:
                    help="per mode, one extra real-time run for end-to-end latency")
     p.add_argument("--timeout", type=float, default=10.0, help="device silence before a run fails [s]")
     p.add_argument("--report", action=argparse.BooleanOptionalAction, default=True,
-                   help="write the report when the runs are done")
+                   help="write the report when the runs are done (a shard: its own partial report)")
+    p.add_argument("--shard", metavar="K/N", default=None,
+                   help="run only shard K of N (1 <= K <= N; the flights dealt round-robin in plan order), e.g. "
+                        "one per CI matrix job or Slurm array task; merge with `uwb-hil report DIR... --out M`")
+    p.add_argument("--keep-jsonl", action="store_true",
+                   help="keep each run's per-measurement JSON Lines (gzip) besides its binary rows (.npy)")
     p.set_defaults(func=cmd_campaign)
 
 
@@ -64,14 +69,15 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         raise PlanError(f"--jobs must be >= 1, got {args.jobs}")
     if not (0 < args.timeout <= 3600):
         raise PlanError(f"--timeout must be in (0, 3600] s, got {args.timeout:g}")
+    shard = parse_shard(args.shard) if args.shard else None
     runs, notes = plan_campaign(opts)      # validates the options: nothing has started yet
     try:
         runs = attach_firmware(runs)      # firmware images for non-default models (built once, cached)
     except RuntimeError as exc:
         print(f"uwb-hil: error: {exc}", file=sys.stderr)
         return 2
-    ex = ExecOptions(jobs=max(1, args.jobs), timeout_s=args.timeout)
-    outcome = run_campaign(Path(args.out), runs, ex, options=opts, notes=notes,
+    ex = ExecOptions(jobs=max(1, args.jobs), timeout_s=args.timeout, keep_jsonl=args.keep_jsonl)
+    outcome = run_campaign(Path(args.out), runs, ex, options=opts, notes=notes, shard=shard,
                            log=lambda s: print(s, file=sys.stderr, flush=True))
     print(f"campaign: {outcome.total} runs: {outcome.skipped} resumed, {outcome.ok} ran ok, "
           f"{len(outcome.failed)} failed", file=sys.stderr)

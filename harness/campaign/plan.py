@@ -241,6 +241,40 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
     return runs, notes
 
 
+def parse_shard(text: str) -> tuple[int, int]:
+    """"K/N" (1 <= K <= N) -> (K, N)."""
+    k, sep, n = str(text).partition("/")
+    try:
+        ki, ni = int(k), int(n)
+    except ValueError:
+        ki = ni = 0
+    if not sep or not 1 <= ki <= ni:
+        raise PlanError(f"--shard {text!r}: expected K/N with 1 <= K <= N, e.g. --shard 2/4")
+    return ki, ni
+
+
+def shard_runs(runs: list[RunSpec], index: int, count: int) -> list[RunSpec]:
+    """Shard K of N (1-based): the flights (groups of runs sharing a flight and firmware, in plan order) dealt
+    round-robin, so every run lands in exactly one shard and the split depends only on the plan."""
+    if not 1 <= index <= count:
+        raise PlanError(f"shard {index}/{count}: need 1 <= K <= N")
+    return [r for i, group in enumerate(group_by_flight(runs)) if i % count == index - 1 for r in group]
+
+
+def plan_digest(runs: list[RunSpec]) -> str:
+    """What the runs are, without where this machine keeps things (firmware and recording paths differ between
+    the machines of a sharded campaign): equal digests = the same campaign, however it was split."""
+    items = []
+    for r in runs:
+        d = r.as_dict()
+        d.pop("firmware")
+        d.pop("model")                       # a path; the network itself is model_hash
+        d["flight"] = {k: v for k, v in d["flight"].items() if k not in ("path", "anchors")}
+        items.append(d)
+    text = json.dumps(sorted(items, key=lambda d: d["run_id"]), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def group_by_flight(runs: list[RunSpec]) -> list[list[RunSpec]]:
     """Runs that share a flight and a firmware run one after another on one device (the flight is built once)."""
     groups: dict[tuple[FlightSpec, str], list[RunSpec]] = {}

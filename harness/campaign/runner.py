@@ -20,7 +20,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from harness.campaign.plan import CampaignOptions, RunSpec, group_by_flight
+from harness.biasnet.export import DEFAULT_NPZ
+from harness.campaign.models import snapshot_models
+from harness.campaign.plan import MODELS_DIR, CampaignOptions, RunSpec, group_by_flight, plan_digest, shard_runs
 from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, read_json, write_json_atomic
 from harness.campaign.worker import WorkerJob
 from harness.session import REPO_ROOT
@@ -35,6 +37,7 @@ class ExecOptions:
     # length, generously (a loaded 2-core machine replays far slower than the unloaded figure).
     group_timeout_s: float | None = None
     python: str = sys.executable
+    keep_jsonl: bool = False       # keep each run's JSON Lines (gzip) besides its binary rows
 
 
 @dataclass
@@ -106,15 +109,26 @@ class _Active:
 
 
 def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, options: CampaignOptions | None = None,
-                 notes: list[str] | None = None, log: Callable[[str], None] = print) -> CampaignOutcome:
+                 notes: list[str] | None = None, log: Callable[[str], None] = print,
+                 shard: tuple[int, int] | None = None) -> CampaignOutcome:
+    """Run `runs` (the whole plan, or with `shard` = (K, N) shard K of N of it) into `root`."""
     cdir = CampaignDir(Path(root).resolve())
     cdir.make()
-    firmware = Path(runs[0].firmware) if runs else (options.firmware if options else None)
+    plan = runs
+    if shard is not None:
+        runs = shard_runs(plan, *shard)
+    firmware = Path(plan[0].firmware) if plan else (options.firmware if options else None)
     manifest = {"options": _options_dict(options), "exec": {k: v for k, v in asdict(exec_opts).items()
                                                             if k != "python"},
                 "notes": list(notes or []), "runs": [r.as_dict() for r in runs],
+                "plan": {"digest": plan_digest(plan), "total": len(plan),
+                         # a shard keeps the whole plan: the merged report knows which runs no shard ran
+                         "runs": [r.as_dict() for r in plan] if shard is not None else None},
+                "shard": {"index": shard[0], "count": shard[1]} if shard is not None else None,
                 "provenance": host_provenance(firmware)}
     write_json_atomic(cdir.manifest, manifest)
+    snapshot_models(cdir, [r.model for r in plan], Path(options.sim_model) if options and options.sim_model
+                    else DEFAULT_NPZ, MODELS_DIR / "models.json", Path(options.data_dir) if options else None)
     for n in notes or []:
         log(f"note: {n}")
 
@@ -128,8 +142,10 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
             pending_groups.append(todo)
     outcome = CampaignOutcome(total=len(runs), skipped=skipped)
     n_pending = sum(len(g) for g in pending_groups)
-    log(f"campaign {cdir.root}: {len(runs)} runs, {skipped} already complete, {n_pending} to run "
+    shard_text = f" (shard {shard[0]}/{shard[1]} of {len(plan)})" if shard is not None else ""
+    log(f"campaign {cdir.root}: {len(runs)} runs{shard_text}, {skipped} already complete, {n_pending} to run "
         f"({len(pending_groups)} flights, {exec_opts.jobs} at a time)")
+    progress = _Progress(total=len(runs), done=skipped)
 
     env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
                MPLBACKEND="Agg")
@@ -155,8 +171,8 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
                 active.remove(a)
                 done_groups += 1
                 _collect(cdir, a, code, outcome, log, timed_out=a.term_sent is not None)
-                log(f"[{done_groups}/{len(pending_groups)}] {a.runs[0].flight.flight_id}: "
-                    f"{outcome.ok} ok, {len(outcome.failed)} failed so far")
+                log(f"[{progress.add(len(a.runs))}] {a.runs[0].flight.flight_id} "
+                    f"(flight {done_groups}/{len(pending_groups)}): {outcome.ok} ok, {len(outcome.failed)} failed")
     finally:
         for a in active:           # interrupted: stop our workers (they stop their devices)
             if a.proc.poll() is None:
@@ -168,6 +184,32 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
                 a.proc.kill()
                 a.proc.wait()
     return outcome
+
+
+@dataclass
+class _Progress:
+    """Runs done / total and an ETA from this invocation's pace (runs resumed from disk cost nothing)."""
+
+    total: int
+    done: int
+    started: float = field(default_factory=time.monotonic)
+    ran: int = 0
+
+    def add(self, n: int) -> str:
+        self.done += n
+        self.ran += n
+        left = self.total - self.done
+        elapsed = time.monotonic() - self.started
+        eta = elapsed / self.ran * left if self.ran else float("nan")
+        return f"{self.done}/{self.total} runs, {_clock(elapsed)} elapsed, ETA {_clock(eta) if left else '0:00'}"
+
+
+def _clock(seconds: float) -> str:
+    if seconds != seconds:
+        return "?"
+    m, s = divmod(int(round(seconds)), 60)
+    h, m = divmod(m, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
 
 
 def _options_dict(options: CampaignOptions | None) -> dict[str, Any] | None:
@@ -189,7 +231,7 @@ def _start(cdir: CampaignDir, group: list[RunSpec], opts: ExecOptions, env: dict
            firmware_sha256: str) -> _Active:
     fid = group[0].flight.flight_id
     job = WorkerJob(root=str(cdir.root), runs=tuple(group), window=opts.window,
-                    timeout_s=opts.timeout_s, firmware_sha256=firmware_sha256)
+                    timeout_s=opts.timeout_s, firmware_sha256=firmware_sha256, keep_jsonl=opts.keep_jsonl)
     for run in group:      # a summary left from an earlier attempt must not be mistaken for this one's
         cdir.summary_path(run.run_id).unlink(missing_ok=True)
     stem = group_stem(group)

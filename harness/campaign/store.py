@@ -1,9 +1,11 @@
 """The on-disk layout of a campaign directory (written by the runner, read by the report).
 
     DIR/campaign.json            options, the planned runs, notes, provenance of the host side
-    DIR/runs/<run_id>.jsonl      per-measurement results, streamed as they arrive (Streamer results_path)
+    DIR/runs/<run_id>.jsonl      per-measurement results, streamed as they arrive (Streamer results_path);
+                                 removed when the run completes (--keep-jsonl: kept as <run_id>.jsonl.gz)
     DIR/runs/<run_id>.npy        the same rows in binary (streamer RESULTS_DTYPE), written when the run completes:
                                  the report reads it (parsing a full campaign's JSONL takes minutes)
+    DIR/models/                  the networks the campaign ran (harness/campaign/models.py)
     DIR/runs/<run_id>.json       small per-run summary; "status" is "ok" or "failed" (written last, atomically)
     DIR/flights/<flight_id>.npz  what the report needs of the flight: truth, measurements, anchors
     DIR/logs/                    device logs and worker output
@@ -13,8 +15,10 @@ A run is complete when its summary says "ok" and carries the fingerprint of the 
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,6 +58,19 @@ class CampaignDir:
     def results_path(self, run_id: str) -> Path:
         return self.runs / f"{run_id}.jsonl"
 
+    def results_gz_path(self, run_id: str) -> Path:
+        return self.runs / f"{run_id}.jsonl.gz"
+
+    def finish_results(self, run_id: str, keep_jsonl: bool) -> None:
+        """A complete run keeps its binary rows; its JSON Lines (6x larger) are dropped or gzip-compressed."""
+        src = self.results_path(run_id)
+        if keep_jsonl and src.exists():
+            tmp = self.runs / f".{run_id}.{os.getpid()}.tmp.gz"
+            with open(src, "rb") as fin, gzip.open(tmp, "wb", compresslevel=6) as fout:
+                shutil.copyfileobj(fin, fout, 1 << 20)
+            os.replace(tmp, self.results_gz_path(run_id))
+        src.unlink(missing_ok=True)
+
     def array_path(self, run_id: str) -> Path:
         return self.runs / f"{run_id}.npy"
 
@@ -83,7 +100,7 @@ class CampaignDir:
             return False      # a torn summary (should not happen: writes are atomic) means: run again
         return bool(s and s.get("status") == STATUS_OK and s.get("fingerprint") == fingerprint
                     and (firmware_sha256 is None or s.get("firmware_sha256") == firmware_sha256)
-                    and self.results_path(run_id).exists())
+                    and (self.array_path(run_id).exists() or self.results_path(run_id).exists()))
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:
@@ -222,7 +239,7 @@ def load_results(path: Path) -> StoredResults:
     records: list[dict[str, Any]] = []
     rows: dict[str, list[float]] = {c: [] for c in RESULT_COLUMNS}
     try:
-        fh = open(path, encoding="utf-8")
+        fh = gzip.open(path, "rt", encoding="utf-8") if path.suffix == ".gz" else open(path, encoding="utf-8")
     except OSError as exc:
         raise CampaignDataError(f"{path}: cannot read ({exc.strerror})") from None
     with fh:
@@ -270,4 +287,5 @@ def load_run_results(cdir: CampaignDir, run_id: str, stats: dict[str, Any] | Non
         for c in RESULT_COLUMNS[1:]:
             cols[c] = arr[c].astype(np.int64 if np.issubdtype(arr[c].dtype, np.integer) else np.float64)
         return StoredResults(header={"type": "header", "source": str(npy)}, columns=cols, stats=stats)
-    return load_results(cdir.results_path(run_id))
+    gz = cdir.results_gz_path(run_id)
+    return load_results(gz if gz.exists() else cdir.results_path(run_id))

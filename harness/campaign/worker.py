@@ -38,18 +38,20 @@ class WorkerJob:
     window: int = 64
     timeout_s: float = 10.0
     firmware_sha256: str = ""       # of the binary the runner saw (resume compares it)
+    keep_jsonl: bool = False        # keep the run's JSON Lines (gzip-compressed) besides the binary rows
 
     def to_json(self) -> str:
         return json.dumps({"root": self.root, "runs": [r.as_dict() for r in self.runs],
                            "window": self.window, "timeout_s": self.timeout_s,
-                           "firmware_sha256": self.firmware_sha256}, indent=1)
+                           "firmware_sha256": self.firmware_sha256, "keep_jsonl": self.keep_jsonl}, indent=1)
 
     @staticmethod
     def from_json(text: str) -> WorkerJob:
         d = json.loads(text)
         return WorkerJob(root=d["root"], runs=tuple(RunSpec.from_dict(r) for r in d["runs"]),
                          window=int(d["window"]), timeout_s=float(d["timeout_s"]),
-                         firmware_sha256=str(d.get("firmware_sha256", "")))
+                         firmware_sha256=str(d.get("firmware_sha256", "")),
+                         keep_jsonl=bool(d.get("keep_jsonl", False)))
 
 
 def build_flight(spec: FlightSpec) -> Flight:
@@ -132,6 +134,7 @@ def run_group(job: WorkerJob) -> int:
                     flight, cfg, pacing, results_path=cdir.results_path(run.run_id))
                 summary = run_summary(result, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
                 save_array_atomic(cdir.array_path(run.run_id), result.results)
+                cdir.finish_results(run.run_id, keep_jsonl=job.keep_jsonl)
                 write_json_atomic(cdir.summary_path(run.run_id), {
                     "status": STATUS_OK, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
                     "firmware_sha256": job.firmware_sha256,

@@ -10,8 +10,12 @@ from typing import Any
 
 
 def add_parser(sub: Any) -> None:
-    p = sub.add_parser("report", help="turn a campaign directory into report.html / report.md / report.json")
-    p.add_argument("dir", help="campaign directory (uwb-hil campaign --out DIR)")
+    p = sub.add_parser("report", help="turn a campaign directory into report.html / report.md / report.json",
+                       description="One directory: its report. Several (the shards of `uwb-hil campaign --shard "
+                                   "K/N`): merged into --out (refused unless they are shards of one campaign with "
+                                   "the same firmware and networks), then its report.")
+    p.add_argument("dir", nargs="+", help="campaign directory (uwb-hil campaign --out DIR), or its shards")
+    p.add_argument("--out", help="merged campaign directory (required with several directories)")
     p.add_argument("--json", action="store_true", help="print the summary JSON on stdout")
     p.set_defaults(func=cmd_report)
 
@@ -51,5 +55,14 @@ def _print_headline(summary: dict[str, Any]) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    write_report(Path(args.dir), as_json=args.json)
+    dirs = [Path(d) for d in args.dir]
+    if len(dirs) == 1 and not args.out:
+        write_report(dirs[0], as_json=args.json)
+        return 0
+    if not args.out:
+        raise ValueError("several campaign directories are merged: give --out MERGED_DIR")
+    from harness.campaign.merge import merge_shards
+    root = merge_shards(dirs, Path(args.out))
+    print(f"merged {len(dirs)} shard directories into {root}", file=sys.stderr)
+    write_report(root, as_json=args.json)
     return 0
