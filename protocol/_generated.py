@@ -6,7 +6,7 @@ import enum
 from dataclasses import dataclass
 from typing import ClassVar
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -58,6 +58,18 @@ class ErrorCode(enum.IntEnum):
     NOT_CONFIGURED = 8
     BAD_SETPOINT = 9
     DIVERGED = 10
+
+
+class DropReason(enum.IntEnum):
+    """RADIO_DROP.reason: why a radio packet produced no measurement (each has a STATS counter)"""
+
+    NO_REFERENCE = 1
+    CLOCK_UNRELIABLE = 2
+    EXPIRED = 3
+    MALFORMED = 4
+    UNKNOWN_TYPE = 5
+    NO_POSITION = 6
+    BAD_ANCHOR = 7
 
 
 class Layout(enum.IntEnum):
@@ -223,6 +235,38 @@ class StatsReq:
 
 
 @dataclass(frozen=True)
+class Radio:
+    """One anchor packet as the tag's radio received it. Answered by RESULT (a TDoA measurement was formed) or RADIO_DROP."""
+
+    MSG_ID: ClassVar[int] = 0x09
+    NAME: ClassVar[str] = 'RADIO'
+    DIRECTION: ClassVar[str] = 'to_device'
+    FORMAT: ClassVar[str] = '<QQQB128s'
+    SIZE: ClassVar[int] = 153
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('t_us', 'u64'), ('rx_ts', 'u64'), ('src_addr', 'u64'), ('length', 'u8'), ('payload', 'bytes128'))
+
+    t_us: int  # tag system time of the reception [us] (the estimator's clock)
+    rx_ts: int  # DW1000 RX timestamp, tag clock, 40 bits (ticks of 1/63.8976 GHz); higher bits must be 0
+    src_addr: int  # MAC source address; anchor id = low byte
+    length: int  # payload bytes used, <= 128
+    payload: bytes  # the anchor's over-the-air payload, unchanged (TDoA2 rangePacket2 / TDoA3 header + entries, optional LPP); bytes beyond length are 0
+
+
+@dataclass(frozen=True)
+class ClockReq:
+    """Ask for the TDoA engine's clock correction of one anchor. Answered by CLOCK."""
+
+    MSG_ID: ClassVar[int] = 0x0a
+    NAME: ClassVar[str] = 'CLOCK_REQ'
+    DIRECTION: ClassVar[str] = 'to_device'
+    FORMAT: ClassVar[str] = '<B'
+    SIZE: ClassVar[int] = 1
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('anchor_id', 'u8'),)
+
+    anchor_id: int
+
+
+@dataclass(frozen=True)
 class Setpoint:
     """One control step: the commanded state at t_us. Answered by CONTROL (or ERROR). Send it after the sensor frames up to t_us."""
 
@@ -327,9 +371,9 @@ class Stats:
     MSG_ID: ClassVar[int] = 0x83
     NAME: ClassVar[str] = 'STATS'
     DIRECTION: ClassVar[str] = 'to_host'
-    FORMAT: ClassVar[str] = '<IIIIIIIIIIIIIIII'
-    SIZE: ClassVar[int] = 64
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('frames_ok', 'u32'), ('crc_errors', 'u32'), ('framing_errors', 'u32'), ('unknown_types', 'u32'), ('bad_lengths', 'u32'), ('non_finite', 'u32'), ('unknown_anchors', 'u32'), ('time_backwards', 'u32'), ('bad_configs', 'u32'), ('dropped_meas', 'u32'), ('imu_samples', 'u32'), ('twr_meas', 'u32'), ('tdoa_meas', 'u32'), ('results', 'u32'), ('predictions', 'u32'), ('seq_gaps', 'u32'))
+    FORMAT: ClassVar[str] = '<IIIIIIIIIIIIIIIIIIIIIIII'
+    SIZE: ClassVar[int] = 96
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('frames_ok', 'u32'), ('crc_errors', 'u32'), ('framing_errors', 'u32'), ('unknown_types', 'u32'), ('bad_lengths', 'u32'), ('non_finite', 'u32'), ('unknown_anchors', 'u32'), ('time_backwards', 'u32'), ('bad_configs', 'u32'), ('dropped_meas', 'u32'), ('imu_samples', 'u32'), ('twr_meas', 'u32'), ('tdoa_meas', 'u32'), ('results', 'u32'), ('predictions', 'u32'), ('seq_gaps', 'u32'), ('radio_packets', 'u32'), ('radio_meas', 'u32'), ('radio_no_reference', 'u32'), ('radio_clock', 'u32'), ('radio_expired', 'u32'), ('radio_malformed', 'u32'), ('radio_unknown_type', 'u32'), ('radio_no_position', 'u32'))
 
     frames_ok: int  # frames with a valid CRC
     crc_errors: int
@@ -347,6 +391,14 @@ class Stats:
     results: int
     predictions: int
     seq_gaps: int  # host frames missing according to their seq
+    radio_packets: int  # RADIO frames handed to the TDoA engine
+    radio_meas: int  # TDoA measurements the engine formed (each answered by RESULT)
+    radio_no_reference: int  # radio packets dropped: drop_reason NO_REFERENCE
+    radio_clock: int  # radio packets dropped: CLOCK_UNRELIABLE
+    radio_expired: int  # radio packets dropped: EXPIRED
+    radio_malformed: int  # radio packets dropped: MALFORMED
+    radio_unknown_type: int  # radio packets dropped: UNKNOWN_TYPE
+    radio_no_position: int  # radio packets dropped: NO_POSITION or BAD_ANCHOR
 
 
 @dataclass(frozen=True)
@@ -364,6 +416,41 @@ class Error:
     msg_type: int  # type of the refused frame
     msg_seq: int  # seq of the refused frame
     detail: int  # code-specific (e.g. the anchor id)
+
+
+@dataclass(frozen=True)
+class RadioDrop:
+    """A RADIO frame was used (anchor state updated) but produced no measurement."""
+
+    MSG_ID: ClassVar[int] = 0x86
+    NAME: ClassVar[str] = 'RADIO_DROP'
+    DIRECTION: ClassVar[str] = 'to_host'
+    FORMAT: ClassVar[str] = '<HBB'
+    SIZE: ClassVar[int] = 4
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('meas_seq', 'u16'), ('reason', 'u8'), ('anchor_id', 'u8'))
+
+    meas_seq: int  # seq of the RADIO frame
+    reason: int  # drop_reason
+    anchor_id: int  # sender's anchor id (low byte of src_addr)
+
+
+@dataclass(frozen=True)
+class Clock:
+    """The TDoA engine's clock correction of one anchor (its clock relative to the tag's)."""
+
+    MSG_ID: ClassVar[int] = 0x87
+    NAME: ClassVar[str] = 'CLOCK'
+    DIRECTION: ClassVar[str] = 'to_host'
+    FORMAT: ClassVar[str] = '<BBBBfI'
+    SIZE: ClassVar[int] = 12
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('anchor_id', 'u8'), ('known', 'u8'), ('bucket', 'u8'), ('reserved', 'u8'), ('skew_ppm', 'f32'), ('packets', 'u32'))
+
+    anchor_id: int
+    known: int  # 1 if the engine holds this anchor
+    bucket: int  # clock-correction bucket (0..4); reliable samples fill it
+    reserved: int  # 0
+    skew_ppm: float  # (cc - 1) * 1e6, cc = d(tag clock) / d(anchor clock)
+    packets: int  # packets received from this anchor since it entered the storage
 
 
 @dataclass(frozen=True)
@@ -398,5 +485,5 @@ class Control:
     compute: int  # device cost of the control step (cost_unit)
 
 
-MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, StatsReq, Setpoint, HelloReply, Result, Stats, Error, Control,)
+MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, StatsReq, Radio, ClockReq, Setpoint, HelloReply, Result, Stats, Error, RadioDrop, Clock, Control,)
 MESSAGES_BY_ID: dict[int, type] = {cls.MSG_ID: cls for cls in MESSAGE_TYPES}

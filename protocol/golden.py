@@ -25,6 +25,22 @@ VECTORS_PATH = Path(__file__).with_name("golden") / "vectors.txt"
 NAN = float("nan")
 
 
+# A TDoA2 packet from anchor 3 (rangePacket2: type, seq[8], u32 timestamps[8], u16 distances[8]) with the
+# LPP anchor position appended, and a TDoA3 packet from anchor 5 (header, one full and one short remote
+# entry, LPP): the byte layouts of ../shared/reference/crazyflie-estimator-and-lps.md 4.4, 4.5, 4.7.
+_LPP = bytes([0xF0, 0x01]) + struct.pack("<3f", 1.5, -2.25, 0.125)
+_TDOA2_LPP = (bytes([0x22]) + bytes([1, 2, 3, 0x7F, 0, 5, 6, 7])
+              + struct.pack("<8I", 10, 0, 0xFFFFFFFF, 0x80000000, 4, 5, 6, 7)
+              + struct.pack("<8H", 33000, 0, 34000, 0, 65535, 1, 2, 3) + _LPP)
+_TDOA3 = (bytes([0x30, 0x45]) + struct.pack("<I", 0xDEADBEEF) + bytes([2])
+          + bytes([1, 0x80 | 0x11]) + struct.pack("<IH", 0x01020304, 33100)
+          + bytes([9, 0x7F]) + struct.pack("<I", 0) + _LPP)
+
+
+def _radio(t_us: int, rx_ts: int, src: int, payload: bytes) -> Any:
+    return m.Radio(t_us=t_us, rx_ts=rx_ts, src_addr=src, length=len(payload), payload=payload.ljust(128, b"\0"))
+
+
 def _vectors() -> list[tuple[str, int, Any]]:
     """Representative messages: every type, zero bytes (COBS), extremes, negative and special floats."""
     return [
@@ -70,8 +86,16 @@ def _vectors() -> list[tuple[str, int, Any]]:
         ("stats", 3, m.Stats(frames_ok=100, crc_errors=1, framing_errors=2, unknown_types=3, bad_lengths=4,
                              non_finite=5, unknown_anchors=6, time_backwards=7, bad_configs=8, dropped_meas=9,
                              imu_samples=1000, twr_meas=200, tdoa_meas=0, results=190, predictions=100,
-                             seq_gaps=0)),
+                             seq_gaps=0, radio_packets=500, radio_meas=450, radio_no_reference=20,
+                             radio_clock=16, radio_expired=5, radio_malformed=4, radio_unknown_type=3,
+                             radio_no_position=2)),
         ("error", 4, m.Error(code=4, msg_type=5, msg_seq=8, detail=12)),
+        ("radio_tdoa2_lpp", 17, _radio(20_000, 0xFF_FFFF_FFFF, 0xBCCF000000000003, _TDOA2_LPP)),
+        ("radio_tdoa3", 18, _radio(2**63, 0x12_3456_789A, 0xBCCF000000000005, _TDOA3)),
+        ("radio_empty", 19, _radio(0, 0, 0, b"")),
+        ("clock_req", 20, m.ClockReq(anchor_id=7)),
+        ("radio_drop", 7, m.RadioDrop(meas_seq=17, reason=2, anchor_id=3)),
+        ("clock", 8, m.Clock(anchor_id=5, known=1, bucket=4, reserved=0, skew_ppm=-9.875, packets=1234)),
         ("setpoint_hover", 13, m.Setpoint(t_us=3_000_000, mode=1, reserved=0, x=0.0, y=0.0, z=1.0, vx=0.0,
                                           vy=0.0, vz=0.0, ax=0.0, ay=0.0, az=0.0, yaw=0.0)),
         ("setpoint_circle", 14, m.Setpoint(t_us=12_345_678, mode=1, reserved=0, x=1.5, y=-0.25, z=0.75,

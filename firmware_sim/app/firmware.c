@@ -17,6 +17,11 @@ typedef char check_status_geom[((int)EST_REJECTED_GEOMETRY == (int)UWB_STATUS_RE
 typedef char check_err_anchor[((int)EST_ERR_UNKNOWN_ANCHOR == (int)UWB_ERROR_CODE_UNKNOWN_ANCHOR) ? 1 : -1];
 typedef char check_err_time[((int)EST_ERR_TIME_BACKWARDS == (int)UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
 typedef char check_err_id[((int)EST_ERR_BAD_ANCHOR_ID == (int)UWB_ERROR_CODE_BAD_ANCHOR_ID) ? 1 : -1];
+typedef char check_drop_ref[((int)TDOA_DROP_NO_REFERENCE == (int)UWB_DROP_REASON_NO_REFERENCE) ? 1 : -1];
+typedef char check_drop_clock[((int)TDOA_DROP_CLOCK == (int)UWB_DROP_REASON_CLOCK_UNRELIABLE) ? 1 : -1];
+typedef char check_drop_exp[((int)TDOA_DROP_EXPIRED == (int)UWB_DROP_REASON_EXPIRED) ? 1 : -1];
+typedef char check_drop_mal[((int)TDOA_DROP_MALFORMED == (int)UWB_DROP_REASON_MALFORMED) ? 1 : -1];
+typedef char check_drop_type[((int)TDOA_DROP_UNKNOWN_TYPE == (int)UWB_DROP_REASON_UNKNOWN_TYPE) ? 1 : -1];
 typedef char check_ctl_time[((int)CTL_ERR_TIME_BACKWARDS == (int)UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
 typedef char check_ctl_off[((int)CTL_MODE_OFF == (int)UWB_CONTROL_MODE_OFF) ? 1 : -1];
 typedef char check_ctl_pos[((int)CTL_MODE_POSITION == (int)UWB_CONTROL_MODE_POSITION) ? 1 : -1];
@@ -67,6 +72,7 @@ void firmware_init(firmware_t *fw, fw_write_fn write, void *write_ctx, const cha
 {
     memset(fw, 0, sizeof *fw);
     estimator_init(&fw->est, &bias_model_compiled);
+    tdoa_engine_init(&fw->tdoa);
     {
         ctl_params_t cp;
         controller_default_params(&cp);
@@ -120,6 +126,14 @@ static void on_stats_req(firmware_t *fw)
     msg.u.stats.results = s->results;
     msg.u.stats.predictions = estimator_prediction_count(&fw->est);
     msg.u.stats.seq_gaps = s->seq_gaps;
+    msg.u.stats.radio_packets = s->radio_packets;
+    msg.u.stats.radio_meas = s->radio_meas;
+    msg.u.stats.radio_no_reference = s->radio_no_reference;
+    msg.u.stats.radio_clock = s->radio_clock;
+    msg.u.stats.radio_expired = s->radio_expired;
+    msg.u.stats.radio_malformed = s->radio_malformed;
+    msg.u.stats.radio_unknown_type = s->radio_unknown_type;
+    msg.u.stats.radio_no_position = s->radio_no_position;
     send_msg(fw, &msg);
 }
 
@@ -237,6 +251,127 @@ static void on_measurement(firmware_t *fw, const uwb_msg_t *in)
     fill_result(fw, &out.u.result, &er);
     out.u.result.compute = t1 - t0;
     fw->stats.results++;
+    send_msg(fw, &out);
+}
+
+static void radio_drop(firmware_t *fw, const uwb_msg_t *in, uint8_t reason)
+{
+    uwb_msg_t out;
+    fw_stats_t *s = &fw->stats;
+    switch (reason) {
+    case UWB_DROP_REASON_NO_REFERENCE:
+        s->radio_no_reference++;
+        break;
+    case UWB_DROP_REASON_CLOCK_UNRELIABLE:
+        s->radio_clock++;
+        break;
+    case UWB_DROP_REASON_EXPIRED:
+        s->radio_expired++;
+        break;
+    case UWB_DROP_REASON_MALFORMED:
+        s->radio_malformed++;
+        break;
+    case UWB_DROP_REASON_UNKNOWN_TYPE:
+        s->radio_unknown_type++;
+        break;
+    default:
+        s->radio_no_position++;
+        break;
+    }
+    memset(&out, 0, sizeof out);
+    out.type = UWB_MSG_RADIO_DROP;
+    out.u.radio_drop.meas_seq = in->seq;
+    out.u.radio_drop.reason = reason;
+    out.u.radio_drop.anchor_id = (uint8_t)(in->u.radio.src_addr & 0xFFu);
+    send_msg(fw, &out);
+}
+
+/* Checks the frame itself: length, 40-bit timestamp, zero padding. */
+static int radio_frame_ok(const uwb_radio_t *r)
+{
+    size_t i;
+    if (r->length > sizeof r->payload || (r->rx_ts >> 40) != 0) {
+        return 0;
+    }
+    for (i = r->length; i < sizeof r->payload; i++) {
+        if (r->payload[i] != 0) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/* One anchor packet: parse, LPP position into the anchor table, TDoA engine, then (if it formed a
+ * measurement) the same pipeline as a TDOA frame. Answered by RESULT, RADIO_DROP or ERROR. */
+static void on_radio(firmware_t *fw, const uwb_msg_t *in)
+{
+    const uwb_radio_t *r = &in->u.radio;
+    const uint8_t sender = (uint8_t)(r->src_addr & 0xFFu);
+    lps_packet_t pkt;
+    tdoa_meas_t meas;
+    estimator_result_t er;
+    uwb_msg_t out;
+    uint32_t t0, t1;
+    int rc;
+    t0 = platform_cost_now();
+    fw->stats.radio_packets++;
+    if (!radio_frame_ok(r)) {
+        radio_drop(fw, in, UWB_DROP_REASON_MALFORMED);
+        return;
+    }
+    rc = lps_parse(r->payload, r->length, sender, &pkt);
+    if (rc != LPS_OK) {
+        radio_drop(fw, in, rc == LPS_ERR_UNKNOWN_TYPE ? UWB_DROP_REASON_UNKNOWN_TYPE : UWB_DROP_REASON_MALFORMED);
+        return;
+    }
+    if (pkt.has_pos && sender < ESTIMATOR_MAX_ANCHORS) {
+        (void)estimator_set_anchor(&fw->est, sender, pkt.pos);
+    }
+    rc = tdoa_engine_process(&fw->tdoa, &pkt, sender, r->rx_ts, r->t_us, &meas);
+    if (rc != TDOA_MEASUREMENT) {
+        radio_drop(fw, in, (uint8_t)rc);
+        return;
+    }
+    if (meas.anchor_a >= ESTIMATOR_MAX_ANCHORS || meas.anchor_b >= ESTIMATOR_MAX_ANCHORS) {
+        radio_drop(fw, in, UWB_DROP_REASON_BAD_ANCHOR);
+        return;
+    }
+    if (!((fw->est.anchor_known >> meas.anchor_a) & 1u) || !((fw->est.anchor_known >> meas.anchor_b) & 1u)) {
+        radio_drop(fw, in, UWB_DROP_REASON_NO_POSITION);
+        return;
+    }
+    fw->stats.radio_meas++;
+    memset(&er, 0, sizeof er);
+    rc = estimator_on_tdoa(&fw->est, r->t_us, meas.anchor_a, meas.anchor_b, (float)meas.diff, &er);
+    t1 = platform_cost_now();
+    if (rc != EST_OK) {
+        refuse_measurement(fw, in, rc, (uint32_t)meas.anchor_a | ((uint32_t)meas.anchor_b << 8));
+        return;
+    }
+    memset(&out, 0, sizeof out);
+    out.type = UWB_MSG_RESULT;
+    out.u.result.meas_seq = in->seq;
+    out.u.result.kind = UWB_MEAS_KIND_TDOA;
+    out.u.result.t_us = r->t_us;
+    fill_result(fw, &out.u.result, &er);
+    out.u.result.compute = t1 - t0;
+    fw->stats.results++;
+    send_msg(fw, &out);
+}
+
+static void on_clock_req(firmware_t *fw, const uwb_msg_t *in)
+{
+    const tdoa_anchor_t *a = tdoa_engine_anchor(&fw->tdoa, in->u.clock_req.anchor_id);
+    uwb_msg_t out;
+    memset(&out, 0, sizeof out);
+    out.type = UWB_MSG_CLOCK;
+    out.u.clock.anchor_id = in->u.clock_req.anchor_id;
+    if (a != NULL) {
+        out.u.clock.known = 1;
+        out.u.clock.bucket = a->bucket;
+        out.u.clock.skew_ppm = a->cc > 0.0 ? (float)((a->cc - 1.0) * 1e6) : 0.0f;
+        out.u.clock.packets = a->packets;
+    }
     send_msg(fw, &out);
 }
 
@@ -361,6 +496,12 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
         break;
     case UWB_MSG_SETPOINT:
         on_setpoint(fw, in);
+        break;
+    case UWB_MSG_RADIO:
+        on_radio(fw, in);
+        break;
+    case UWB_MSG_CLOCK_REQ:
+        on_clock_req(fw, in);
         break;
     default:
         /* A device -> host type arriving at the device. */

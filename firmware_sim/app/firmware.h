@@ -9,6 +9,7 @@
 #include "controller.h"
 #include "estimator.h"
 #include "frame_rx.h"
+#include "tdoa_engine.h"
 #include "uwb_msgs.h"
 
 #define FW_VERSION_MAJOR 0
@@ -22,11 +23,16 @@ typedef struct {
     uint32_t frames_ok, crc_errors, framing_errors, unknown_types, bad_lengths, non_finite,
         unknown_anchors, time_backwards, bad_configs, dropped_meas, imu_samples, twr_meas, tdoa_meas,
         results, predictions, seq_gaps;
+    /* RADIO frames: handed to the engine, measurements formed, and every packet that formed none by
+     * reason (protocol enum drop_reason; no_position also counts BAD_ANCHOR). */
+    uint32_t radio_packets, radio_meas, radio_no_reference, radio_clock, radio_expired, radio_malformed,
+        radio_unknown_type, radio_no_position;
 } fw_stats_t;
 
 typedef struct {
     estimator_t est;
     controller_t ctl;         /* closed loop: SETPOINT -> CONTROL */
+    tdoa_engine_t tdoa;       /* RADIO: anchor packets -> TDoA measurements */
     frame_rx_t rx;
     fw_stats_t stats;
     uint16_t tx_seq;

@@ -98,11 +98,15 @@ int uwb_payload_len(uint8_t type)
     case UWB_MSG_TWR: return (int)UWB_MSG_TWR_LEN;
     case UWB_MSG_TDOA: return (int)UWB_MSG_TDOA_LEN;
     case UWB_MSG_STATS_REQ: return (int)UWB_MSG_STATS_REQ_LEN;
+    case UWB_MSG_RADIO: return (int)UWB_MSG_RADIO_LEN;
+    case UWB_MSG_CLOCK_REQ: return (int)UWB_MSG_CLOCK_REQ_LEN;
     case UWB_MSG_SETPOINT: return (int)UWB_MSG_SETPOINT_LEN;
     case UWB_MSG_HELLO_REPLY: return (int)UWB_MSG_HELLO_REPLY_LEN;
     case UWB_MSG_RESULT: return (int)UWB_MSG_RESULT_LEN;
     case UWB_MSG_STATS: return (int)UWB_MSG_STATS_LEN;
     case UWB_MSG_ERROR: return (int)UWB_MSG_ERROR_LEN;
+    case UWB_MSG_RADIO_DROP: return (int)UWB_MSG_RADIO_DROP_LEN;
+    case UWB_MSG_CLOCK: return (int)UWB_MSG_CLOCK_LEN;
     case UWB_MSG_CONTROL: return (int)UWB_MSG_CONTROL_LEN;
     default: return -1;
     }
@@ -232,6 +236,34 @@ static void pack_tdoa(const uwb_tdoa_t *m, uint8_t *p)
     p[8] = m->anchor_a;
     p[9] = m->anchor_b;
     put_f32(p + 10, m->diff);
+}
+
+static void unpack_radio(const uint8_t *p, uwb_radio_t *m)
+{
+    m->t_us = get_u64(p + 0);
+    m->rx_ts = get_u64(p + 8);
+    m->src_addr = get_u64(p + 16);
+    m->length = p[24];
+    memcpy(m->payload, p + 25, 128);
+}
+
+static void pack_radio(const uwb_radio_t *m, uint8_t *p)
+{
+    put_u64(p + 0, m->t_us);
+    put_u64(p + 8, m->rx_ts);
+    put_u64(p + 16, m->src_addr);
+    p[24] = m->length;
+    memcpy(p + 25, m->payload, 128);
+}
+
+static void unpack_clock_req(const uint8_t *p, uwb_clock_req_t *m)
+{
+    m->anchor_id = p[0];
+}
+
+static void pack_clock_req(const uwb_clock_req_t *m, uint8_t *p)
+{
+    p[0] = m->anchor_id;
 }
 
 static void unpack_setpoint(const uint8_t *p, uwb_setpoint_t *m)
@@ -394,6 +426,14 @@ static void unpack_stats(const uint8_t *p, uwb_stats_t *m)
     m->results = get_u32(p + 52);
     m->predictions = get_u32(p + 56);
     m->seq_gaps = get_u32(p + 60);
+    m->radio_packets = get_u32(p + 64);
+    m->radio_meas = get_u32(p + 68);
+    m->radio_no_reference = get_u32(p + 72);
+    m->radio_clock = get_u32(p + 76);
+    m->radio_expired = get_u32(p + 80);
+    m->radio_malformed = get_u32(p + 84);
+    m->radio_unknown_type = get_u32(p + 88);
+    m->radio_no_position = get_u32(p + 92);
 }
 
 static void pack_stats(const uwb_stats_t *m, uint8_t *p)
@@ -414,6 +454,14 @@ static void pack_stats(const uwb_stats_t *m, uint8_t *p)
     put_u32(p + 52, m->results);
     put_u32(p + 56, m->predictions);
     put_u32(p + 60, m->seq_gaps);
+    put_u32(p + 64, m->radio_packets);
+    put_u32(p + 68, m->radio_meas);
+    put_u32(p + 72, m->radio_no_reference);
+    put_u32(p + 76, m->radio_clock);
+    put_u32(p + 80, m->radio_expired);
+    put_u32(p + 84, m->radio_malformed);
+    put_u32(p + 88, m->radio_unknown_type);
+    put_u32(p + 92, m->radio_no_position);
 }
 
 static void unpack_error(const uint8_t *p, uwb_error_t *m)
@@ -430,6 +478,40 @@ static void pack_error(const uwb_error_t *m, uint8_t *p)
     p[1] = m->msg_type;
     put_u16(p + 2, m->msg_seq);
     put_u32(p + 4, m->detail);
+}
+
+static void unpack_radio_drop(const uint8_t *p, uwb_radio_drop_t *m)
+{
+    m->meas_seq = get_u16(p + 0);
+    m->reason = p[2];
+    m->anchor_id = p[3];
+}
+
+static void pack_radio_drop(const uwb_radio_drop_t *m, uint8_t *p)
+{
+    put_u16(p + 0, m->meas_seq);
+    p[2] = m->reason;
+    p[3] = m->anchor_id;
+}
+
+static void unpack_clock(const uint8_t *p, uwb_clock_t *m)
+{
+    m->anchor_id = p[0];
+    m->known = p[1];
+    m->bucket = p[2];
+    m->reserved = p[3];
+    m->skew_ppm = get_f32(p + 4);
+    m->packets = get_u32(p + 8);
+}
+
+static void pack_clock(const uwb_clock_t *m, uint8_t *p)
+{
+    p[0] = m->anchor_id;
+    p[1] = m->known;
+    p[2] = m->bucket;
+    p[3] = m->reserved;
+    put_f32(p + 4, m->skew_ppm);
+    put_u32(p + 8, m->packets);
 }
 
 static void unpack_control(const uint8_t *p, uwb_control_t *m)
@@ -507,11 +589,15 @@ uwb_decode_status_t uwb_body_decode(const uint8_t *body, size_t n, uwb_msg_t *ou
     case UWB_MSG_IMU: unpack_imu(p, &out->u.imu); break;
     case UWB_MSG_TWR: unpack_twr(p, &out->u.twr); break;
     case UWB_MSG_TDOA: unpack_tdoa(p, &out->u.tdoa); break;
+    case UWB_MSG_RADIO: unpack_radio(p, &out->u.radio); break;
+    case UWB_MSG_CLOCK_REQ: unpack_clock_req(p, &out->u.clock_req); break;
     case UWB_MSG_SETPOINT: unpack_setpoint(p, &out->u.setpoint); break;
     case UWB_MSG_HELLO_REPLY: unpack_hello_reply(p, &out->u.hello_reply); break;
     case UWB_MSG_RESULT: unpack_result(p, &out->u.result); break;
     case UWB_MSG_STATS: unpack_stats(p, &out->u.stats); break;
     case UWB_MSG_ERROR: unpack_error(p, &out->u.error); break;
+    case UWB_MSG_RADIO_DROP: unpack_radio_drop(p, &out->u.radio_drop); break;
+    case UWB_MSG_CLOCK: unpack_clock(p, &out->u.clock); break;
     case UWB_MSG_CONTROL: unpack_control(p, &out->u.control); break;
     default: break;
     }
@@ -534,11 +620,15 @@ size_t uwb_body_encode(const uwb_msg_t *msg, uint8_t *body)
     case UWB_MSG_IMU: pack_imu(&msg->u.imu, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_TWR: pack_twr(&msg->u.twr, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_TDOA: pack_tdoa(&msg->u.tdoa, body + UWB_HEADER_SIZE); break;
+    case UWB_MSG_RADIO: pack_radio(&msg->u.radio, body + UWB_HEADER_SIZE); break;
+    case UWB_MSG_CLOCK_REQ: pack_clock_req(&msg->u.clock_req, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_SETPOINT: pack_setpoint(&msg->u.setpoint, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_HELLO_REPLY: pack_hello_reply(&msg->u.hello_reply, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_RESULT: pack_result(&msg->u.result, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_STATS: pack_stats(&msg->u.stats, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_ERROR: pack_error(&msg->u.error, body + UWB_HEADER_SIZE); break;
+    case UWB_MSG_RADIO_DROP: pack_radio_drop(&msg->u.radio_drop, body + UWB_HEADER_SIZE); break;
+    case UWB_MSG_CLOCK: pack_clock(&msg->u.clock, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_CONTROL: pack_control(&msg->u.control, body + UWB_HEADER_SIZE); break;
     default: break;
     }
@@ -564,6 +654,8 @@ int uwb_msg_finite(const uwb_msg_t *msg)
         return isfinite(msg->u.setpoint.x) && isfinite(msg->u.setpoint.y) && isfinite(msg->u.setpoint.z) && isfinite(msg->u.setpoint.vx) && isfinite(msg->u.setpoint.vy) && isfinite(msg->u.setpoint.vz) && isfinite(msg->u.setpoint.ax) && isfinite(msg->u.setpoint.ay) && isfinite(msg->u.setpoint.az) && isfinite(msg->u.setpoint.yaw);
     case UWB_MSG_RESULT:
         return isfinite(msg->u.result.innovation) && isfinite(msg->u.result.innovation_var) && isfinite(msg->u.result.bias) && isfinite(msg->u.result.d_max) && isfinite(msg->u.result.gain_x) && isfinite(msg->u.result.gain_y) && isfinite(msg->u.result.gain_z) && isfinite(msg->u.result.px) && isfinite(msg->u.result.py) && isfinite(msg->u.result.pz) && isfinite(msg->u.result.vx) && isfinite(msg->u.result.vy) && isfinite(msg->u.result.vz) && isfinite(msg->u.result.qw) && isfinite(msg->u.result.qx) && isfinite(msg->u.result.qy) && isfinite(msg->u.result.qz) && isfinite(msg->u.result.var_x) && isfinite(msg->u.result.var_y) && isfinite(msg->u.result.var_z) && isfinite(msg->u.result.var_vx) && isfinite(msg->u.result.var_vy) && isfinite(msg->u.result.var_vz) && isfinite(msg->u.result.var_d0) && isfinite(msg->u.result.var_d1) && isfinite(msg->u.result.var_d2);
+    case UWB_MSG_CLOCK:
+        return isfinite(msg->u.clock.skew_ppm);
     case UWB_MSG_CONTROL:
         return isfinite(msg->u.control.thrust) && isfinite(msg->u.control.rate_x) && isfinite(msg->u.control.rate_y) && isfinite(msg->u.control.rate_z) && isfinite(msg->u.control.px) && isfinite(msg->u.control.py) && isfinite(msg->u.control.pz) && isfinite(msg->u.control.vx) && isfinite(msg->u.control.vy) && isfinite(msg->u.control.vz) && isfinite(msg->u.control.qw) && isfinite(msg->u.control.qx) && isfinite(msg->u.control.qy) && isfinite(msg->u.control.qz);
     default: return 1;

@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 2u
+#define UWB_PROTO_VERSION 3u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -51,6 +51,17 @@ enum {
     UWB_ERROR_CODE_NOT_CONFIGURED = 8,
     UWB_ERROR_CODE_BAD_SETPOINT = 9,
     UWB_ERROR_CODE_DIVERGED = 10,
+};
+
+/* RADIO_DROP.reason: why a radio packet produced no measurement (each has a STATS counter) */
+enum {
+    UWB_DROP_REASON_NO_REFERENCE = 1,
+    UWB_DROP_REASON_CLOCK_UNRELIABLE = 2,
+    UWB_DROP_REASON_EXPIRED = 3,
+    UWB_DROP_REASON_MALFORMED = 4,
+    UWB_DROP_REASON_UNKNOWN_TYPE = 5,
+    UWB_DROP_REASON_NO_POSITION = 6,
+    UWB_DROP_REASON_BAD_ANCHOR = 7,
 };
 
 /* Input layout of a bias network */
@@ -161,6 +172,24 @@ typedef struct {
 #define UWB_MSG_STATS_REQ 0x07u
 #define UWB_MSG_STATS_REQ_LEN 0u
 
+/* RADIO (to_device): One anchor packet as the tag's radio received it. Answered by RESULT (a TDoA measurement was formed) or RADIO_DROP. */
+#define UWB_MSG_RADIO 0x09u
+#define UWB_MSG_RADIO_LEN 153u
+typedef struct {
+    uint64_t t_us;
+    uint64_t rx_ts;
+    uint64_t src_addr;
+    uint8_t length;
+    uint8_t payload[128];
+} uwb_radio_t;
+
+/* CLOCK_REQ (to_device): Ask for the TDoA engine's clock correction of one anchor. Answered by CLOCK. */
+#define UWB_MSG_CLOCK_REQ 0x0Au
+#define UWB_MSG_CLOCK_REQ_LEN 1u
+typedef struct {
+    uint8_t anchor_id;
+} uwb_clock_req_t;
+
 /* SETPOINT (to_device): One control step: the commanded state at t_us. Answered by CONTROL (or ERROR). Send it after the sensor frames up to t_us. */
 #define UWB_MSG_SETPOINT 0x08u
 #define UWB_MSG_SETPOINT_LEN 50u
@@ -240,7 +269,7 @@ typedef struct {
 
 /* STATS (to_host): Counters since power-up. Every byte or frame the device did not use is in one of them. */
 #define UWB_MSG_STATS 0x83u
-#define UWB_MSG_STATS_LEN 64u
+#define UWB_MSG_STATS_LEN 96u
 typedef struct {
     uint32_t frames_ok;
     uint32_t crc_errors;
@@ -258,6 +287,14 @@ typedef struct {
     uint32_t results;
     uint32_t predictions;
     uint32_t seq_gaps;
+    uint32_t radio_packets;
+    uint32_t radio_meas;
+    uint32_t radio_no_reference;
+    uint32_t radio_clock;
+    uint32_t radio_expired;
+    uint32_t radio_malformed;
+    uint32_t radio_unknown_type;
+    uint32_t radio_no_position;
 } uwb_stats_t;
 
 /* ERROR (to_host): A frame with a valid CRC was refused. */
@@ -269,6 +306,27 @@ typedef struct {
     uint16_t msg_seq;
     uint32_t detail;
 } uwb_error_t;
+
+/* RADIO_DROP (to_host): A RADIO frame was used (anchor state updated) but produced no measurement. */
+#define UWB_MSG_RADIO_DROP 0x86u
+#define UWB_MSG_RADIO_DROP_LEN 4u
+typedef struct {
+    uint16_t meas_seq;
+    uint8_t reason;
+    uint8_t anchor_id;
+} uwb_radio_drop_t;
+
+/* CLOCK (to_host): The TDoA engine's clock correction of one anchor (its clock relative to the tag's). */
+#define UWB_MSG_CLOCK 0x87u
+#define UWB_MSG_CLOCK_LEN 12u
+typedef struct {
+    uint8_t anchor_id;
+    uint8_t known;
+    uint8_t bucket;
+    uint8_t reserved;
+    float skew_ppm;
+    uint32_t packets;
+} uwb_clock_t;
 
 /* CONTROL (to_host): The controller's output for one SETPOINT, and the estimate it used. */
 #define UWB_MSG_CONTROL 0x85u
@@ -306,11 +364,15 @@ typedef struct {
         uwb_imu_t imu;
         uwb_twr_t twr;
         uwb_tdoa_t tdoa;
+        uwb_radio_t radio;
+        uwb_clock_req_t clock_req;
         uwb_setpoint_t setpoint;
         uwb_hello_reply_t hello_reply;
         uwb_result_t result;
         uwb_stats_t stats;
         uwb_error_t error;
+        uwb_radio_drop_t radio_drop;
+        uwb_clock_t clock;
         uwb_control_t control;
     } u;
 } uwb_msg_t;

@@ -87,6 +87,16 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         break;
     case UWB_MSG_STATS_REQ:
         break;
+    case UWB_MSG_RADIO:
+        w += fmt_u64(out + w, cap - w, "t_us", (unsigned long long)msg->u.radio.t_us);
+        w += fmt_u64(out + w, cap - w, "rx_ts", (unsigned long long)msg->u.radio.rx_ts);
+        w += fmt_u64(out + w, cap - w, "src_addr", (unsigned long long)msg->u.radio.src_addr);
+        w += fmt_u64(out + w, cap - w, "length", (unsigned long long)msg->u.radio.length);
+        w += fmt_bytes(out + w, cap - w, "payload", msg->u.radio.payload, 128);
+        break;
+    case UWB_MSG_CLOCK_REQ:
+        w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.clock_req.anchor_id);
+        break;
     case UWB_MSG_SETPOINT:
         w += fmt_u64(out + w, cap - w, "t_us", (unsigned long long)msg->u.setpoint.t_us);
         w += fmt_u64(out + w, cap - w, "mode", (unsigned long long)msg->u.setpoint.mode);
@@ -169,12 +179,33 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_u64(out + w, cap - w, "results", (unsigned long long)msg->u.stats.results);
         w += fmt_u64(out + w, cap - w, "predictions", (unsigned long long)msg->u.stats.predictions);
         w += fmt_u64(out + w, cap - w, "seq_gaps", (unsigned long long)msg->u.stats.seq_gaps);
+        w += fmt_u64(out + w, cap - w, "radio_packets", (unsigned long long)msg->u.stats.radio_packets);
+        w += fmt_u64(out + w, cap - w, "radio_meas", (unsigned long long)msg->u.stats.radio_meas);
+        w += fmt_u64(out + w, cap - w, "radio_no_reference", (unsigned long long)msg->u.stats.radio_no_reference);
+        w += fmt_u64(out + w, cap - w, "radio_clock", (unsigned long long)msg->u.stats.radio_clock);
+        w += fmt_u64(out + w, cap - w, "radio_expired", (unsigned long long)msg->u.stats.radio_expired);
+        w += fmt_u64(out + w, cap - w, "radio_malformed", (unsigned long long)msg->u.stats.radio_malformed);
+        w += fmt_u64(out + w, cap - w, "radio_unknown_type", (unsigned long long)msg->u.stats.radio_unknown_type);
+        w += fmt_u64(out + w, cap - w, "radio_no_position", (unsigned long long)msg->u.stats.radio_no_position);
         break;
     case UWB_MSG_ERROR:
         w += fmt_u64(out + w, cap - w, "code", (unsigned long long)msg->u.error.code);
         w += fmt_u64(out + w, cap - w, "msg_type", (unsigned long long)msg->u.error.msg_type);
         w += fmt_u64(out + w, cap - w, "msg_seq", (unsigned long long)msg->u.error.msg_seq);
         w += fmt_u64(out + w, cap - w, "detail", (unsigned long long)msg->u.error.detail);
+        break;
+    case UWB_MSG_RADIO_DROP:
+        w += fmt_u64(out + w, cap - w, "meas_seq", (unsigned long long)msg->u.radio_drop.meas_seq);
+        w += fmt_u64(out + w, cap - w, "reason", (unsigned long long)msg->u.radio_drop.reason);
+        w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.radio_drop.anchor_id);
+        break;
+    case UWB_MSG_CLOCK:
+        w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.clock.anchor_id);
+        w += fmt_u64(out + w, cap - w, "known", (unsigned long long)msg->u.clock.known);
+        w += fmt_u64(out + w, cap - w, "bucket", (unsigned long long)msg->u.clock.bucket);
+        w += fmt_u64(out + w, cap - w, "reserved", (unsigned long long)msg->u.clock.reserved);
+        w += fmt_f32(out + w, cap - w, "skew_ppm", msg->u.clock.skew_ppm);
+        w += fmt_u64(out + w, cap - w, "packets", (unsigned long long)msg->u.clock.packets);
         break;
     case UWB_MSG_CONTROL:
         w += fmt_u64(out + w, cap - w, "setpoint_seq", (unsigned long long)msg->u.control.setpoint_seq);

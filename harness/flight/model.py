@@ -68,6 +68,25 @@ class UwbStream:
 
 
 @dataclass(frozen=True)
+class RadioStream:
+    """What the tag's radio received (LPS radio level), one row per anchor packet, time ordered.
+    `uwb` of the same flight holds the measurement-level equivalent (the differences these packets
+    stand for), so one flight can be flown at both levels."""
+
+    protocol: str         # "tdoa2" | "tdoa3"
+    t_us: np.ndarray      # (P,) int64 tag system time of each reception
+    rx_ts: np.ndarray     # (P,) uint64 DW1000 RX timestamp, tag clock, 40 bits
+    src_addr: np.ndarray  # (P,) uint64 MAC source address (anchor id = low byte)
+    length: np.ndarray    # (P,) uint8 payload bytes used
+    payload: np.ndarray   # (P, 128) uint8 over-the-air payload, zero padded
+    true_skew_ppm: dict[int, float] = field(default_factory=dict)  # simulator truth of (cc - 1) 1e6 at the end
+    true_skew_pkt: np.ndarray | None = None   # (P,) the same truth for the sender of each packet, at its time
+
+    def __len__(self) -> int:
+        return int(self.t_us.shape[0])
+
+
+@dataclass(frozen=True)
 class Truth:
     t_us: np.ndarray            # (K,) int64, increasing
     pos: np.ndarray             # (K, 3) position of the UWB tag [m]
@@ -114,6 +133,7 @@ class Flight:
     truth: Truth
     imu: ImuStream | None = None
     meta: dict[str, object] = field(default_factory=dict)
+    radio: RadioStream | None = None
 
     @property
     def has_imu(self) -> bool:

@@ -1,0 +1,160 @@
+"""Second half of the radio simulator (harness/flight/radio_sim.py): from TX/RX times to packets.
+
+Walks the transmissions in time order keeping what every anchor last heard from every other (seq,
+RX time in its own clock), builds each payload, keeps the ones the tag received, then runs the engine
+twin over them to derive the measurement-level equivalent (same pairs, times and link errors).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from harness.flight.errors_model import DW1000_TICK_M, SPEED_OF_LIGHT, SimConfig, hardware_params
+from harness.flight.model import KIND_TDOA, Flight, RadioStream, UwbStream
+from harness.flight.radio_clock import TS_FREQ, DeviceClock
+from harness.flight.radio_packets import ANCHOR_ADDR_BASE, PAYLOAD_MAX, RemoteInfo, tdoa2_payload, tdoa3_payload
+from harness.twin import lps_packets as lp
+from harness.twin.tdoa_engine import MEASUREMENT, TdoaEngine
+
+if TYPE_CHECKING:
+    from harness.flight.radio_sim import RadioConfig
+
+MASK32 = 0xFFFFFFFF
+MASK40 = 0xFFFFFFFFFF
+
+
+class RadioSimError(ValueError):
+    """A radio simulation was asked for something it cannot produce (ids, options)."""
+
+
+def _in(t: float, window: tuple[float, float] | None, extra: float = 0.0) -> bool:
+    return window is not None and window[0] <= t < window[1] + extra
+
+
+def _anchor_rx(cfg: RadioConfig, ids: np.ndarray, clocks: dict[int, DeviceClock], who: np.ndarray,
+               t_tx: np.ndarray, apos: dict[int, np.ndarray], rng: np.random.Generator) -> dict[int, np.ndarray]:
+    """RX stamp (integer ticks, unwrapped) of every transmission at every anchor."""
+    out = {}
+    delay_s = cfg.antenna_delay_ticks / TS_FREQ
+    for b in ids:
+        d = np.array([np.linalg.norm(apos[int(a)] - apos[int(b)]) for a in who])
+        t = t_tx + delay_s + d / SPEED_OF_LIGHT
+        noise = rng.normal(0.0, cfg.rx_noise_m / DW1000_TICK_M, size=len(who))
+        out[int(b)] = np.round(clocks[int(b)].local(t) + noise)
+    return out
+
+
+def _tof(cfg: RadioConfig, sim: SimConfig | None, hw: Any, clocks: dict[int, DeviceClock],
+         apos: dict[int, np.ndarray], a: int, b: int, t: float, rng: np.random.Generator) -> int:
+    """ToF b -> a as anchor a's ranging estimates it: a's ticks, antenna delay included (uint16)."""
+    tof_s = float(np.linalg.norm(apos[a] - apos[b])) / SPEED_OF_LIGHT + cfg.antenna_delay_ticks / TS_FREQ
+    ticks = tof_s * TS_FREQ * (1.0 + float(clocks[a].skew_at(t))) + rng.normal(0.0, cfg.tof_noise_m / DW1000_TICK_M)
+    if sim is not None:
+        ticks -= hw.pair_offset(b, a, sim.antenna) / DW1000_TICK_M   # the pair offset o_BA of the model
+    return int(np.clip(np.round(ticks), 1, 0xFFFF))
+
+
+def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: dict[int, DeviceClock],
+             tag: DeviceClock, who: np.ndarray, t_tx: np.ndarray, tx_ticks: np.ndarray, t_rx: np.ndarray,
+             rx_ticks: np.ndarray, heard_by_tag: np.ndarray, collided: np.ndarray, excess: np.ndarray,
+             silent: dict[int, tuple[float, float]], rng_loss: np.random.Generator,
+             rng_noise: np.random.Generator) -> Flight:
+    ids = np.array(sorted(clocks))
+    apos = {int(i): np.asarray(p, dtype=np.float64) for i, p in zip(flight.anchors.ids, flight.anchors.positions)}
+    hw = hardware_params(sim.antenna, flight.anchors.ids) if sim is not None else None
+    arx = _anchor_rx(cfg, ids, clocks, who, t_tx, apos, rng_noise)
+    anchor_miss = rng_loss.random((len(who), len(ids))) < cfg.anchor_loss
+    heard: dict[int, dict[int, tuple[int, int, float]]] = {int(a): {} for a in ids}
+    seq = {int(a): 0 for a in ids}
+    restarted = {int(a): False for a in ids}
+    rows: list[tuple[int, int, int, bytes, int]] = []   # (t_us, rx_ts, sender, payload, event)
+    for e in range(len(who)):
+        a, t = int(who[e]), float(t_tx[e])
+        if a in silent and t >= silent[a][1] and not restarted[a]:
+            restarted[a], seq[a], heard[a] = True, 0, {}
+        remotes = []
+        for b in ids:
+            b = int(b)
+            h = heard[a].get(b)
+            if b == a or h is None or (cfg.protocol == "tdoa3" and t - h[2] > cfg.tdoa3_validity_s):
+                continue
+            tof_unknown = _in(t, silent.get(a), cfg.reboot_tof_s) or _in(t, silent.get(b), cfg.reboot_tof_s)
+            tof = 0 if tof_unknown else _tof(cfg, sim, hw, clocks, apos, a, b, t, rng_noise)
+            remotes.append(RemoteInfo(id=b, seq=h[0], rx_ts=h[1], tof=tof))
+        pos = tuple(float(v) for v in apos[a]) if cfg.lpp else None
+        tx32 = int(tx_ticks[e]) & MASK32
+        if cfg.protocol == "tdoa2":
+            payload = tdoa2_payload(a, seq[a], tx32, remotes, pos)  # type: ignore[arg-type]
+        else:
+            remotes = remotes[:8]
+            full = [(seq[a] + r.id) % 2 == 0 for r in remotes]
+            payload = tdoa3_payload(seq[a], tx32, remotes, pos, full)  # type: ignore[arg-type]
+        for k, b in enumerate(ids):
+            b = int(b)
+            if b != a and not anchor_miss[e, k] and not collided[e] and not _in(t, silent.get(b)):
+                heard[b][a] = (seq[a], int(arx[b][e]) & MASK32, t)
+        if heard_by_tag[e]:
+            rows.append((int(round(t_rx[e] * 1e6)), int(round(rx_ticks[e])) & MASK40, a, payload, e))
+        seq[a] = (seq[a] + 1) & 0x7F
+    rows.sort(key=lambda r: (r[0], r[4]))
+    return _flight(flight, cfg, clocks, tag, rows, excess, sim, hw)
+
+
+def _radio_stream(cfg: RadioConfig, rows: list[tuple[int, int, int, bytes, int]], truth: dict[int, float],
+                  clocks: dict[int, DeviceClock], tag: DeviceClock) -> RadioStream:
+    n = len(rows)
+    t = np.array([r[0] for r in rows], dtype=np.float64) * 1e-6
+    sender = np.array([r[2] for r in rows], dtype=np.int64)
+    skew = np.zeros(n)
+    for a, clk in clocks.items():
+        sel = sender == a
+        skew[sel] = ((1.0 + tag.skew_at(t[sel])) / (1.0 + clk.skew_at(t[sel])) - 1.0) * 1e6
+    payload = np.zeros((n, PAYLOAD_MAX), dtype=np.uint8)
+    for k, r in enumerate(rows):
+        payload[k, :len(r[3])] = np.frombuffer(r[3], dtype=np.uint8)
+    return RadioStream(protocol=cfg.protocol, t_us=np.array([r[0] for r in rows], dtype=np.int64),
+                       rx_ts=np.array([r[1] for r in rows], dtype=np.uint64),
+                       src_addr=np.array([ANCHOR_ADDR_BASE | r[2] for r in rows], dtype=np.uint64),
+                       length=np.array([len(r[3]) for r in rows], dtype=np.uint8), payload=payload,
+                       true_skew_ppm=truth, true_skew_pkt=skew)
+
+
+def _flight(flight: Flight, cfg: RadioConfig, clocks: dict[int, DeviceClock], tag: DeviceClock,
+            rows: list[tuple[int, int, int, bytes, int]], excess: np.ndarray, sim: SimConfig | None,
+            hw: Any) -> Flight:
+    """Run the engine twin over the packets: the measurement-level equivalent and the clock truth."""
+    engine = TdoaEngine()
+    last_event: dict[int, int] = {}
+    last_t: dict[int, float] = {}
+    t_us, a_ids, b_ids, err = [], [], [], []
+    for t, rx, sender, payload, e in rows:
+        rc, pkt = lp.parse(payload, sender)
+        if rc == lp.OK:
+            rc, meas = engine.process(pkt, sender, rx, t)
+            if rc == MEASUREMENT and meas is not None:
+                ref = last_event[meas.anchor_a]
+                pair = hw.pair_offset(meas.anchor_a, sender, sim.antenna) if sim is not None else 0.0
+                t_us.append(t)
+                a_ids.append(meas.anchor_a)
+                b_ids.append(sender)
+                err.append(float(excess[e] - excess[ref]) + pair)
+        last_event[sender] = e
+        last_t[sender] = t * 1e-6
+    tt = np.array(t_us, dtype=np.int64)
+    a_arr, b_arr = np.array(a_ids, dtype=np.int64), np.array(b_ids, dtype=np.int64)
+    pos = flight.truth.position_at(tt)
+    ap = {int(i): p for i, p in zip(flight.anchors.ids, flight.anchors.positions)}
+    pa = np.array([ap[int(i)] for i in a_arr]).reshape(-1, 3)
+    pb = np.array([ap[int(i)] for i in b_arr]).reshape(-1, 3)
+    true_value = np.linalg.norm(pos - pb, axis=1) - np.linalg.norm(pos - pa, axis=1)
+    truth = {a: float(((1.0 + tag.skew_at(t)) / (1.0 + clocks[a].skew_at(t)) - 1.0) * 1e6)
+             for a, t in last_t.items()}
+    uwb = UwbStream(kind=KIND_TDOA, t_us=tt, anchor_a=a_arr, anchor_b=b_arr,
+                    value=true_value + np.array(err), true_value=true_value)
+    meta = dict(flight.meta)
+    meta["radio"] = {"protocol": cfg.protocol, "seed": cfg.seed, "packets": len(rows), "loss": cfg.loss,
+                     "max_ppm": cfg.max_ppm, "reboots": [list(r) for r in cfg.reboots]}
+    return Flight(name=f"{flight.name}-radio-{cfg.protocol}", anchors=flight.anchors, uwb=uwb, truth=flight.truth,
+                  imu=flight.imu, meta=meta, radio=_radio_stream(cfg, rows, truth, clocks, tag))
