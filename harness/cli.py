@@ -13,16 +13,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from harness import options
 from harness.config import PRESETS, EstimatorConfig
 from harness.errors import ResultsFileError, UsageError, UwbHilError
 from harness.flight.model import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
-from harness.session import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, TARGETS, DeviceSpec, config_for, kind_name, open_device
+from harness.session import (DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, TARGETS, DeviceSpec, check_network_inputs, config_for,
+                             kind_name, open_device)
 from harness.stream.streamer import PACING_MODES, Pacing, Streamer
 
 
@@ -194,6 +197,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     spec, want_hash = _model_device_spec(args)
     with open_device(spec, expected_model_hash=want_hash) as device:
         hello = device.hello(timeout=args.timeout)
+        if not args.force:
+            check_network_inputs(flight, cfg, (hello.layout_twr, hello.layout_tdoa))
         update, stop = _progress_bar(f"{flight.name} ({args.stages})")
         header = {"source": _run_source(args), "device": _hello_dict(hello)}
         if results_path is not None:
@@ -254,7 +259,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             flight = scenario_flight(args.scenario, mode=mode, duration_s=args.duration, seed=args.seed)
             for preset in ("none", "outlier", "outlier+nn"):
                 cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
-                run = streamer.run(flight, cfg, Pacing(mode=args.pacing, window=args.window))
+                run = streamer.run(flight, cfg, Pacing(mode=args.pacing, window=args.window, speed=args.speed))
                 s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
                 s["mode"], s["config"] = mode, preset
                 rows.append(s)
@@ -288,34 +293,43 @@ def _add_device_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--target", choices=TARGETS, default="emulator",
                    help="emulator (host firmware on a pty, default), serial (a board on --port), qemu")
     g.add_argument("--port", help="pyserial URL or device of a real board: /dev/ttyACM0, rfc2217://host:port")
-    g.add_argument("--baud", type=int, default=115200)
+    g.add_argument("--baud", type=options.baud, default=115200, help="serial line speed of a board on --port")
     g.add_argument("--firmware", default=None,
                    help=f"firmware to run: the host binary for the emulator (default {DEFAULT_FIRMWARE}), "
                         f"the STM32F405 ELF for qemu (default {DEFAULT_STM32_ELF})")
-    g.add_argument("--timeout", type=float, default=5.0, help="seconds of device silence before giving up")
+    g.add_argument("--timeout", type=options.timeout_s, default=5.0,
+                   help="seconds of device silence before giving up (> 0)")
     g.add_argument("--log-dir", help="where device logs go")
 
 
-def _add_flight_options(p: argparse.ArgumentParser) -> None:
+def _add_flight_options(p: argparse.ArgumentParser, recorded: bool = True) -> None:
+    """Simulated-flight options; with `recorded`, also those of a recorded flight (not for `demo`, which
+    flies its own simulated TWR and TDoA flights)."""
     g = p.add_argument_group("flight")
     g.add_argument("--scenario", default="circle", help="simulated flight: circle, circle-z, random, spin")
-    g.add_argument("--mode", choices=("twr", "tdoa"), default="twr", help="UWB measurement type (simulation)")
-    g.add_argument("--duration", type=float, default=30.0, help="simulated flight length [s]")
-    g.add_argument("--seed", type=int, default=1)
+    if recorded:
+        g.add_argument("--mode", choices=("twr", "tdoa"), default="twr", help="UWB measurement type (simulation)")
+    g.add_argument("--duration", type=options.sim_duration_s, default=30.0,
+                   help=f"simulated flight length [s] (at most {options.MAX_SIM_DURATION_S:g})")
+    g.add_argument("--seed", type=options.non_negative_int, default=1, help="seed of the simulated flight's noise")
+    if not recorded:
+        return
     g.add_argument("--recording", help="replay a recorded flight instead (UTIL CSV, rcv_twr sequence, .npz)")
     g.add_argument("--anchors", help="anchor file for the recording (UTIL anchors.csv, YAML)")
-    g.add_argument("--constellation", type=int, metavar="N",
+    g.add_argument("--constellation", type=options.non_negative_int, metavar="N",
                    help="constellation of a multi-constellation anchors.csv (default: constN in the file name)")
     g.add_argument("--force", action="store_true",
                    help="replay a recording that fails the plausibility checks (units, anchor geometry, gross "
-                        "errors, time overlap)")
+                        "errors, time overlap), or with a network that needs an attitude the replay lacks")
 
 
 def _add_pacing_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("pacing")
-    g.add_argument("--pacing", choices=PACING_MODES, default="windowed")
-    g.add_argument("--window", type=int, default=64, help="measurements in flight (windowed)")
-    g.add_argument("--speed", type=float, default=1.0, help="real-time pacing speed factor")
+    g.add_argument("--pacing", choices=PACING_MODES, default="windowed",
+                   help="windowed (up to --window measurements in flight, default), lockstep (one at a time) or "
+                        "realtime (at the flight's own time stamps x --speed)")
+    g.add_argument("--window", type=options.window, default=64, help="measurements in flight (windowed, 1..1024)")
+    g.add_argument("--speed", type=options.speed, default=1.0, help="real-time pacing speed factor (> 0)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -343,10 +357,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
     run.set_defaults(func=cmd_run)
     demo = sub.add_parser("demo", help="TWR and TDoA flights in three configurations, one table")
-    _add_flight_options(demo)
+    _add_flight_options(demo, recorded=False)
     _add_pacing_options(demo)
     _add_device_options(demo)
-    demo.add_argument("--json", action="store_true")
+    demo.add_argument("--json", action="store_true", help="print every run's summary as JSON")
     demo.set_defaults(func=cmd_demo, duration=20.0)
     from harness.closedloop.campaign import add_fly_parser
     add_fly_parser(sub, _add_device_options)
@@ -364,13 +378,20 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args))
+        code = int(args.func(args))
+        sys.stdout.flush()       # a closed pipe shows here, inside the handlers below, not at exit
+        return code
     except (UwbHilError, FileNotFoundError, ValueError, NotImplementedError) as exc:
         print(f"uwb-hil: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("uwb-hil: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # whoever read stdout stopped (`uwb-hil run | head`): end quietly, as a tool killed by SIGPIPE would
+        # (128 + 13); stdout goes to /dev/null so the interpreter's final flush cannot fail again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ STAGE_KINEMATIC_GATE = 2
 STAGE_CHI2_GATE = 4
 STAGES_ALL = STAGE_BIAS_NN | STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
 STAGES_OUTLIER = STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
+FLOAT32_MAX = 3.4028234663852886e38   # largest finite IEEE-754 single (the CONFIG frame's field type)
 
 #: The three configurations of the paper's experiments.
 PRESETS: dict[str, int] = {
@@ -60,6 +61,9 @@ class EstimatorConfig:
         for name, value in asdict(self).items():
             if isinstance(value, float) and not math.isfinite(value):
                 raise ConfigError(f"{name} must be finite, got {value}")
+            if isinstance(value, float) and abs(value) > FLOAT32_MAX:    # the CONFIG frame carries float32
+                raise ConfigError(f"{name} = {value:g} does not fit the device's 32-bit float "
+                                  f"(|value| <= {FLOAT32_MAX:.4g})")
         positive = ("std_twr", "std_tdoa", "a_max_twr", "a_max_tdoa", "gate_dt_min", "chi2_twr",
                     "chi2_tdoa", "proc_cv_acc", "init_std_xy", "init_std_z")
         for name in positive:

@@ -90,3 +90,27 @@ def kind_name(kind: int) -> str:
 
 def shared_data_dir() -> Path:
     return Path(os.environ.get("UWB_HIL_DATA", SHARED_DATA))
+
+
+#: position-only networks trained on the shared recordings (`make models`), by measurement kind
+POSITION_ONLY_MODELS = {KIND_TDOA: "firmware_sim/models/util_tdoa_pos.npz", KIND_TWR: "firmware_sim/models/rcv_twr.npz"}
+
+
+def check_network_inputs(flight: Flight, cfg: EstimatorConfig, layouts: tuple[int, int]) -> None:
+    """Refuse to run a bias network that takes the attitude (pose layout) where the firmware has none: a
+    UWB-only replay (no IMU, or --uwb-only) feeds it a level attitude, and its correction is then made up.
+    `layouts` = the device's (TWR, TDoA) network layouts from HELLO."""
+    from harness.config import STAGE_BIAS_NN
+    from harness.errors import InputError
+    from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
+    if not cfg.stages & STAGE_BIAS_NN or cfg.mode != MODE_UWB_ONLY:
+        return
+    kind = flight.uwb.kind
+    layout = layouts[0] if kind == KIND_TWR else layouts[1]
+    if layout not in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE):
+        return
+    why = "has no IMU" if not flight.has_imu else "is replayed with --uwb-only"
+    raise InputError(f"the device's {kind_name(kind).upper()} bias network takes roll, pitch and yaw (pose layout "
+                     f"{layout}), but {flight.name} {why}: the firmware has no attitude to give it and its correction "
+                     f"would be made up. Use a position-only network (--model {POSITION_ONLY_MODELS[kind]}, built by "
+                     "`make models`), or --stages outlier, or pass --force to run it anyway")

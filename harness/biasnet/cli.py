@@ -17,6 +17,7 @@ from harness.biasnet.model import BiasModel
 from harness.biasnet.recipes import SimRecipe, load_recordings
 from harness.biasnet.train import TrainConfig, TrainReport, train_network
 from harness.flight.model import KIND_TWR, Flight
+from harness.session import shared_data_dir
 from harness.optional import require_torch
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
@@ -183,17 +184,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if len(kinds) != 1:
         raise ValueError("all evaluated recordings must have the same measurement kind")
     kind = "twr" if kinds.pop() == KIND_TWR else "tdoa"
+    _check_attitude(model, kind, test, args.model)
     train_paths = args.train
     if train_paths is None:  # the recordings the model was trained on, when they are recordings
         train_paths = [p for p in model.meta.get(f"{kind}_trained_on", []) if not str(p).startswith("sim:")]
-    missing = [p for p in train_paths if not Path(p).exists()]
-    if missing:
-        raise FileNotFoundError(f"baseline training recordings not found: {missing}")
+        train_paths = _resolve_training_paths(train_paths, Path(args.data_dir))
     train = load_recordings([Path(p) for p in train_paths], anchors) if train_paths else []
     res = compare(model, test, train, args.xi, args.window)
     if args.plot:
         from harness.biasnet.plots import bias_vs_azimuth
-        trained_on = {Path(p).resolve() for p in model.meta.get(f"{kind}_trained_on", []) if not str(p).startswith("sim:")}
+        trained_on = {Path(p).resolve() for p in train_paths}
         seen = Path(args.recording[0]).resolve() in trained_on
         bias_vs_azimuth(model, test[0], Path(args.plot), note="in the training set" if seen else "held out")
         res["plot"] = args.plot
@@ -204,6 +204,39 @@ def cmd_eval(args: argparse.Namespace) -> int:
         if not train:
             print("(no baseline: the model names no training recordings; pass --train)")
     return 0
+
+
+def _resolve_training_paths(paths: list[str], data_dir: Path) -> list[Path]:
+    """A model names its training recordings relative to the data folder (so it names no machine's paths):
+    resolve them against `data_dir`; a path that exists as given is taken as is."""
+    out: list[Path] = []
+    missing: list[str] = []
+    for p in paths:
+        q = Path(p)
+        if not q.exists() and not q.is_absolute():
+            q = data_dir / q
+        (out.append(q) if q.exists() else missing.append(str(p)))
+    if missing:
+        raise FileNotFoundError(f"baseline training recordings not found: {missing} (looked in {data_dir}, the "
+                                "model names them relative to the data folder): pass --data-dir DIR, or --train "
+                                "FILE ... to fit the baselines on other recordings, or --train alone for none")
+    return out
+
+
+def _check_attitude(model: BiasModel, kind: str, test: list[Flight], model_path: str) -> None:
+    """A pose-layout network needs the attitude truth of every evaluated recording."""
+    from harness.errors import InputError
+    from harness.session import POSITION_ONLY_MODELS
+    net = model.network(kind)
+    if net is None or net.layout not in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE):
+        return
+    lacking = [f.name for f in test if f.truth.quat is None]
+    if lacking:
+        raw = KIND_TWR if kind == "twr" else 2
+        raise InputError(f"{model_path}: its {kind.upper()} network takes roll, pitch and yaw (pose layout "
+                         f"{net.layout}), but {', '.join(lacking)} has no attitude truth: evaluate a position-only "
+                         f"network instead, e.g. --model {POSITION_ONLY_MODELS[raw]} (built from ../shared/data by "
+                         "`make models`), or train one with `uwb-hil train --layout pos`")
 
 
 # ------------------------------------------------------------------------------------------ shipped models
@@ -223,12 +256,12 @@ def _add_train_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--optimizer", choices=("adam", "sgd"), default="adam",
                    help="adam (default) or sgd: mini-batch gradient descent with Nesterov momentum")
     g.add_argument("--lr", type=float, default=None, help="learning rate (default 3e-3 adam, 0.05 sgd)")
-    g.add_argument("--batch-size", type=int, default=TrainConfig.batch_size)
+    g.add_argument("--batch-size", type=int, default=TrainConfig.batch_size, help="samples per gradient step")
     g.add_argument("--epochs", type=int, default=60, help="at most this many epochs")
     g.add_argument("--patience", type=int, default=6, help="early stopping: epochs without improvement")
     g.add_argument("--val-fraction", type=float, default=0.15, help="share of FLIGHTS held out for validation")
     g.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds of training")
-    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--seed", type=int, default=0, help="seed of the weight initialisation and the batch order")
     g.add_argument("--xi", type=float, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")
 
 
@@ -250,7 +283,7 @@ def add_commands(sub: Any) -> None:
     out.add_argument("--into", help="start from this model (keeps its network of the other kind)")
     out.add_argument("--header", help="also export the C header here")
     out.add_argument("--name", help="model name")
-    tr.add_argument("--json", action="store_true")
+    tr.add_argument("--json", action="store_true", help="print what was trained as JSON")
     tr.set_defaults(func=cmd_train)
 
     ex = sub.add_parser("export-c", help="write a model as the C header the firmware build takes")
@@ -259,25 +292,30 @@ def add_commands(sub: Any) -> None:
     ex.set_defaults(func=cmd_export)
 
     ev = sub.add_parser("eval-bias", help="measurement error before/after correction, vs simple baselines")
-    ev.add_argument("--model", default=str(DEFAULT_NPZ))
+    ev.add_argument("--model", default=str(DEFAULT_NPZ),
+                    help=f"bias model (.npz) to evaluate (default {DEFAULT_NPZ}: the simulated pose network)")
+    ev.add_argument("--data-dir", default=str(shared_data_dir()),
+                    help="folder the model's training recordings are named relative to (default ../shared/data, "
+                         "or $UWB_HIL_DATA)")
     ev.add_argument("--recording", nargs="+", required=True, help="held-out recording(s)")
     ev.add_argument("--anchors", help="anchor file for the recordings")
     ev.add_argument("--train", nargs="*", default=None,
                     help="recordings to fit the baselines on (default: those the model was trained on)")
-    ev.add_argument("--xi", type=float, default=XI_DEFAULT)
+    ev.add_argument("--xi", type=float, default=XI_DEFAULT, help="evaluate measurements with |error| < xi [m]")
     ev.add_argument("--window", type=float, default=HALF_WINDOW_S,
                     help=f"half width [s] of the per-pair moving average that defines the floor "
                          f"(default {HALF_WINDOW_S})")
     ev.add_argument("--plot", help="save measured error and predicted bias vs azimuth (paper Fig. 5) here")
-    ev.add_argument("--json", action="store_true")
+    ev.add_argument("--json", action="store_true", help="print the comparison as JSON")
     ev.set_defaults(func=cmd_eval)
 
     mo = sub.add_parser("models", help="train the shipped default networks (what `make models` runs)")
-    mo.add_argument("--data", default=str(Path(__file__).resolve().parents[2].parent / "shared" / "data"))
+    mo.add_argument("--data", default=str(Path(__file__).resolve().parents[2].parent / "shared" / "data"),
+                    help="the shared recordings (util/, rcv_twr/) to train on (default ../shared/data)")
     mo.add_argument("--quick", action="store_true", help="small data sets (smoke test)")
     mo.add_argument("--only", choices=("sim", "util", "rcv"), help="build only one of the models")
     mo.add_argument("--keep-summary", action="store_true",
                     help="leave firmware_sim/models/models.json as it is (only (re)build the files)")
-    mo.add_argument("--json", action="store_true")
+    mo.add_argument("--json", action="store_true", help="print the models summary as JSON")
     mo.set_defaults(func=cmd_models)
 

@@ -164,13 +164,13 @@ def add_fly_parser(sub: Any, add_device_options: Callable[[argparse.ArgumentPars
     p.add_argument("--config", type=_csv(tuple(PRESETS), "--config"), default=tuple(PRESETS),
                    help="comma list of none, outlier, outlier+nn (default all three)")
     p.add_argument("--seeds", type=int, default=10, help="flights per cell (seeds seed0 .. seed0+N-1)")
-    p.add_argument("--seed0", type=int, default=1)
+    p.add_argument("--seed0", type=int, default=1, help="seed of the first flight (seeds seed0 .. seed0 + seeds - 1)")
     p.add_argument("--laps", type=float, default=1.0, help="circle laps (2 m radius at 0.375 m/s: 33.5 s each)")
     p.add_argument("--hover-s", type=float, default=10.0, help="length of the hover mission's main segment")
     p.add_argument("--radius", type=float, default=2.0, help="circle radius [m] (the simulator's: 2 m)")
     p.add_argument("--height", type=float, default=1.2, help="circle / hover height [m]")
     p.add_argument("--profile", choices=PROFILES, default="los", help="simulator error profile")
-    p.add_argument("--noise", choices=NOISE_KINDS, default="realistic")
+    p.add_argument("--noise", choices=NOISE_KINDS, default="realistic", help="simulated UWB error model")
     p.add_argument("--mass", type=float, default=0.032, help="simulated vehicle mass [kg] (controller assumes 0.032)")
     p.add_argument("--pacing", choices=PACINGS, default="lockstep",
                    help="lockstep (deterministic, as fast as possible) or realtime (flight speed, for boards)")

@@ -1,0 +1,45 @@
+"""argparse value types that refuse out-of-range options at parse time (exit code 2, argparse's one-line
+usage error naming the option) instead of letting them fail deep inside a run or be silently accepted
+(`--baud 0`, `--timeout -1`, `--duration 1e9` allocating terabytes)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Callable
+
+#: longest simulated flight `run`/`demo` build [s]: 4 h (a 1 h flight is ~3 GB built whole today)
+MAX_SIM_DURATION_S = 4 * 3600.0
+
+
+def number(kind: type, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
+           unit: str = "") -> Callable[[str], float | int]:
+    """An int or finite float within [lo, hi] ((lo, hi] when lo_open)."""
+    def parse(text: str) -> float | int:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, "
+                                             f"got {text!r}") from None
+        if isinstance(value, float) and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+        too_low = lo is not None and (value <= lo if lo_open else value < lo)
+        too_high = hi is not None and value > hi
+        if too_low or too_high:
+            lower = "" if lo is None else (f"> {lo:g}" if lo_open else f">= {lo:g}")
+            upper = "" if hi is None else f"<= {hi:g}"
+            bounds = " and ".join(b for b in (lower, upper) if b)
+            raise argparse.ArgumentTypeError(f"must be {bounds}{unit}, got {text}")
+        return value
+    parse.__name__ = kind.__name__     # argparse names the type in "invalid <type> value" messages
+    return parse
+
+
+positive_int = number(int, 1)
+non_negative_int = number(int, 0)
+positive_float = number(float, 0.0, lo_open=True)
+baud = number(int, 1, 100_000_000, unit=" baud")
+timeout_s = number(float, 0.0, 86_400.0, lo_open=True, unit=" s")
+sim_duration_s = number(float, 0.0, MAX_SIM_DURATION_S, lo_open=True, unit=" s")
+window = number(int, 1, 1024)
+speed = number(float, 0.0, 1e6, lo_open=True)

@@ -1,0 +1,132 @@
+"""Options and inputs the CLI used to accept silently or answer with a traceback: each is now refused with
+exit code 2 and one line naming the option (or ends quietly, for a closed stdout pipe); `demo` only offers
+what it uses; every option has a help text; a bias network that needs the attitude is not run (or
+evaluated) where there is none; eval-bias finds the training recordings a model names relative to the data
+folder."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness import cli
+from harness.biasnet.model import BiasModel, init_network
+from harness.session import DEFAULT_FIRMWARE
+from harness.twin.features import LAYOUT_TDOA_POS
+
+ROOT = Path(__file__).resolve().parents[1]
+FIX = ROOT / "tests" / "fixtures" / "recordings"
+REDUCED = FIX / "const1-fixture-tdoa2.csv"
+needs_fw = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_FIRMWARE} not built (make firmware)")
+
+
+@pytest.mark.parametrize("argv, phrase", [
+    (["run", "--baud", "0"], "argument --baud: must be >= 1"),
+    (["run", "--timeout", "-1"], "argument --timeout: must be > 0"),
+    (["run", "--timeout", "nan"], "argument --timeout: expected a finite number"),
+    (["run", "--duration", "1e9"], "argument --duration: must be > 0 and <= 14400 s, got 1e9"),
+    (["run", "--duration", "0"], "argument --duration: must be > 0"),
+    (["run", "--window", "0"], "argument --window: must be >= 1"),
+    (["run", "--speed", "-2"], "argument --speed: must be > 0"),
+    (["run", "--seed", "-1"], "argument --seed: must be >= 0"),
+    (["demo", "--recording", "x.csv"], "unrecognized arguments: --recording x.csv"),
+    (["demo", "--mode", "tdoa"], "unrecognized arguments: --mode tdoa"),
+])
+def test_bad_options_are_refused_at_parse_time(capsys: pytest.CaptureFixture[str], argv: list[str],
+                                                phrase: str) -> None:
+    with pytest.raises(SystemExit) as info:
+        cli.main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert phrase in err and "Traceback" not in err, err
+
+
+def test_set_out_of_float32_range_is_a_named_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["run", "--set", "std_tdoa=1e39", "--duration", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("uwb-hil: error: std_tdoa = 1e+39 does not fit the device's 32-bit float"), err
+
+
+def test_every_option_has_a_help_text() -> None:
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    missing = [f"{name} {'/'.join(a.option_strings) or a.dest}" for name, p in sub.choices.items()
+               for a in p._actions if not isinstance(a, argparse._HelpAction) and not a.help]
+    assert missing == []
+
+
+@needs_fw
+def test_closed_stdout_pipe_ends_quietly() -> None:
+    proc = subprocess.run(f"{sys.executable} -m harness.cli run --duration 3 --json | true", shell=True, cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert "Traceback" not in proc.stderr and "BrokenPipeError" not in proc.stderr, proc.stderr
+    out = subprocess.run([sys.executable, "-c", "import subprocess, sys; p = subprocess.Popen([sys.executable, '-m', "
+                          "'harness.cli', 'run', '--duration', '3', '--json'], stdout=subprocess.PIPE, "
+                          "stderr=subprocess.PIPE); p.stdout.close(); err = p.stderr.read(); "
+                          "print(p.wait()); print(err.decode())"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    code, _, err = out.stdout.partition("\n")
+    assert code == "141" and err.strip() == "", out.stdout
+
+
+@needs_fw
+def test_demo_offers_only_the_options_it_uses() -> None:
+    args = cli.build_parser().parse_args(["demo", "--pacing", "realtime", "--speed", "20", "--duration", "1"])
+    assert args.speed == 20.0 and not hasattr(args, "recording") and not hasattr(args, "mode")
+
+
+# ----------------------------------------------------------------------------- network inputs
+@needs_fw
+def test_attitude_network_is_refused_on_a_replay_without_attitude(capsys: pytest.CaptureFixture[str]) -> None:
+    base = ["run", "--recording", str(REDUCED), "--anchors", str(FIX / "anchors.csv"), "--json"]
+    assert cli.main(base) == 2                        # default: the simulated pose network, outlier+nn
+    err = capsys.readouterr().err
+    assert "takes roll, pitch and yaw" in err and "has no IMU" in err
+    assert "--model firmware_sim/models/util_tdoa_pos.npz" in err and "--stages outlier" in err
+    assert cli.main([*base, "--force"]) == 0
+    assert cli.main([*base, "--stages", "outlier"]) == 0
+    capsys.readouterr()
+    assert cli.main(["run", "--duration", "3", "--uwb-only"]) == 2   # a simulated flight replayed UWB-only
+    assert "is replayed with --uwb-only" in capsys.readouterr().err
+    assert cli.main(["run", "--duration", "3"]) == 0                # with its IMU the firmware has the attitude
+
+
+def _pos_model(trained_on: list[str]) -> BiasModel:
+    rng = np.random.default_rng(4)
+    net = init_network(LAYOUT_TDOA_POS, np.full(6, -6.0), np.full(6, 6.0), -0.3, 0.3, rng)
+    return BiasModel(tdoa=net, name="pos", meta={"tdoa_trained_on": trained_on})
+
+
+def test_eval_bias_resolves_training_recordings_against_the_data_folder(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    data = tmp_path / "data"
+    (data / "util" / "const1").mkdir(parents=True)
+    shutil.copy(REDUCED, data / "util" / "const1" / REDUCED.name)
+    shutil.copy(FIX / "anchors.csv", data / "util" / "anchors.csv")
+    model = _pos_model([f"util/const1/{REDUCED.name}"]).save(tmp_path / "pos.npz")
+    argv = ["eval-bias", "--model", str(model), "--recording", str(REDUCED), "--anchors", str(FIX / "anchors.csv"),
+            "--json"]
+    monkeypatch.setenv("UWB_HIL_DATA", str(tmp_path / "elsewhere"))
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"util/const1/{REDUCED.name}" in err and "--data-dir" in err and str(tmp_path / "elsewhere") in err
+    assert cli.main([*argv, "--data-dir", str(data)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["baseline_train"] == [REDUCED.stem] and set(res["methods"]) >= {"network", "pair-constant"}
+    monkeypatch.setenv("UWB_HIL_DATA", str(data))                   # the default data folder
+    assert cli.main(argv) == 0
+
+
+def test_eval_bias_of_an_attitude_network_on_a_recording_without_attitude_says_what_to_do(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["eval-bias", "--recording", str(REDUCED), "--anchors", str(FIX / "anchors.csv"),
+                     "--train"]) == 2
+    err = capsys.readouterr().err
+    assert "takes roll, pitch and yaw" in err and "has no attitude truth" in err
+    assert "--model firmware_sim/models/util_tdoa_pos.npz" in err and "make models" in err
