@@ -80,7 +80,16 @@ def print_run(summary: dict[str, Any]) -> None:
 
 # ------------------------------------------------------------------------------------------ commands
 def _device_spec(args: argparse.Namespace) -> DeviceSpec:
-    return DeviceSpec(target=args.target, port=args.port, baud=args.baud,
+    from harness.link.ports import default_port, port_for_serial
+    port = args.port
+    if getattr(args, "port_serial", None):
+        if port:
+            raise ValueError("give --port or --port-serial, not both")
+        port = port_for_serial(args.port_serial)
+    if port is None and args.target in (None, "serial"):
+        port = default_port()           # $UWB_HIL_PORT; an explicit --target emulator/qemu ignores it
+    target = args.target or ("serial" if port else "emulator")
+    return DeviceSpec(target=target, port=port, baud=args.baud,
                       firmware=Path(args.firmware) if args.firmware else None,
                       timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None)
 
@@ -248,6 +257,20 @@ def _hello_dict(hello: Any) -> dict[str, Any]:
             "layout_tdoa": hello.layout_tdoa, "cost_unit": hello.cost_unit}
 
 
+def cmd_ports(args: argparse.Namespace) -> int:
+    from harness.link.ports import ENV_PORT, default_port, list_ports
+    ports = list_ports()
+    if args.json:
+        print(json.dumps({"ports": [p.as_dict() for p in ports], "default": default_port()}, indent=2))
+        return 0
+    if not ports:
+        print("no serial ports found on this machine")
+    for p in ports:
+        print(f"{p.device:20s} {p.description:40s} serial {p.serial_number or '-'}")
+    print(f"default port (${ENV_PORT}): {default_port() or 'not set'}")
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from harness.flight.scenarios import scenario_flight
     rows = []
@@ -290,9 +313,13 @@ def _print_demo_table(rows: list[dict[str, Any]], device: dict[str, Any]) -> Non
 # ------------------------------------------------------------------------------------------ parser
 def _add_device_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("device")
-    g.add_argument("--target", choices=TARGETS, default="emulator",
-                   help="emulator (host firmware on a pty, default), serial (a board on --port), qemu")
-    g.add_argument("--port", help="pyserial URL or device of a real board: /dev/ttyACM0, rfc2217://host:port")
+    g.add_argument("--target", choices=TARGETS, default=None,
+                   help="emulator (host firmware on a pty; the default without a port), serial (a board on --port; "
+                        "the default with one), qemu")
+    g.add_argument("--port", help="pyserial URL or device of a real board: /dev/ttyACM0, rfc2217://host:port "
+                                  "(default: $UWB_HIL_PORT; `uwb-hil ports` lists this machine's ports)")
+    g.add_argument("--port-serial", metavar="SERIAL",
+                   help="the board whose USB serial number is SERIAL (see `uwb-hil ports`), whatever its path")
     g.add_argument("--baud", type=options.baud, default=115200, help="serial line speed of a board on --port")
     g.add_argument("--firmware", default=None,
                    help=f"firmware to run: the host binary for the emulator (default {DEFAULT_FIRMWARE}), "
@@ -362,6 +389,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_device_options(demo)
     demo.add_argument("--json", action="store_true", help="print every run's summary as JSON")
     demo.set_defaults(func=cmd_demo, duration=20.0)
+    ports = sub.add_parser("ports", help="serial ports of this machine: device, description, USB serial number")
+    ports.add_argument("--json", action="store_true")
+    ports.set_defaults(func=cmd_ports)
     from harness.closedloop.campaign import add_fly_parser
     add_fly_parser(sub, _add_device_options)
     from harness.calibrate import add_parser as add_calibrate_parser

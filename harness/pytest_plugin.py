@@ -3,14 +3,22 @@
 Options (group "uwb-hil"), each also a fixture of the same name without dashes that a test can
 override by indirect parametrization (value resolution: indirect param -> command line -> default):
 
-  --uwb-port      pyserial URL or device path of a real board (/dev/ttyACM0, rfc2217://host:port, ...)
+  --uwb-port      pyserial URL or device path of a real board (/dev/ttyACM0, rfc2217://host:port, ...);
+                  default $UWB_HIL_PORT
+  --uwb-port-serial  the board with this USB serial number (`uwb-hil ports`), whatever its device path
   --uwb-baud      baud rate (115200)
-  --uwb-target    emulator | serial | qemu (emulator, or serial when --uwb-port is given)
-  --uwb-firmware  host firmware binary (<repo>/firmware_sim/build/uwb-fw)
+  --uwb-target    emulator | serial | qemu (emulator, or serial when a port is given)
+  --uwb-firmware  host firmware binary (<repo>/firmware_sim/build/uwb-fw), or the ELF for qemu
   --uwb-timeout   seconds to wait for the device (5)
 
-`uwb_device` yields a started, HELLO-checked device and always stops it. Marker `hardware`: the test
-needs a real board and is skipped unless --uwb-port or --uwb-target serial is given.
+Session options: --uwb-scope session|module|function (how long one device lives, as twister's
+--device-testing; default function), --uwb-flash-cmd CMD (or `uwb_flash_cmd` in the ini file: run once
+before the first device starts, output in the log, --uwb-flash-timeout).
+
+`uwb_device` yields a started, HELLO-checked device and always stops it. The device identity (firmware
+version, build id, model hash, ...) goes to the JUnit report as test-suite properties (xunit2 allows no
+properties on a testcase). Marker `hardware`: the test needs a real board and is skipped unless a port
+(or --uwb-target serial) is given.
 
 This module is imported by every pytest run in the environment: it imports nothing heavy at the top.
 """
@@ -19,7 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator, Optional, Set, Tuple
 
 import pytest
 
@@ -27,10 +35,15 @@ if TYPE_CHECKING:
     from harness.device.base import Device
 
 TARGETS = ("emulator", "serial", "qemu")
+SCOPES = ("session", "module", "function")
 DEFAULT_BAUD = 115200
 DEFAULT_TIMEOUT_S = 5.0
+DEFAULT_FLASH_TIMEOUT_S = 600.0
 _REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_FIRMWARE = _REPO_ROOT / "firmware_sim" / "build" / "uwb-fw"
+DEFAULT_STM32_ELF = _REPO_ROOT / "firmware_sim" / "build" / "stm32" / "uwb-fw.elf"
+_PORT_KEY = pytest.StashKey[Optional[str]]()
+_SUITE_PROPS_KEY = pytest.StashKey[Set[Tuple[str, str]]]()
 
 
 @dataclass(frozen=True)
@@ -48,22 +61,61 @@ class DeviceChoice:
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("uwb-hil", "uwb-hil device under test")
     group.addoption("--uwb-port", default=None,
-                    help="pyserial URL or device path of a real board; when given, tests run against it")
+                    help="pyserial URL or device path of a real board; when given, tests run against it "
+                         "(default: $UWB_HIL_PORT)")
+    group.addoption("--uwb-port-serial", default=None, metavar="SERIAL",
+                    help="the board whose USB serial number is SERIAL (`uwb-hil ports` lists them)")
     group.addoption("--uwb-baud", type=int, default=None, help=f"baud rate of --uwb-port (default {DEFAULT_BAUD})")
     group.addoption("--uwb-target", choices=TARGETS, default=None,
                     help="device kind (default: emulator, or serial when --uwb-port is given)")
     group.addoption("--uwb-firmware", default=None,
-                    help=f"host firmware binary for the emulator target (default {DEFAULT_FIRMWARE})")
+                    help=f"firmware: host binary for the emulator (default {DEFAULT_FIRMWARE}), ELF for qemu "
+                         f"(default {DEFAULT_STM32_ELF})")
     group.addoption("--uwb-timeout", type=float, default=None,
                     help=f"seconds to wait for the device (default {DEFAULT_TIMEOUT_S:g})")
+    group.addoption("--uwb-scope", choices=SCOPES, default=None,
+                    help="lifetime of one device: session, module or function (default; ini uwb_scope)")
+    group.addoption("--uwb-flash-cmd", default=None, metavar="CMD",
+                    help="shell command run once before the first device starts, e.g. to flash the board "
+                         "(ini uwb_flash_cmd); its output goes to the log")
+    group.addoption("--uwb-flash-timeout", type=float, default=None,
+                    help=f"seconds the flash command may take (default {DEFAULT_FLASH_TIMEOUT_S:g})")
+    parser.addini("uwb_scope", "default of --uwb-scope", default="function")
+    parser.addini("uwb_flash_cmd", "default of --uwb-flash-cmd", default="")
 
 
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "hardware: needs a real board (--uwb-port or --uwb-target serial)")
+    scope = config.getoption("uwb_scope") or config.getini("uwb_scope")
+    if scope not in SCOPES:
+        raise pytest.UsageError(f"uwb_scope must be one of {SCOPES}, got {scope!r}")
+    config.stash[_PORT_KEY] = _configured_port(config)
+    config.stash[_SUITE_PROPS_KEY] = set()
+
+
+def _configured_port(config: pytest.Config) -> str | None:
+    """--uwb-port, else the board of --uwb-port-serial, else $UWB_HIL_PORT (unless another target is asked)."""
+    from harness.link.ports import PortError, default_port, port_for_serial
+    port, serial = config.getoption("uwb_port"), config.getoption("uwb_port_serial")
+    if port and serial:
+        raise pytest.UsageError("give --uwb-port or --uwb-port-serial, not both")
+    if serial:
+        try:
+            return port_for_serial(serial)
+        except PortError as exc:
+            raise pytest.UsageError(str(exc)) from None
+    if port is None and config.getoption("uwb_target") in (None, "serial"):
+        return default_port()
+    return str(port) if port is not None else None
+
+
+def _device_scope(fixture_name: str, config: pytest.Config) -> str:  # noqa: ARG001 - pytest's signature
+    """Scope of the device fixtures, chosen at run time (twister-style): --uwb-scope, else the ini value."""
+    return str(config.getoption("uwb_scope") or config.getini("uwb_scope"))
 
 
 def _hardware_selected(config: pytest.Config) -> bool:
-    return bool(config.getoption("uwb_port")) or config.getoption("uwb_target") == "serial"
+    return bool(config.stash.get(_PORT_KEY, None)) or config.getoption("uwb_target") == "serial"
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -76,30 +128,37 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 def pytest_report_header(config: pytest.Config) -> str:
-    port = config.getoption("uwb_port")
+    port = config.stash.get(_PORT_KEY, None)
     target = config.getoption("uwb_target") or ("serial" if port else "emulator")
     if target == "serial":
         return f"uwb-hil: target serial, port {port}, baud {config.getoption('uwb_baud') or DEFAULT_BAUD}"
     if target == "emulator":
         fw = Path(config.getoption("uwb_firmware") or DEFAULT_FIRMWARE)
         return f"uwb-hil: target emulator, firmware {fw}{'' if fw.exists() else ' (not built)'}"
-    return f"uwb-hil: target {target}"
+    return f"uwb-hil: target {target}, firmware {config.getoption('uwb_firmware') or DEFAULT_STM32_ELF}"
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[Any]:
-    """A failing test that used `uwb_device` gets the tail of the device log in its report."""
+    """A failing test that used `uwb_device` gets the device's link and log and the log's tail in its report."""
     outcome: Any = yield
     report: pytest.TestReport = outcome.get_result()
     device = getattr(item, "funcargs", {}).get("uwb_device")
+    if device is None or not report.failed or call.when != "call":
+        return
+    try:
+        link = device.link.name
+    except Exception:  # noqa: BLE001 - a stopped device has no link; the report still gets the rest
+        link = "-"
+    report.sections.append(("uwb device", f"{device.name}, link {link}, log {getattr(device, 'log_path', None)}"))
     tail = getattr(device, "log_tail", None)
-    if report.failed and call.when == "call" and callable(tail):
-        text = tail()
-        if text:
-            report.sections.append(("uwb device log (tail)", text))
+    text = tail() if callable(tail) else ""
+    if text:
+        report.sections.append(("uwb device log (tail)", text))
 
 
 # ------------------------------------------------------------------------------ option fixtures
+# All of them share the device's scope (--uwb-scope): a longer-lived device cannot use shorter-lived values.
 def _param_or_option(request: pytest.FixtureRequest, option: str, default: Any) -> Any:
     """Indirect parametrization wins, then the command line, then the default."""
     if hasattr(request, "param"):
@@ -108,18 +167,19 @@ def _param_or_option(request: pytest.FixtureRequest, option: str, default: Any) 
     return default if value is None else value
 
 
-@pytest.fixture
+@pytest.fixture(scope=_device_scope)
 def uwb_port(request: pytest.FixtureRequest) -> str | None:
-    port = _param_or_option(request, "uwb_port", None)
-    return None if port is None else str(port)
+    if hasattr(request, "param"):
+        return None if request.param is None else str(request.param)
+    return request.config.stash.get(_PORT_KEY, None)
 
 
-@pytest.fixture
+@pytest.fixture(scope=_device_scope)
 def uwb_baud(request: pytest.FixtureRequest) -> int:
     return int(_param_or_option(request, "uwb_baud", DEFAULT_BAUD))
 
 
-@pytest.fixture
+@pytest.fixture(scope=_device_scope)
 def uwb_target(request: pytest.FixtureRequest, uwb_port: str | None) -> str:
     target = str(_param_or_option(request, "uwb_target", "serial" if uwb_port else "emulator"))
     if target not in TARGETS:
@@ -127,17 +187,18 @@ def uwb_target(request: pytest.FixtureRequest, uwb_port: str | None) -> str:
     return target
 
 
-@pytest.fixture
-def uwb_firmware(request: pytest.FixtureRequest) -> Path:
-    return Path(_param_or_option(request, "uwb_firmware", DEFAULT_FIRMWARE))
+@pytest.fixture(scope=_device_scope)
+def uwb_firmware(request: pytest.FixtureRequest, uwb_target: str) -> Path:
+    return Path(_param_or_option(request, "uwb_firmware",
+                                 DEFAULT_STM32_ELF if uwb_target == "qemu" else DEFAULT_FIRMWARE))
 
 
-@pytest.fixture
+@pytest.fixture(scope=_device_scope)
 def uwb_timeout(request: pytest.FixtureRequest) -> float:
     return float(_param_or_option(request, "uwb_timeout", DEFAULT_TIMEOUT_S))
 
 
-@pytest.fixture
+@pytest.fixture(scope=_device_scope)
 def uwb_expected_model_hash(request: pytest.FixtureRequest) -> int | None:
     """Model hash the device must report; None = do not check. Override in a conftest or by param."""
     return getattr(request, "param", None)
@@ -160,7 +221,10 @@ def _make_device(choice: DeviceChoice, log_dir: Path) -> Device:
         return SerialDevice(choice.port, choice.baud)
     from harness.device.qemu import QemuDevice
 
-    return QemuDevice(log_dir=log_dir)
+    if not choice.firmware.is_file():
+        pytest.fail(f"firmware ELF {choice.firmware} not found: run `make stm32` (or pass --uwb-firmware)",
+                    pytrace=False)
+    return QemuDevice(elf=choice.firmware, log_dir=log_dir)
 
 
 def _hello_properties(device: Device) -> dict[str, str]:
@@ -181,36 +245,54 @@ def _ascii(raw: bytes) -> str:
     return raw.rstrip(b"\x00").decode("ascii", errors="replace")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
+def uwb_flashed(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> str | None:
+    """Runs the flash hook (--uwb-flash-cmd / ini uwb_flash_cmd) once, before the first device starts; the
+    command, or None when there is none. Its output is logged (logger uwb_hil.flash) and kept in flash.log."""
+    cmd = request.config.getoption("uwb_flash_cmd") or request.config.getini("uwb_flash_cmd")
+    if not cmd:
+        return None
+    from harness.device.flash import FlashError, run_flash_command
+    timeout = request.config.getoption("uwb_flash_timeout") or DEFAULT_FLASH_TIMEOUT_S
+    log_path = tmp_path_factory.mktemp("uwb-flash") / "flash.log"
+    try:
+        run_flash_command(str(cmd), float(timeout), log_path)
+    except FlashError as exc:
+        pytest.fail(f"{exc} (log: {log_path})", pytrace=False)
+    return str(cmd)
+
+
+@pytest.fixture(scope=_device_scope)
 def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | None, uwb_baud: int,
                uwb_firmware: Path, uwb_timeout: float, uwb_expected_model_hash: int | None,
+               uwb_flashed: str | None, record_testsuite_property: Any,
                tmp_path_factory: pytest.TempPathFactory) -> Iterator[Device]:
-    """A started device whose HELLO was checked (protocol version, optional model hash).
+    """A started device whose HELLO was checked (protocol version, optional model hash); its lifetime is
+    --uwb-scope (function by default).
 
-    The HELLO (firmware version, build id, model hash, target), link, exit code and log path become
-    the test's user properties (JUnit <properties>). They are appended directly rather than through
-    the `record_property` fixture, which warns on every test under the default xunit2 family.
+    The HELLO (firmware version, build id, model hash, target) and the target kind become JUnit
+    test-suite properties (once per distinct value), which xunit2 accepts; per-device details (link,
+    exit code, log) go to the report of a failing test instead of testcase properties, which it rejects.
     """
     choice = DeviceChoice(uwb_target, uwb_port, uwb_baud, uwb_firmware, uwb_timeout)
+    recorded = request.config.stash[_SUITE_PROPS_KEY]
 
-    def record_property(name: str, value: object) -> None:
-        request.node.user_properties.append((name, value))
+    def suite_property(name: str, value: object) -> None:
+        if (name, str(value)) not in recorded:
+            recorded.add((name, str(value)))
+            record_testsuite_property(name, str(value))
 
     log_dir = tmp_path_factory.mktemp("uwb-device", numbered=True)
     device = _make_device(choice, log_dir)
-    record_property("uwb_target", choice.target)
+    suite_property("uwb_target", choice.target)
     try:
         device.start()
-        record_property("uwb_link", device.link.name)
         device.hello(timeout=choice.timeout_s)
         device.check(expected_model_hash=uwb_expected_model_hash)
         for key, value in _hello_properties(device).items():
-            record_property(key, value)
+            suite_property(key, value)
+        if uwb_flashed:
+            suite_property("uwb_flash_cmd", uwb_flashed)
         yield device
     finally:
-        exit_code = device.stop()
-        if exit_code is not None:
-            record_property("uwb_exit_code", exit_code)
-        log_path = getattr(device, "log_path", None)
-        if log_path is not None:
-            record_property("uwb_log", str(log_path))
+        device.stop()

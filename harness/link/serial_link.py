@@ -25,6 +25,7 @@ import serial
 
 from harness.errors import LinkClosed, LinkError, LinkTimeout
 from harness.link.base import DEFAULT_READ_SIZE, Link
+from harness.link.ports import is_local_device, ports_present
 
 _POLL_S = 0.001
 #: pyserial drivers that refuse a write timeout ("write_timeout is currently not supported")
@@ -71,7 +72,9 @@ class SerialLink(Link):
             port.write_timeout = options.write_timeout_s if native else None
             port.open()
         except (serial.SerialException, ValueError, OSError, NotImplementedError) as exc:
-            raise LinkError(f"cannot open {url} at {baud} baud: {exc}") from exc
+            # A wrong device path is the common bench mistake: say which ports there are.
+            hint = f"; {ports_present()}" if is_local_device(url) else ""
+            raise LinkError(f"could not open port {url} at {baud} baud: {exc}{hint}") from exc
         return cls(port, url, options)
 
     # ------------------------------------------------------------------------------ identity
