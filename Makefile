@@ -96,8 +96,9 @@ size: stm32
 CAMPAIGN_DIR  ?= out/campaign
 CAMPAIGN_ARGS ?=
 FLY_ARGS      ?=
-# The networks trained on ../shared/data are not committed: built from it when missing (seeded, so the
-# hashes in firmware_sim/models/models.json come out again; models.json itself is left as committed).
+# The networks trained on ../shared/data are not committed: built from it when missing (seeded: the hashes in
+# firmware_sim/models/models.json come out again on the machine that wrote it, other CPUs get other weights
+# with the same held-out figures; models.json itself is left as committed).
 RECORDED_MODELS := firmware_sim/models/util_tdoa_pos.npz firmware_sim/models/rcv_twr.npz
 firmware_sim/models/util_tdoa_pos.npz: | $(STAMP)
 	$(VENV)/bin/uwb-hil models --only util --keep-summary

@@ -7,7 +7,8 @@
 * ``rcv``  -> firmware_sim/models/rcv_twr.npz: TWR pose network on rcv_twr sequences 1-4, evaluated on 5.
 Each model's file carries its provenance and held-out figures (``meta``); firmware_sim/models/models.json
 collects them with the command, so the docs can quote them. Only the simulated network's files are
-committed; the two trained on ../shared/data are rebuilt from it (seeded: the same hashes on any machine).
+committed; the two trained on ../shared/data are rebuilt from it (seeded: the same hashes on one machine,
+the same held-out figures within a few per cent on another CPU, whose float kernels give other weights).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ def _log(text: str) -> None:
 
 def _train_cfg(quick: bool, max_epochs: int) -> TrainConfig:
     """Training ends by early stopping (or max_epochs), never by wall time: the shipped weights are the
-    same on any machine. The time budget only bounds the --quick smoke run."""
+    same on one machine (not bit for bit across CPUs). The time budget only bounds the --quick smoke run."""
     if quick:
         return TrainConfig(max_epochs=4, patience=8, time_budget_s=20.0)
     # Batch 512, not the default 1024: twice the steps per epoch, which the small recorded sets (UTIL,
