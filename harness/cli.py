@@ -390,7 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--json", action="store_true", help="print every run's summary as JSON")
     demo.set_defaults(func=cmd_demo, duration=20.0)
     ports = sub.add_parser("ports", help="serial ports of this machine: device, description, USB serial number")
-    ports.add_argument("--json", action="store_true")
+    ports.add_argument("--json", action="store_true", help="print the ports as JSON")
     ports.set_defaults(func=cmd_ports)
     from harness.closedloop.campaign import add_fly_parser
     add_fly_parser(sub, _add_device_options)

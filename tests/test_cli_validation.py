@@ -130,3 +130,15 @@ def test_eval_bias_of_an_attitude_network_on_a_recording_without_attitude_says_w
     err = capsys.readouterr().err
     assert "takes roll, pitch and yaw" in err and "has no attitude truth" in err
     assert "--model firmware_sim/models/util_tdoa_pos.npz" in err and "make models" in err
+
+
+def test_eval_bias_checks_recordings_and_force_overrides(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    mm = tmp_path / "anchors_mm.csv"
+    rows = (FIX / "anchors.csv").read_text().splitlines()
+    mm.write_text("\n".join([rows[0]] + [",".join(r.split(",")[:2] + [str(1000 * float(v)) for v in r.split(",")[2:]])
+                                         for r in rows[1:]]) + "\n")
+    model = _pos_model([]).save(tmp_path / "pos.npz")
+    argv = ["eval-bias", "--model", str(model), "--recording", str(REDUCED), "--anchors", str(mm), "--train", "--json"]
+    assert cli.main(argv) == 2
+    assert "looks like millimetres" in capsys.readouterr().err
+    assert cli.main([*argv, "--force"]) == 0

@@ -77,7 +77,8 @@ def _train_config(args: argparse.Namespace) -> TrainConfig:
 
 def _training_flights(args: argparse.Namespace) -> tuple[list[Flight], str, list[str]]:
     if args.recording:
-        flights = load_recordings([Path(p) for p in args.recording], Path(args.anchors) if args.anchors else None)
+        flights = load_recordings([Path(p) for p in args.recording], Path(args.anchors) if args.anchors else None,
+                                  check=not args.force)
         kinds = {f.uwb.kind for f in flights}
         if len(kinds) != 1:
             raise ValueError("all training recordings must have the same measurement kind")
@@ -179,7 +180,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         raise ValueError(f"--window must be a positive half width in seconds, got {args.window}")
     model = BiasModel.load(Path(args.model))
     anchors = Path(args.anchors) if args.anchors else None
-    test = load_recordings([Path(p) for p in args.recording], anchors)
+    test = load_recordings([Path(p) for p in args.recording], anchors, check=not args.force)
     kinds = {f.uwb.kind for f in test}
     if len(kinds) != 1:
         raise ValueError("all evaluated recordings must have the same measurement kind")
@@ -189,7 +190,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if train_paths is None:  # the recordings the model was trained on, when they are recordings
         train_paths = [p for p in model.meta.get(f"{kind}_trained_on", []) if not str(p).startswith("sim:")]
         train_paths = _resolve_training_paths(train_paths, Path(args.data_dir))
-    train = load_recordings([Path(p) for p in train_paths], anchors) if train_paths else []
+    train = load_recordings([Path(p) for p in train_paths], anchors, check=not args.force) if train_paths else []
     res = compare(model, test, train, args.xi, args.window)
     if args.plot:
         from harness.biasnet.plots import bias_vs_azimuth
@@ -270,6 +271,8 @@ def add_commands(sub: Any) -> None:
     src = tr.add_argument_group("data")
     src.add_argument("--recording", nargs="+", help="recorded flights (UTIL CSV, rcv_twr directory, native .npz)")
     src.add_argument("--anchors", help="anchor file for the recordings")
+    src.add_argument("--force", action="store_true",
+                     help="use recordings that fail the plausibility checks (units, anchor geometry, gross errors)")
     src.add_argument("--mode", choices=("twr", "tdoa"), default="twr", help="simulated: measurement kind")
     src.add_argument("--flights", type=int, default=24, help="simulated: number of training flights")
     src.add_argument("--duration", type=float, default=120.0, help="simulated: seconds per flight")
@@ -299,6 +302,8 @@ def add_commands(sub: Any) -> None:
                          "or $UWB_HIL_DATA)")
     ev.add_argument("--recording", nargs="+", required=True, help="held-out recording(s)")
     ev.add_argument("--anchors", help="anchor file for the recordings")
+    ev.add_argument("--force", action="store_true",
+                    help="use recordings that fail the plausibility checks (units, anchor geometry, gross errors)")
     ev.add_argument("--train", nargs="*", default=None,
                     help="recordings to fit the baselines on (default: those the model was trained on)")
     ev.add_argument("--xi", type=float, default=XI_DEFAULT, help="evaluate measurements with |error| < xi [m]")

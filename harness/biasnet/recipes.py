@@ -84,6 +84,7 @@ def rcv_heldout_dirs(data: Path) -> list[Path]:
     return rcv_sequences(data, (5,))
 
 
-def load_recordings(paths: list[Path], anchors: Path | None = None) -> list[Flight]:
+def load_recordings(paths: list[Path], anchors: Path | None = None, check: bool = True) -> list[Flight]:
+    """Load recordings; check=False (--force) skips the plausibility checks (harness/flight/plausibility.py)."""
     from harness.flight.loaders import load_recording
-    return [load_recording(p, anchors) for p in paths]
+    return [load_recording(p, anchors, check=check) for p in paths]
