@@ -221,6 +221,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{flight.name}: {len(flight.uwb)} {kind} measurements over {flight.duration_s:.1f} s "
           f"({len(flight.uwb) / max(flight.duration_s, 1e-9):.0f} Hz), {len(flight.truth.t_us)} truth samples, "
           f"IMU {len(flight.imu) if flight.imu is not None else 0}; dropped {flight.meta.get('dropped', {})}")
+    from harness.flight.plausibility import figures
+    fig = figures(flight)
+    print("plausibility: anchors span {anchor_spread_m:.2f} m (closest pair {anchor_min_separation_m:.2f} m, "
+          "{off_line_mm:.0f} mm rms off a line), poses a median {pose_median_distance_m:.2f} m from the anchors' "
+          "centre, {rate_hz:.1f} Hz, median |value| {median_abs_value_m:.2f} m, gross errors {gross:.2f} %"
+          .format(**fig, off_line_mm=1000 * fig["anchor_off_line_m"], gross=100 * fig.get("gross_share", float("nan"))))
     s = error_summary(flight)
     print(f"error (|e| < 1 m): median {s['median']:+.3f} m, std {s['std']:.3f} m, rms {s['rms']:.3f} m; "
           f"gross {s['gross']}; per-{'anchor' if kind == 'TWR' else 'pair'} medians {s['group_median_min']:+.3f}"

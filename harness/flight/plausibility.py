@@ -54,6 +54,25 @@ def findings(flight: Flight, limits: Limits = Limits()) -> list[str]:
             *_time_findings(flight, limits), *_measurement_findings(flight, limits)]
 
 
+def figures(flight: Flight) -> dict[str, float]:
+    """The quantities the checks look at (for `python -m harness.flight.loaders` and the docs' margins)."""
+    u, tr = flight.uwb, flight.truth
+    pos = _used_anchor_positions(flight)
+    d = np.linalg.norm(pos[:, None, :] - pos[None, :, :], axis=-1) if len(pos) else np.zeros((1, 1))
+    span_s = (int(u.t_us[-1]) - int(u.t_us[0])) * 1e-6 if len(u) > 1 else 0.0
+    out = {"anchor_spread_m": float(d.max()),
+           "anchor_min_separation_m": float(d[np.triu_indices(len(pos), 1)].min()) if len(pos) > 1 else float("nan"),
+           "anchor_off_line_m": float(np.linalg.svd(pos - pos.mean(axis=0), compute_uv=False)[1]) / np.sqrt(len(pos))
+           if len(pos) >= 3 else float("nan"),
+           "pose_median_distance_m": float(np.median(np.linalg.norm(tr.pos - flight.anchors.positions.mean(axis=0),
+                                                                    axis=1))) if len(tr.pos) else float("nan"),
+           "rate_hz": (len(u) - 1) / span_s if span_s > 0 else float("nan"),
+           "median_abs_value_m": float(np.median(np.abs(u.value))) if len(u) else float("nan")}
+    if u.true_value is not None and len(u):
+        out["gross_share"] = float(np.mean(~(np.abs(u.value - u.true_value) < Limits.gross_m)))
+    return out
+
+
 def check_recording(flight: Flight, path: Path | str | None = None, limits: Limits = Limits()) -> None:
     problems = findings(flight, limits)
     if problems:
