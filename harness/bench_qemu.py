@@ -325,7 +325,7 @@ def network_kernels(n_inputs: int, seed: int, log_dir: Path | None = None,
     rows: list[KernelRow] = []
     proc = _process_start(elf, log_dir)
     try:
-        client = NnBenchClient(PtyLink(proc.fd, proc.pty_path or "?"), timeout_s=10.0)
+        client = NnBenchClient(PtyLink(proc.fd, proc.serial_name or "?"), timeout_s=10.0)
         for kind, kind_name in ((0, "twr"), (1, "tdoa")):
             net = client.tables(kind)
             if net is None:

@@ -76,8 +76,8 @@ def test_board_layer_boots_with_fpu_and_instruction_clock(stm32_selftest: Path, 
     proc = QemuProcess(stm32_selftest / "selftest.elf", qemu_log)
     proc.start()
     try:
-        assert proc.pty_path is not None
-        link = PtyLink(proc.fd, proc.pty_path)
+        assert proc.serial_name is not None
+        link = PtyLink(proc.fd, proc.serial_name)
         banner = _read_until(link, lambda b: b.endswith(b"\n"), 5.0).decode(errors="replace")
         m = re.search(r"emulated=(\d) dwt=(\d) sysclk=(\d+) fpu=(0x[0-9a-f]+) busy1000=(\d+)", banner)
         assert m, f"no self-test banner: {banner!r} (log {qemu_log})"
@@ -265,3 +265,27 @@ def test_m4_network_kernels_match_pytorch_and_are_faster(stm32_build: Path, prob
     for kind in ("twr", "tdoa"):
         if ("shipped", kind) in asm and asm[("shipped", kind)][0] == asm[("probe", kind)][0]:
             assert asm[("shipped", kind)] == asm[("probe", kind)]
+
+
+def test_serial_over_a_socket_starts_without_the_pty_settle(stm32_build: Path, tmp_path: Path) -> None:
+    """The default transport is a unix socket; the pty recipe (1.2 s settle) still works and answers alike."""
+    from harness.device.qemu import QemuDevice, QemuOptions
+    from harness.session import DeviceSpec, open_device
+    times: dict[str, float] = {}
+    hellos = {}
+    for serial in ("socket", "pty"):
+        device = QemuDevice(stm32_build / "uwb-fw.elf", log_dir=tmp_path, options=QemuOptions(serial=serial))
+        t0 = time.monotonic()
+        device.start()
+        try:
+            hellos[serial] = device.hello(timeout=5.0)
+            times[serial] = time.monotonic() - t0
+            assert device.link.name.startswith(f"qemu-{serial}:")
+        finally:
+            device.stop()
+    same = ("proto_version", "fw_major", "fw_minor", "fw_patch", "build_id", "model_hash", "target", "cost_unit")
+    assert [getattr(hellos["socket"], k) for k in same] == [getattr(hellos["pty"], k) for k in same]
+    assert times["pty"] >= QemuOptions().settle_s and times["socket"] < times["pty"]
+    # --firmware selects the ELF through the session layer too
+    with open_device(DeviceSpec(target="qemu", firmware=stm32_build / "uwb-fw.elf", log_dir=tmp_path)) as dev:
+        assert dev.link.name.startswith("qemu-socket:")  # type: ignore[attr-defined]

@@ -1,11 +1,15 @@
 """QemuDevice: the STM32F405 build of the firmware running in QEMU (`-M netduinoplus2`).
 
-Start-up follows the measured recipe (shared/reference/qemu-cortex-m4.md):
-  1. qemu-system-arm ... -serial pty -S   (CPU halted, USART1 = serial0 on a fresh pty),
-  2. parse "char device redirected to /dev/pts/N" from QEMU's output,
-  3. open the pty raw (no echo, no CR/LF translation, no flow control),
-  4. wait until QEMU has noticed the open slave (it polls once per second; bytes the guest writes
-     before that are dropped), then `cont` on the HMP monitor socket.
+Start-up (serial="socket", the default):
+  1. qemu-system-arm ... -chardev socket,path=S,server=on,wait=off -serial chardev:... -S
+     (CPU halted, USART1 = serial0 on a listening unix socket),
+  2. connect to S, then to the HMP monitor socket,
+  3. wait until the monitor's `info chardev` shows the serial socket connected (QEMU accepts in its main
+     loop: milliseconds), then `cont`.
+The pty recipe of shared/reference/qemu-cortex-m4.md (serial="pty": `-serial pty`, parse "char device
+redirected to /dev/pts/N", open the pty raw, then wait 1.2 s because QEMU notices an opened slave only on
+its next 1 s poll and drops the guest's bytes until then) is kept as an option; the socket saves that
+wait on every start (docs/qemu.md).
 With `-icount shift=0` every guest instruction advances virtual time by 1 ns and TIM2 (clocked at a
 fixed 1 GHz) counts instructions, so the firmware's per-stage costs are exact instruction counts and
 identical from run to run. Every wait has a timeout; stop() always reaps QEMU.
@@ -59,16 +63,26 @@ class QemuOptions:
     machine: str = "netduinoplus2"
     icount: bool = True              # -icount shift=0: 1 ns virtual time per instruction (deterministic)
     serial_index: int = 0            # 0 = USART1 (the firmware's default link), 2 = USART3
-    start_timeout_s: float = 10.0    # QEMU must print the pty name within this
-    settle_s: float = 1.2            # > QEMU's 1 s pty poll: time for it to see the opened slave
+    start_timeout_s: float = 10.0    # QEMU must be up (socket / pty name) within this
+    serial: str = "socket"           # host end of the USART: "socket" (unix socket) or "pty"
+    settle_s: float = 1.2            # pty only: > QEMU's 1 s pty poll, time for it to see the opened slave
     stop_timeout_s: float = 3.0
     qemu: str = "qemu-system-arm"
 
-    def command(self, elf: Path, monitor_path: Path) -> list[str]:
+    def command(self, elf: Path, monitor_path: Path, serial_path: Path | None = None) -> list[str]:
         cmd = [self.qemu, "-M", self.machine, "-display", "none", "-nodefaults",
                "-monitor", f"unix:{monitor_path},server=on,wait=off"]
-        # serial0..serialN: only the link's USART gets the pty, the ones before it are null.
-        cmd += ["-serial", "null"] * self.serial_index + ["-serial", "pty"]
+        if self.serial == "socket":
+            if serial_path is None:
+                raise QemuError("serial='socket' needs the socket path")
+            cmd += ["-chardev", f"socket,id=uwblink,path={serial_path},server=on,wait=off"]
+            link = "chardev:uwblink"
+        elif self.serial == "pty":
+            link = "pty"
+        else:
+            raise QemuError(f"unknown serial transport {self.serial!r}: 'socket' or 'pty'")
+        # serial0..serialN: only the link's USART is connected, the ones before it are null.
+        cmd += ["-serial", "null"] * self.serial_index + ["-serial", link]
         cmd += ["-kernel", str(elf), "-S"]
         if self.icount:
             cmd += ["-icount", "shift=0,align=off"]
@@ -83,7 +97,7 @@ class QemuProcess:
         self.log_path = Path(log_path)
         self.options = options
         self.proc: subprocess.Popen[bytes] | None = None
-        self.pty_path: str | None = None
+        self.serial_name: str | None = None    # the host end: "/dev/pts/N" or "unix:<socket>"
         self.fd: int = -1
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
         self._mon: socket.socket | None = None
@@ -98,9 +112,10 @@ class QemuProcess:
             raise QemuError(f"{self.options.qemu} not found: run scripts/ensure_arm_tools.sh")
         self._tmp = tempfile.TemporaryDirectory(prefix="uwb-qemu-")
         mon_path = Path(self._tmp.name) / "monitor.sock"
+        serial_path = Path(self._tmp.name) / "serial.sock"
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         self._log = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
-        cmd = self.options.command(self.elf, mon_path)
+        cmd = self.options.command(self.elf, mon_path, serial_path)
         self._log.write(("$ " + " ".join(cmd) + "\n").encode())
         self._log.flush()
         try:
@@ -108,12 +123,18 @@ class QemuProcess:
                                          stderr=subprocess.STDOUT, start_new_session=True)
             # QEMU runs in its own session: make sure it never outlives a harness that forgot stop().
             self._finalizer = weakref.finalize(self, _kill_quietly, self.proc)
-            self.pty_path = self._wait_for_pty()
-            self.fd = _open_raw(self.pty_path)
-            self._mon = self._connect_monitor(mon_path)
-            # QEMU learns that the slave is open on its next 1 s poll; until then the guest's first
-            # bytes would be dropped. The CPU is still halted (-S), so simply wait, then run.
-            time.sleep(self.options.settle_s)
+            if self.options.serial == "socket":
+                self.fd = self._connect_serial(serial_path)
+                self.serial_name = f"unix:{serial_path}"
+                self._mon = self._connect_monitor(mon_path)
+                self._wait_for_serial_connected()
+            else:
+                self.serial_name = self._wait_for_pty()
+                self.fd = _open_raw(self.serial_name)
+                self._mon = self._connect_monitor(mon_path)
+                # QEMU learns that the slave is open on its next 1 s poll; until then the guest's first
+                # bytes would be dropped. The CPU is still halted (-S), so simply wait, then run.
+                time.sleep(self.options.settle_s)
             self.monitor("cont")
             self._wait_for_receiver()
         except BaseException:
@@ -212,6 +233,35 @@ class QemuProcess:
                     raise QemuError(f"QEMU monitor socket {path} never came up (log: {self.log_path})") from None
                 time.sleep(0.02)
 
+    def _connect_serial(self, path: Path) -> int:
+        """Connect to QEMU's listening serial socket; the raw fd (non-blocking), owned by this process."""
+        deadline = time.monotonic() + self.options.start_timeout_s
+        while True:
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                s.connect(str(path))
+            except (FileNotFoundError, ConnectionRefusedError):
+                s.close()
+                if time.monotonic() > deadline or not self.alive():
+                    raise QemuError(f"QEMU serial socket {path} never came up (log: {self.log_path})") from None
+                time.sleep(0.005)
+                continue
+            s.setblocking(False)
+            return s.detach()
+
+    def _wait_for_serial_connected(self) -> None:
+        """Until QEMU has accepted our connection, the guest's bytes would go nowhere: `info chardev` shows
+        the socket's filename with a "disconnected:" prefix until then."""
+        deadline = time.monotonic() + self.options.start_timeout_s
+        while True:
+            lines = [ln for ln in self.monitor("info chardev").splitlines() if ln.startswith("uwblink:")]
+            if lines and "disconnected:" not in lines[0]:
+                return
+            if time.monotonic() > deadline:
+                raise QemuError(f"QEMU did not accept the serial connection within {self.options.start_timeout_s:.0f} s"
+                                f" ({lines}; log: {self.log_path})")
+            time.sleep(0.002)
+
     def _wait_for_receiver(self) -> None:
         """QEMU's USART model drops bytes that arrive before the guest set CR1.UE|RE, and the host
         may write the moment `cont` returns: wait until the firmware has enabled its receiver."""
@@ -275,7 +325,7 @@ class QemuPtyLink(Link):
 
     @property
     def name(self) -> str:
-        return f"qemu-pty:{self._path}"
+        return f"qemu-{'socket' if self._path.startswith('unix:') else 'pty'}:{self._path}"
 
     @property
     def closed(self) -> bool:
@@ -318,14 +368,18 @@ class QemuPtyLink(Link):
         self._rx += chunk
 
     def _read_fd(self, fd: int, max_bytes: int) -> bytes:
+        """Called when select() found fd readable: no bytes then is end of file (the socket's peer is gone)."""
         try:
-            return os.read(fd, max_bytes)
+            data = os.read(fd, max_bytes)
         except BlockingIOError:
             return b""
         except OSError as exc:
             if exc.errno == errno.EIO:
                 raise LinkClosed(f"{self.name}: closed (QEMU exited)") from exc
             raise LinkClosed(f"{self.name}: read failed: {exc}") from exc
+        if not data and max_bytes > 0:
+            raise LinkClosed(f"{self.name}: closed (QEMU exited)")
+        return data
 
     def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.0) -> bytes:
         fd = self._require()
@@ -342,7 +396,8 @@ class QemuPtyLink(Link):
         self._fd = None  # the fd itself belongs to QemuProcess
 
     def info(self) -> dict[str, Any]:
-        return {"name": self.name, "transport": "QEMU -serial pty (~65 us per byte)"}
+        return {"name": self.name, "transport": f"QEMU -serial {'socket' if self._path.startswith('unix:') else 'pty'}"
+                                                f" (~65 us per byte)"}
 
 
 # Kept for callers of the process layer alone (the self-test, the network bench).
@@ -400,9 +455,9 @@ class QemuDevice(Device):
         except QemuError as exc:
             self._remove_tmp_log()
             raise DeviceError(f"cannot start QEMU for {self.elf.name}: {exc}") from exc
-        assert proc.pty_path is not None
+        assert proc.serial_name is not None
         self._proc = proc
-        self._link = QemuPtyLink(proc.fd, proc.pty_path)
+        self._link = QemuPtyLink(proc.fd, proc.serial_name)
 
     def alive(self) -> bool:
         return self._proc is not None and self._proc.alive()
