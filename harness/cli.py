@@ -81,6 +81,8 @@ def print_run(summary: dict[str, Any]) -> None:
 # ------------------------------------------------------------------------------------------ commands
 def _device_spec(args: argparse.Namespace) -> DeviceSpec:
     from harness.link.ports import default_port, port_for_serial
+    if getattr(args, "flash_cmd", None):
+        _log_to_stderr("uwb_hil.flash")     # the flash command's output belongs in the run's log
     port = args.port
     if getattr(args, "port_serial", None):
         if port:
@@ -91,7 +93,18 @@ def _device_spec(args: argparse.Namespace) -> DeviceSpec:
     target = args.target or ("serial" if port else "emulator")
     return DeviceSpec(target=target, port=port, baud=args.baud,
                       firmware=Path(args.firmware) if args.firmware else None,
-                      timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None)
+                      timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None,
+                      flash_cmd=getattr(args, "flash_cmd", None) or None)
+
+
+def _log_to_stderr(name: str) -> None:
+    import logging
+    logger = logging.getLogger(name)
+    if not logger.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("uwb-hil: %(message)s"))
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
 
 
 def _model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None]:
@@ -327,6 +340,9 @@ def _add_device_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--timeout", type=options.timeout_s, default=5.0,
                    help="seconds of device silence before giving up (> 0)")
     g.add_argument("--log-dir", help="where device logs go")
+    g.add_argument("--flash-cmd", metavar="CMD",
+                   help="shell command run before the device starts (e.g. flash the board: "
+                        "\"st-flash write build/uwb-fw.bin 0x8000000\"); a failure stops the run")
 
 
 def _add_flight_options(p: argparse.ArgumentParser, recorded: bool = True) -> None:

@@ -26,6 +26,8 @@ class DeviceSpec:
     firmware: Path | None = None     # None: the target's default (host binary, or the STM32 ELF for qemu)
     timeout_s: float = 5.0
     log_dir: Path | None = None
+    flash_cmd: str | None = None     # run (shell) before the device starts, e.g. to flash the board
+    flash_timeout_s: float = 600.0
 
     def resolved_target(self) -> str:
         return "serial" if (self.port and self.target == "emulator") else self.target
@@ -63,6 +65,10 @@ def open_device(spec: DeviceSpec, expected_model_hash: int | None = None) -> Ite
         device = QemuDevice(elf=firmware, log_dir=spec.log_dir)
     else:
         raise ValueError(f"unknown target {target!r}; choose one of {TARGETS}")
+    if spec.flash_cmd:
+        from harness.device.flash import run_flash_command
+        log = Path(spec.log_dir) / "flash.log" if spec.log_dir else None
+        run_flash_command(spec.flash_cmd, spec.flash_timeout_s, log)
     device.start()
     try:
         device.hello(timeout=spec.timeout_s)

@@ -204,3 +204,17 @@ def test_cli_ports_and_port_serial(monkeypatch: pytest.MonkeyPatch, capsys: pyte
     assert err.startswith("uwb-hil: error: no serial port has USB serial number 'nope'; ports present:")
     assert main(["run", "--port-serial", "206A3358", "--port", "/dev/x", "--duration", "2"]) == 2
     assert "not both" in capsys.readouterr().err
+
+
+@needs_fw
+def test_cli_flash_command_runs_before_the_device_and_a_failure_stops_the_run(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    marker = tmp_path / "flashed"
+    assert main(["run", "--duration", "2", "--log-dir", str(tmp_path), "--flash-cmd",
+                 f"echo flashing board 7; touch {marker}"]) == 0
+    err = capsys.readouterr().err
+    assert marker.exists() and "uwb-hil: flash: flashing board 7" in err
+    assert "flashing board 7" in (tmp_path / "flash.log").read_text()
+    code = main(["run", "--duration", "2", "--flash-cmd", "echo no probe >&2; exit 4"])
+    err = capsys.readouterr().err
+    assert code != 0 and "uwb-hil: error: flash command 'echo no probe >&2; exit 4' failed (exit 4)" in err

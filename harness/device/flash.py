@@ -42,14 +42,14 @@ def run_flash_command(command: str, timeout_s: float, log_path: Path | None = No
     except subprocess.TimeoutExpired as exc:
         output = (exc.output or b"").decode(errors="replace")
         _write_log(log_path, command, output, None)
-        raise FlashError(f"flash command {command!r} did not finish within {timeout_s:g} s; output:\n"
-                         f"{_tail(output)}") from None
+        raise FlashError(f"flash command {command!r} did not finish within {timeout_s:g} s; "
+                         f"last output: {_tail(output)}") from None
     seconds = time.monotonic() - t0
     for line in output.splitlines():
         LOG.info("flash: %s", line)
     _write_log(log_path, command, output, code)
     if code != 0:
-        raise FlashError(f"flash command {command!r} failed (exit {code}); output:\n{_tail(output)}")
+        raise FlashError(f"flash command {command!r} failed (exit {code}); last output: {_tail(output)}")
     LOG.info("flash: done in %.1f s", seconds)
     return FlashResult(command=command, returncode=code, seconds=seconds, output=output, log_path=log_path)
 
@@ -60,5 +60,6 @@ def _write_log(path: Path | None, command: str, output: str, code: int | None) -
                         encoding="utf-8")
 
 
-def _tail(text: str, lines: int = 20) -> str:
-    return "\n".join(text.splitlines()[-lines:]) or "(no output)"
+def _tail(text: str, lines: int = 3) -> str:
+    """The last lines on one line (error messages are one line; the whole output is in the log)."""
+    return " | ".join(ln.strip() for ln in text.splitlines()[-lines:] if ln.strip()) or "(none)"
