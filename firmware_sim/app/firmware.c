@@ -167,8 +167,10 @@ static void on_config(firmware_t *fw, const uwb_msg_t *in)
     }
     estimator_configure(&fw->est, &cfg, c->reset);
     if (c->reset) {
-        /* A new flight may restart its clock: the controller forgets its time and integrals too. */
+        /* A new flight may restart its clock: the controller forgets its time and integrals too, the
+         * TDoA engine its anchors (their stored times belong to the old clock). */
         controller_init(&fw->ctl, &fw->ctl.p);
+        tdoa_engine_init(&fw->tdoa);
     }
 }
 

@@ -26,8 +26,10 @@ class PreparedFlight:
     next_seq: int             # first seq after the stream
 
 
-def setup_frames(config: EstimatorConfig, flight: Flight, seq0: int, reset: bool = True) -> tuple[bytes, int]:
-    """CONFIG (with reset) and one ANCHOR per anchor, ahead of the sensor stream."""
+def setup_frames(config: EstimatorConfig, flight: Flight, seq0: int, reset: bool = True,
+                 anchors: bool = True) -> tuple[bytes, int]:
+    """CONFIG (with reset) and one ANCHOR per anchor (unless `anchors` is False: at radio level the
+    positions come over the air, in the packets' LPP), ahead of the sensor stream."""
     config.validate()
     msgs = [m.Config(mode=config.mode, stages=config.stages, reset=int(reset), reserved=0,
                      std_twr=config.std_twr, std_tdoa=config.std_tdoa, a_max_twr=config.a_max_twr,
@@ -36,27 +38,41 @@ def setup_frames(config: EstimatorConfig, flight: Flight, seq0: int, reset: bool
                      proc_cv_acc=config.proc_cv_acc, init_x=config.init_x, init_y=config.init_y,
                      init_z=config.init_z, init_std_xy=config.init_std_xy, init_std_z=config.init_std_z,
                      nn_min_z=config.nn_min_z)]
-    for aid, pos in zip(flight.anchors.ids, flight.anchors.positions):
+    for aid, pos in zip(flight.anchors.ids, flight.anchors.positions) if anchors else ():
         msgs.append(m.Anchor(anchor_id=int(aid), x=float(pos[0]), y=float(pos[1]), z=float(pos[2])))
     out = b"".join(encode_frame(msg, seq0 + i) for i, msg in enumerate(msgs))
     return out, seq0 + len(msgs)
 
 
-def prepare(flight: Flight, seq0: int, include_imu: bool = True) -> PreparedFlight:
-    """Encode every IMU sample and UWB measurement of the flight, merged in time order."""
+def _radio_rows(flight: Flight, seqs: np.ndarray) -> np.ndarray:
+    r = flight.radio
+    assert r is not None
+    payload = np.ascontiguousarray(r.payload, dtype=np.uint8).view(f"S{r.payload.shape[1]}")[:, 0]
+    return encode_rows(m.Radio, {"t_us": r.t_us, "rx_ts": r.rx_ts, "src_addr": r.src_addr, "length": r.length,
+                                 "payload": payload}, seqs)
+
+
+def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = False) -> PreparedFlight:
+    """Encode every IMU sample and UWB measurement of the flight, merged in time order. radio: the
+    flight's radio packets (RADIO frames) take the place of its measurements."""
     flight.validate()
+    if radio and flight.radio is None:
+        raise ValueError(f"{flight.name}: no radio-level stream (simulate_radio / radio_from_recording)")
     u = flight.uwb
     imu = flight.imu if (include_imu and flight.has_imu) else None
     n_imu = len(imu) if imu is not None else 0
-    n_uwb = len(u)
-    t = np.concatenate([imu.t_us if imu is not None else np.zeros(0, np.int64), u.t_us]).astype(np.int64)
+    uwb_t = flight.radio.t_us if (radio and flight.radio is not None) else u.t_us
+    n_uwb = len(uwb_t)
+    t = np.concatenate([imu.t_us if imu is not None else np.zeros(0, np.int64), uwb_t]).astype(np.int64)
     src = np.concatenate([np.zeros(n_imu, np.int8), np.ones(n_uwb, np.int8)])
     order = np.lexsort((src, t))                   # IMU first at equal times
     pos_of = np.empty_like(order)
     pos_of[order] = np.arange(len(order))          # stream position of each source row
     seqs = (seq0 + pos_of) & 0xFFFF
 
-    if u.kind == KIND_TWR:
+    if radio:
+        uwb_rows = _radio_rows(flight, seqs[n_imu:])
+    elif u.kind == KIND_TWR:
         uwb_rows = encode_rows(m.Twr, {"t_us": u.t_us, "anchor_id": u.anchor_a, "range": u.value},
                                seqs[n_imu:])
     else:

@@ -31,6 +31,8 @@ from protocol import messages as m
 from protocol.framing import DecoderErrors, Frame, FrameDecoder
 
 OUTCOME_PENDING, OUTCOME_RESULT, OUTCOME_ERROR, OUTCOME_LOST = 0, 1, 2, 3
+#: a RADIO packet the device used but that formed no measurement (RADIO_DROP; error_code = drop_reason)
+OUTCOME_NO_MEAS = 4
 PACING_MODES = ("lockstep", "windowed", "realtime")
 
 _RESULT_DT = body_dtype(m.Result)
@@ -255,16 +257,33 @@ class Streamer:
                 raise DeviceDied("device died while waiting for STATS")
         raise DeviceTimeout(f"no STATS reply within {self.timeout_s if timeout is None else timeout:.1f} s")
 
+    def request_clock(self, anchor_id: int, timeout: float | None = None) -> m.Clock:
+        """The TDoA engine's clock correction of one anchor (CLOCK_REQ -> CLOCK)."""
+        self._write(encode_frame(m.ClockReq(anchor_id=anchor_id), self._next_seq()))
+        wait = self.timeout_s if timeout is None else timeout
+        deadline = time.monotonic() + wait
+        while time.monotonic() < deadline:
+            _, frames = self._read(min(0.05, max(0.0, deadline - time.monotonic())))
+            for f in frames:
+                if isinstance(f.msg, m.Clock) and f.msg.anchor_id == anchor_id:
+                    return f.msg
+            if not self.device.alive():
+                raise DeviceDied("device died while waiting for CLOCK")
+        raise DeviceTimeout(f"no CLOCK reply within {wait:.1f} s")
+
     # ------------------------------------------------------------------------------ the run
     def run(self, flight: Flight, config: EstimatorConfig, pacing: Pacing = Pacing(),
             results_path: Path | None = None, progress: Callable[[int, int], None] | None = None,
             include_imu: bool = True, header_extra: dict[str, Any] | None = None,
-            writer: ResultsWriter | None = None, reset: bool = True, overwrite: bool = True) -> RunResult:
+            writer: ResultsWriter | None = None, reset: bool = True, overwrite: bool = True,
+            radio: bool = False) -> RunResult:
         """`header_extra` goes into the results header (e.g. how to rebuild the flight for --resume);
         `writer` replaces the results file writer (resume appends); `reset=False` keeps the device's
-        filter state (the CONFIG is sent without reset: a resumed run continues a replayed prefix)."""
-        setup, self._seq = setup_frames(config, flight, self._seq, reset=reset)
-        prep = prepare(flight, self._seq, include_imu=include_imu)
+        filter state (the CONFIG is sent without reset: a resumed run continues a replayed prefix).
+        `radio`: stream the flight's radio packets (one row per packet; OUTCOME_NO_MEAS for those that
+        formed no measurement) instead of its measurements; anchor positions then come from their LPP."""
+        setup, self._seq = setup_frames(config, flight, self._seq, reset=reset, anchors=not radio)
+        prep = prepare(flight, self._seq, include_imu=include_imu, radio=radio)
         self._seq = prep.next_seq
         n = len(prep.meas_end)
         results = np.zeros(n, RESULTS_DTYPE)
@@ -330,6 +349,13 @@ class Streamer:
                 else:
                     # not about a pending measurement (an IMU frame, or DIVERGED after a RESULT): keep it
                     writer.write_record({"type": "device_error", **asdict(f.msg)})
+            elif isinstance(f.msg, m.RadioDrop):
+                k = state.seq_to_meas.pop(f.msg.meas_seq, -1)
+                if k >= 0:
+                    res["outcome"][k] = OUTCOME_NO_MEAS
+                    res["error_code"][k] = f.msg.reason
+                    res["t_recv_ns"][k] = now_ns
+                    answered.append(k)
             elif isinstance(f.msg, m.Stats):
                 state.stats = f.msg
         if answered:
