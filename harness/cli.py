@@ -40,6 +40,18 @@ def make_flight(args: argparse.Namespace) -> Flight:
     return scenario_flight(args.scenario, mode=args.mode, duration_s=args.duration, seed=args.seed)
 
 
+def make_run_flight(args: argparse.Namespace) -> Flight:
+    """make_flight, at radio level with --radio."""
+    radio = getattr(args, "radio", None)
+    if radio and not args.recording and args.mode != "tdoa":
+        raise UsageError("--radio streams TDoA anchor packets: use it with --mode tdoa (or a TDoA recording)")
+    flight = make_flight(args)
+    if not radio:
+        return flight
+    from harness.flight.radio import radio_level
+    return radio_level(flight, radio, seed=args.seed, loss=getattr(args, "radio_loss", 0.0))
+
+
 # ------------------------------------------------------------------------------------------ output
 def _progress_bar(total_label: str) -> tuple[Callable[[int, int], None], Callable[[], None]]:
     """A rich progress bar when stderr is a terminal; silent otherwise."""
@@ -76,6 +88,9 @@ def print_run(summary: dict[str, Any]) -> None:
           f"p99 {_fmt(comp['p99'], 2)}  max {_fmt(comp['max'], 2)}  over budget {comp['deadline_misses']}")
     print(f"  round trip [us]: n {rtt['n']}  p50 {_fmt(rtt['p50'], 1)}  p90 {_fmt(rtt['p90'], 1)}  "
           f"p99 {_fmt(rtt['p99'], 1)}  max {_fmt(rtt['max'], 1)}  deadline misses (5 ms) {rtt['deadline_misses']}")
+    if summary.get("radio"):
+        from harness.report.radio import format_radio
+        print(format_radio(summary["radio"]))
 
 
 # ------------------------------------------------------------------------------------------ commands
@@ -122,7 +137,7 @@ def _model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None
 
 
 _SOURCE_KEYS = ("scenario", "mode", "duration", "seed", "recording", "anchors", "constellation", "force", "stages",
-                "uwb_only", "model", "set")
+                "uwb_only", "model", "set", "radio", "radio_loss")
 
 
 def _run_source(args: argparse.Namespace) -> dict[str, Any]:
@@ -165,6 +180,9 @@ def cmd_resume(args: argparse.Namespace) -> int:
         if not isinstance(src, dict):
             raise ResumeError(f"{rec.path}:1: header has no 'source' (not written by `uwb-hil run`): "
                               "cannot rebuild the flight")
+        if src.get("radio"):
+            raise ResumeError(f"{rec.path}: a radio-level run cannot be resumed (the tag's TDoA engine state "
+                              "is not in the results file): run it again")
         fargs = argparse.Namespace(**{**vars(args), **src})
         flight = make_flight(fargs)
         cfg = _run_config(fargs, flight)
@@ -212,7 +230,7 @@ def _results_path(args: argparse.Namespace) -> Path | None:
 def cmd_run(args: argparse.Namespace) -> int:
     if getattr(args, "resume", None):
         return cmd_resume(args)
-    flight = make_flight(args)
+    flight = make_run_flight(args)
     cfg = _run_config(args, flight)
     pacing = Pacing(mode=args.pacing, window=args.window, speed=args.speed)
     results_path = _results_path(args)
@@ -226,20 +244,28 @@ def cmd_run(args: argparse.Namespace) -> int:
         if results_path is not None:
             from harness.stream.results_file import flight_digest
             header["flight_digest"] = flight_digest(flight)
+        streamer = Streamer(device, timeout_s=args.timeout)
         try:
-            run = Streamer(device, timeout_s=args.timeout).run(flight, cfg, pacing, results_path=results_path,
-                                                                progress=update, header_extra=header,
-                                                                overwrite=args.overwrite)
+            run = streamer.run(flight, cfg, pacing, results_path=results_path, progress=update, header_extra=header,
+                               overwrite=args.overwrite, radio=bool(args.radio))
         finally:
             stop()
+        radio = _radio_section(streamer, run, flight) if args.radio else None
     summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
     summary["config"] = args.stages
     summary["device"] = _hello_dict(hello)
+    if radio is not None:
+        summary["radio"] = radio
     if args.json:
         print(json.dumps(summary, indent=2, default=float))
     else:
         print_run(summary)
     return 0
+
+
+def _radio_section(streamer: Streamer, run: Any, flight: Flight) -> dict[str, Any]:
+    from harness.report.radio import query_clocks, radio_summary
+    return radio_summary(run, flight, query_clocks(streamer, flight))
 
 
 def _config_with(settings: Sequence[str]) -> EstimatorConfig:
@@ -298,6 +324,19 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 run = streamer.run(flight, cfg, Pacing(mode=args.pacing, window=args.window, speed=args.speed))
                 s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
                 s["mode"], s["config"] = mode, preset
+                rows.append(s)
+        # Radio level: the tag's engine turns anchor packets into the TDoA measurements (one per packet).
+        from harness.flight.radio import radio_level
+        base = scenario_flight(args.scenario, mode="tdoa", duration_s=args.duration, seed=args.seed)
+        for protocol in ("tdoa2", "tdoa3"):
+            flight = radio_level(base, protocol, seed=args.seed)
+            for preset in ("outlier", "outlier+nn"):
+                cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
+                run = streamer.run(flight, cfg, Pacing(mode=args.pacing, window=args.window, speed=args.speed),
+                                   radio=True)
+                s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+                s["mode"], s["config"] = f"{protocol} radio", preset
+                s["radio"] = _radio_section(streamer, run, flight)
                 rows.append(s)
     if args.json:
         print(json.dumps({"device": _hello_dict(hello), "runs": rows}, indent=2, default=float))
@@ -397,6 +436,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--resume", metavar="RESULTS.jsonl",
                      help="continue an interrupted run recorded in this results file (same flight, config and "
                           "pacing from its header; new results appended; summary over the whole flight)")
+    run.add_argument("--radio", choices=("tdoa2", "tdoa3"), default=None,
+                     help="LPS radio level: stream the anchor packets the tag's radio receives (simulated by the "
+                          "radio simulator, or synthesised from a TDoA recording's differences) and let the "
+                          "firmware's TDoA engine form the measurements; the summary gains a radio section")
+    run.add_argument("--radio-loss", type=float, default=0.0, metavar="P",
+                     help="with --radio on a simulated flight: probability that the tag misses a packet [0, 1)")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
     run.set_defaults(func=cmd_run)
     demo = sub.add_parser("demo", help="TWR and TDoA flights in three configurations, one table")
