@@ -96,3 +96,15 @@ assert "torch" not in sys.modules or sys.modules["torch"] is None
     demo, run = json.loads(docs[0]), json.loads(docs[1])
     assert len(demo["runs"]) == 6 and all(r["accuracy"]["rmse"] < 0.5 for r in demo["runs"])
     assert run["results"] == run["measurements"] > 0
+
+
+def test_train_works_with_the_train_extra(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The other half of the light-install check: with [train] installed (make installs it), train works."""
+    pytest.importorskip("torch", reason="the [train] extra is not installed")
+    from harness.biasnet.model import BiasModel
+    out = tmp_path / "m.npz"
+    assert main(["train", "--mode", "twr", "--flights", "3", "--duration", "10", "--epochs", "3", "--out", str(out),
+                 "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert BiasModel.load(out).hash_hex == doc["hash"] and doc["epochs"] == 3
+    assert doc["n_train"] > 1000 and 0.0 < doc["val_rmse_after_m"] < 0.5
