@@ -217,10 +217,11 @@ def _results_path(args: argparse.Namespace) -> Path | None:
     """The --results file, refused before any device starts if it is a directory or an unfinished run."""
     if not args.results:
         return None
-    from harness.stream.results_file import describe_existing
+    from harness.stream.results_file import check_not_in_use, describe_existing
     path = Path(args.results)
     if path.is_dir():
         raise ResultsFileError(f"results file {path} is a directory: give a file name, e.g. {path / 'run.jsonl'}")
+    check_not_in_use(path)
     why = describe_existing(path)
     if why is not None and not args.overwrite:
         raise ResultsFileError(f"results file {path} not overwritten: {why}, or pass --overwrite")

@@ -208,12 +208,13 @@ def test_a_second_run_on_the_same_file_fails_while_the_first_writes(tmp_path: Pa
     while _result_lines(path) < 100:
         assert first.is_alive() and time.monotonic() < deadline, "first run produced no results"
         time.sleep(0.02)
-    rc_second = cli.main(["run", *FLIGHT, "--results", str(path), "--overwrite"])
+    rc_second = cli.main(["run", *FLIGHT, "--results", str(path)])
+    rc_overwrite = cli.main(["run", *FLIGHT, "--results", str(path), "--overwrite"])
     rc_resume = cli.main(["run", "--resume", str(path)])
     err = capsys.readouterr().err
     first.join(60)
-    assert rc_second == 2 and rc_resume == 2
-    assert err.count(f"results file {path} is in use by another uwb-hil run") == 2, err
+    assert rc_second == rc_overwrite == rc_resume == 2
+    assert err.count(f"results file {path} is in use by another uwb-hil run") == 3, err
     assert first.rc == 0
     rows = _rows(path)
     assert [r["index"] for r in rows] == list(range(len(rows))) and len(rows) == 3999

@@ -55,6 +55,12 @@ def lock_file(path: Path, mode: str) -> IO[str]:
     return fh
 
 
+def check_not_in_use(path: Path) -> None:
+    """Fail now, before any device starts, if another run holds the file's lock (then released at once)."""
+    if Path(path).is_file():
+        lock_file(Path(path), "r+").close()
+
+
 def describe_existing(path: Path) -> str | None:
     """Why `path` must not be overwritten silently (None if it may): an unfinished run, or not a results file.
     A complete run (every measurement has a line) may be replaced: it is finished, nothing is lost that a
