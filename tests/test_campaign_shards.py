@@ -149,3 +149,28 @@ def test_progress_shows_runs_done_of_total_and_an_eta(campaigns: dict[str, Any],
     lines = [ln for ln in err.splitlines() if ln.startswith("[")]
     assert [ln.split(" runs")[0] for ln in lines] == ["[2/6", "[4/6", "[6/6"]
     assert all(" elapsed, ETA " in ln for ln in lines) and lines[-1].split("ETA ")[1].startswith("0:00")
+
+
+def test_models_json_entries_are_kept_only_with_their_network(tmp_path: Path) -> None:
+    """The report once showed held-out figures of a models.json whose model file was absent: the snapshot
+    keeps an entry only when the network it describes (same hash) is copied into the directory."""
+    from harness.biasnet.export import DEFAULT_NPZ
+    from harness.biasnet.model import BiasModel
+    from harness.campaign.models import snapshot_models
+    from harness.campaign.store import CampaignDir
+    repo = tmp_path / "repo"
+    models = repo / "firmware_sim" / "models"
+    models.mkdir(parents=True)
+    shutil.copyfile(DEFAULT_NPZ, models / "util_tdoa_pos.npz")
+    h = BiasModel.load(DEFAULT_NPZ).hash_hex
+    summary = {"util_tdoa_pos": {"file": "firmware_sim/models/util_tdoa_pos.npz", "hash": h, "heldout": {}},
+               "rcv_twr": {"file": "firmware_sim/models/rcv_twr.npz", "hash": "0123456789abcdef"},   # absent
+               "sim": {"file": "firmware_sim/models/util_tdoa_pos.npz", "hash": "fedcba9876543210"}}  # other net
+    (models / "models.json").write_text(json.dumps(summary))
+    cdir = CampaignDir(tmp_path / "c")
+    cdir.make()
+    index = snapshot_models(cdir, [None], tmp_path / "no-default.npz", models / "models.json", None)
+    assert index["default"] is None and index["families"] == {"util_tdoa_pos": h}
+    assert set(index["summary"]) == {"util_tdoa_pos"} and list(index["files"]) == [h]
+    assert (cdir.root / "models" / f"{h}.npz").is_file() and index["fig5_rcv_flight"] is None
+    assert any("rcv_twr" in n for n in index["notes"]) and any("sim" in n for n in index["notes"])

@@ -70,6 +70,7 @@ def bias_section(ctx: "ReportContext") -> "Section | None":
                                "fig5_rcv_heading_sweep",
                                "Real heading sweep (rcv_twr sequence 3, part of that network's training set): "
                                "measured TWR error and the network's bias.")
+    sec.paragraphs += [str(n) for n in index.get("notes") or []]   # what was left out of DIR/models, and why
     summary = index.get("summary") or {}
     rows = _heldout_rows(summary)
     if rows:

@@ -53,18 +53,31 @@ def snapshot_models(cdir: CampaignDir, run_models: Iterable[str | None], default
     except (OSError, ValueError):
         known = {}
     root = summary_json.parent.parent.parent     # models.json names files relative to the repository
+    notes: list[str] = []
     for key, entry in known.items():
         if not isinstance(entry, dict) or "hash" not in entry:
             continue
         src = root / str(entry.get("file", ""))
         if entry["hash"] not in files and src.is_file():
-            copy(src)                             # the real-data networks of the report's Fig. 5 / table
+            # the real-data networks of the report's Fig. 5 / table, if the file is the one recorded
+            if BiasModel.load(src).hash_hex == entry["hash"]:
+                copy(src)
+            else:
+                notes.append(f"{src}: not the network models.json records for {key} ({entry['hash']}): left out")
         if entry["hash"] in files:
             index["families"][key] = entry["hash"]
             summary[key] = entry
+        else:
+            notes.append(f"models.json entry {key} ({entry['hash']}): its network is not here, its figures left out")
     index["files"] = files
     index["summary"] = summary
-    index["fig5_rcv_flight"] = _snapshot_fig5_flight(out, data_dir) if "rcv_twr" in index["families"] else None
+    index["fig5_rcv_flight"] = None
+    if "rcv_twr" in index["families"]:
+        try:
+            index["fig5_rcv_flight"] = _snapshot_fig5_flight(out, data_dir)
+        except (ValueError, OSError) as exc:      # RecordingError is a ValueError: the figure is left out
+            notes.append(f"Fig. 5 heading sweep not stored: {exc}")
+    index["notes"] = notes
     write_json_atomic(out / INDEX, index)
     return index
 
