@@ -1,0 +1,107 @@
+"""The host end of QEMU's serial link (the guest's USART): a unix socket, or the pty of the older recipe.
+
+Split from harness/device/qemu.py (the process and device layers), which re-exports it.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import time
+from typing import Any
+
+from harness.errors import LinkClosed, LinkTimeout
+from harness.link.base import DEFAULT_READ_SIZE, Link
+
+
+class QemuPtyLink(Link):
+    """The host end of QEMU's pty (the guest's USART). QEMU owns the master; we hold the slave.
+
+    QEMU's USART transmits synchronously: a guest byte written while the host side of the pty is full
+    stalls the guest CPU until the host reads. A host blocked in write() (the guest is not taking its
+    input) would then wait for a guest that waits for the host. So while a write cannot progress, it
+    drains what the guest sent into a buffer that read() returns first; the buffer is bounded."""
+
+    def __init__(self, fd: int, path: str, write_timeout_s: float = 10.0, max_buffered: int = 64 << 20) -> None:
+        self._fd: int | None = fd
+        self._path = path
+        self.write_timeout_s = write_timeout_s
+        self.max_buffered = max_buffered
+        self._rx = bytearray()
+
+    @property
+    def name(self) -> str:
+        return f"qemu-{'socket' if self._path.startswith('unix:') else 'pty'}:{self._path}"
+
+    @property
+    def closed(self) -> bool:
+        return self._fd is None
+
+    def _require(self) -> int:
+        if self._fd is None:
+            raise LinkClosed(f"{self.name} is closed")
+        return self._fd
+
+    def write(self, data: bytes) -> None:
+        fd = self._require()
+        view = memoryview(data)
+        last_progress = time.monotonic()
+        while view:
+            try:
+                n = os.write(fd, view)
+            except BlockingIOError:
+                n = 0
+            except OSError as exc:
+                raise LinkClosed(f"{self.name}: write failed: {exc}") from exc
+            if n:
+                view = view[n:]
+                last_progress = time.monotonic()
+                continue
+            waited = time.monotonic() - last_progress
+            if waited >= self.write_timeout_s:
+                raise LinkTimeout(f"{self.name}: no byte accepted for {waited:.1f} s ({len(view)} pending): "
+                                  "the guest stopped reading", pending_bytes=len(view), waited_s=waited)
+            r, _, _ = select.select([fd], [fd], [], min(0.05, self.write_timeout_s - waited))
+            if r:
+                self._drain(fd)
+
+    def _drain(self, fd: int) -> None:
+        """Move what the guest sent into the buffer (called while a write waits)."""
+        if len(self._rx) >= self.max_buffered:
+            raise LinkTimeout(f"{self.name}: {len(self._rx)} bytes from the guest unread while writing: "
+                              "the host is not reading its replies", pending_bytes=len(self._rx), waited_s=0.0)
+        chunk = self._read_fd(fd, DEFAULT_READ_SIZE)
+        self._rx += chunk
+
+    def _read_fd(self, fd: int, max_bytes: int) -> bytes:
+        """Called when select() found fd readable: no bytes then is end of file (the socket's peer is gone)."""
+        try:
+            data = os.read(fd, max_bytes)
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                raise LinkClosed(f"{self.name}: closed (QEMU exited)") from exc
+            raise LinkClosed(f"{self.name}: read failed: {exc}") from exc
+        if not data and max_bytes > 0:
+            raise LinkClosed(f"{self.name}: closed (QEMU exited)")
+        return data
+
+    def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.0) -> bytes:
+        fd = self._require()
+        if self._rx:
+            out = bytes(self._rx[:max_bytes])
+            del self._rx[:max_bytes]
+            return out
+        r, _, _ = select.select([fd], [], [], max(0.0, timeout))
+        if not r:
+            return b""
+        return self._read_fd(fd, max_bytes)
+
+    def close(self) -> None:
+        self._fd = None  # the fd itself belongs to QemuProcess
+
+    def info(self) -> dict[str, Any]:
+        return {"name": self.name, "transport": f"QEMU -serial {'socket' if self._path.startswith('unix:') else 'pty'}"
+                                                f" (~65 us per byte)"}
