@@ -51,6 +51,12 @@ class EstimatorConfig:
     init_std_xy: float = 1.0
     init_std_z: float = 1.0
     nn_min_z: float = 0.5
+    # Supervisor (as the Crazyflie's): a position outside the anchors' bounding box widened by sup_margin
+    # [m], a speed above sup_max_speed [m/s] or a position variance above sup_max_var [m^2] (never below
+    # the initial variance) re-initialises the filter and reports DIVERGED (docs/ARCHITECTURE.md).
+    sup_margin: float = 5.0
+    sup_max_speed: float = 10.0
+    sup_max_var: float = 50.0
 
     def validate(self) -> None:
         """Raise ConfigError naming the first invalid field (the firmware refuses the same values)."""
@@ -65,11 +71,11 @@ class EstimatorConfig:
                 raise ConfigError(f"{name} = {value:g} does not fit the device's 32-bit float "
                                   f"(|value| <= {FLOAT32_MAX:.4g})")
         positive = ("std_twr", "std_tdoa", "a_max_twr", "a_max_tdoa", "gate_dt_min", "chi2_twr",
-                    "chi2_tdoa", "proc_cv_acc", "init_std_xy", "init_std_z")
+                    "chi2_tdoa", "proc_cv_acc", "init_std_xy", "init_std_z", "sup_max_speed", "sup_max_var")
         for name in positive:
             if getattr(self, name) <= 0.0:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
-        for name in ("proc_acc_xy", "proc_acc_z"):
+        for name in ("proc_acc_xy", "proc_acc_z", "sup_margin"):
             if getattr(self, name) < 0.0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)}")
 

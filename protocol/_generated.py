@@ -6,7 +6,7 @@ import enum
 from dataclasses import dataclass
 from typing import ClassVar
 
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -58,6 +58,18 @@ class ErrorCode(enum.IntEnum):
     NOT_CONFIGURED = 8
     BAD_SETPOINT = 9
     DIVERGED = 10
+    BAD_VALUE = 11
+
+
+class ResultFlag(enum.IntEnum):
+    """Bit flags in RESULT.flags: supervisor events since the previous RESULT (docs/ARCHITECTURE.md, Supervisor)"""
+
+    DIVERGED = 1
+    NON_FINITE = 2
+    OUT_OF_BOX = 4
+    SPEED = 8
+    COVARIANCE = 16
+    HEIGHT_FUSED = 32
 
 
 class DropReason(enum.IntEnum):
@@ -126,9 +138,9 @@ class Config:
     MSG_ID: ClassVar[int] = 0x02
     NAME: ClassVar[str] = 'CONFIG'
     DIRECTION: ClassVar[str] = 'to_device'
-    FORMAT: ClassVar[str] = '<BBBBffffffffffffffff'
-    SIZE: ClassVar[int] = 68
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('reserved', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'))
+    FORMAT: ClassVar[str] = '<BBBBfffffffffffffffffff'
+    SIZE: ClassVar[int] = 80
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('reserved', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'))
 
     mode: int  # ekf_mode
     stages: int  # stage bit flags
@@ -150,6 +162,9 @@ class Config:
     init_std_xy: float  # > 0
     init_std_z: float  # > 0
     nn_min_z: float  # bias correction only when the estimated z is above this [m]
+    sup_margin: float  # supervisor: the position must stay inside the anchors' bounding box widened by this [m], >= 0 (default 5)
+    sup_max_speed: float  # supervisor: speed bound [m/s], > 0 (default 10, as the Crazyflie's maxVel)
+    sup_max_var: float  # supervisor: bound on each position variance [m^2], > 0 (default 50; the covariance clamp is 100)
 
 
 @dataclass(frozen=True)
@@ -267,6 +282,22 @@ class ClockReq:
 
 
 @dataclass(frozen=True)
+class Height:
+    """A height pseudo-measurement (planar mode: the tag's height is known). Fused as a scalar update of z, without gates. No reply (ERROR if refused)."""
+
+    MSG_ID: ClassVar[int] = 0x0b
+    NAME: ClassVar[str] = 'HEIGHT'
+    DIRECTION: ClassVar[str] = 'to_device'
+    FORMAT: ClassVar[str] = '<Qff'
+    SIZE: ClassVar[int] = 16
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('t_us', 'u64'), ('z', 'f32'), ('std', 'f32'))
+
+    t_us: int  # measurement time; must not go backwards against the previous HEIGHT
+    z: float  # height of the tag, world [m]
+    std: float  # its standard deviation [m], > 0
+
+
+@dataclass(frozen=True)
 class Setpoint:
     """One control step: the commanded state at t_us. Answered by CONTROL (or ERROR). Send it after the sensor frames up to t_us."""
 
@@ -323,9 +354,9 @@ class Result:
     MSG_ID: ClassVar[int] = 0x82
     NAME: ClassVar[str] = 'RESULT'
     DIRECTION: ClassVar[str] = 'to_host'
-    FORMAT: ClassVar[str] = '<HBBQfffffffIIIIIfffffffffffffffffff'
-    SIZE: ClassVar[int] = 136
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('meas_seq', 'u16'), ('kind', 'u8'), ('status', 'u8'), ('t_us', 'u64'), ('innovation', 'f32'), ('innovation_var', 'f32'), ('bias', 'f32'), ('d_max', 'f32'), ('gain_x', 'f32'), ('gain_y', 'f32'), ('gain_z', 'f32'), ('compute', 'u32'), ('cost_nn', 'u32'), ('cost_gates', 'u32'), ('cost_update', 'u32'), ('cost_predict', 'u32'), ('px', 'f32'), ('py', 'f32'), ('pz', 'f32'), ('vx', 'f32'), ('vy', 'f32'), ('vz', 'f32'), ('qw', 'f32'), ('qx', 'f32'), ('qy', 'f32'), ('qz', 'f32'), ('var_x', 'f32'), ('var_y', 'f32'), ('var_z', 'f32'), ('var_vx', 'f32'), ('var_vy', 'f32'), ('var_vz', 'f32'), ('var_d0', 'f32'), ('var_d1', 'f32'), ('var_d2', 'f32'))
+    FORMAT: ClassVar[str] = '<HBBQfffffffIIIIIfffffffffffffffffffB'
+    SIZE: ClassVar[int] = 137
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('meas_seq', 'u16'), ('kind', 'u8'), ('status', 'u8'), ('t_us', 'u64'), ('innovation', 'f32'), ('innovation_var', 'f32'), ('bias', 'f32'), ('d_max', 'f32'), ('gain_x', 'f32'), ('gain_y', 'f32'), ('gain_z', 'f32'), ('compute', 'u32'), ('cost_nn', 'u32'), ('cost_gates', 'u32'), ('cost_update', 'u32'), ('cost_predict', 'u32'), ('px', 'f32'), ('py', 'f32'), ('pz', 'f32'), ('vx', 'f32'), ('vy', 'f32'), ('vz', 'f32'), ('qw', 'f32'), ('qx', 'f32'), ('qy', 'f32'), ('qz', 'f32'), ('var_x', 'f32'), ('var_y', 'f32'), ('var_z', 'f32'), ('var_vx', 'f32'), ('var_vy', 'f32'), ('var_vz', 'f32'), ('var_d0', 'f32'), ('var_d1', 'f32'), ('var_d2', 'f32'), ('flags', 'u8'))
 
     meas_seq: int  # seq of the measurement frame
     kind: int  # meas_kind
@@ -362,6 +393,7 @@ class Result:
     var_d0: float
     var_d1: float
     var_d2: float
+    flags: int  # result_flag bits
 
 
 @dataclass(frozen=True)
@@ -371,9 +403,9 @@ class Stats:
     MSG_ID: ClassVar[int] = 0x83
     NAME: ClassVar[str] = 'STATS'
     DIRECTION: ClassVar[str] = 'to_host'
-    FORMAT: ClassVar[str] = '<IIIIIIIIIIIIIIIIIIIIIIII'
-    SIZE: ClassVar[int] = 96
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('frames_ok', 'u32'), ('crc_errors', 'u32'), ('framing_errors', 'u32'), ('unknown_types', 'u32'), ('bad_lengths', 'u32'), ('non_finite', 'u32'), ('unknown_anchors', 'u32'), ('time_backwards', 'u32'), ('bad_configs', 'u32'), ('dropped_meas', 'u32'), ('imu_samples', 'u32'), ('twr_meas', 'u32'), ('tdoa_meas', 'u32'), ('results', 'u32'), ('predictions', 'u32'), ('seq_gaps', 'u32'), ('radio_packets', 'u32'), ('radio_meas', 'u32'), ('radio_no_reference', 'u32'), ('radio_clock', 'u32'), ('radio_expired', 'u32'), ('radio_malformed', 'u32'), ('radio_unknown_type', 'u32'), ('radio_no_position', 'u32'))
+    FORMAT: ClassVar[str] = '<IIIIIIIIIIIIIIIIIIIIIIIIIII'
+    SIZE: ClassVar[int] = 108
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('frames_ok', 'u32'), ('crc_errors', 'u32'), ('framing_errors', 'u32'), ('unknown_types', 'u32'), ('bad_lengths', 'u32'), ('non_finite', 'u32'), ('unknown_anchors', 'u32'), ('time_backwards', 'u32'), ('bad_configs', 'u32'), ('dropped_meas', 'u32'), ('imu_samples', 'u32'), ('twr_meas', 'u32'), ('tdoa_meas', 'u32'), ('results', 'u32'), ('predictions', 'u32'), ('seq_gaps', 'u32'), ('radio_packets', 'u32'), ('radio_meas', 'u32'), ('radio_no_reference', 'u32'), ('radio_clock', 'u32'), ('radio_expired', 'u32'), ('radio_malformed', 'u32'), ('radio_unknown_type', 'u32'), ('radio_no_position', 'u32'), ('divergences', 'u32'), ('heights', 'u32'), ('bad_values', 'u32'))
 
     frames_ok: int  # frames with a valid CRC
     crc_errors: int
@@ -399,6 +431,9 @@ class Stats:
     radio_malformed: int  # radio packets dropped: MALFORMED
     radio_unknown_type: int  # radio packets dropped: UNKNOWN_TYPE
     radio_no_position: int  # radio packets dropped: NO_POSITION or BAD_ANCHOR
+    divergences: int  # times the supervisor re-initialised the filter
+    heights: int  # HEIGHT pseudo-measurements fused
+    bad_values: int  # frames refused with BAD_VALUE (a field outside its range)
 
 
 @dataclass(frozen=True)
@@ -485,5 +520,5 @@ class Control:
     compute: int  # device cost of the control step (cost_unit)
 
 
-MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, StatsReq, Radio, ClockReq, Setpoint, HelloReply, Result, Stats, Error, RadioDrop, Clock, Control,)
+MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, StatsReq, Radio, ClockReq, Height, Setpoint, HelloReply, Result, Stats, Error, RadioDrop, Clock, Control,)
 MESSAGES_BY_ID: dict[int, type] = {cls.MSG_ID: cls for cls in MESSAGE_TYPES}

@@ -16,15 +16,16 @@ import numpy as np
 import pytest
 
 from harness.config import (MODE_IMU, MODE_UWB_ONLY, STAGE_CHI2_GATE, STAGES_OUTLIER, EstimatorConfig)
-from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
-from harness.twin.estimator import ACCEPTED, REJECTED_CHI2, REJECTED_KINEMATIC, TwinResult, run_flight
+from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStream, ImuStream, Truth, UwbStream
+from harness.twin.estimator import (ACCEPTED, FLAG_DIVERGED, FLAG_HEIGHT_FUSED, FLAG_OUT_OF_BOX, REJECTED_CHI2,
+                                    REJECTED_KINEMATIC, TwinResult, run_flight)
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware_sim"
 GRAVITY = 9.81
 CONFIG_FIELDS = ("std_twr", "std_tdoa", "a_max_twr", "a_max_tdoa", "gate_dt_min", "chi2_twr", "chi2_tdoa",
                  "proc_acc_xy", "proc_acc_z", "proc_cv_acc", "init_x", "init_y", "init_z", "init_std_xy",
-                 "init_std_z", "nn_min_z")
+                 "init_std_z", "nn_min_z", "sup_margin", "sup_max_speed", "sup_max_var")
 
 
 # --------------------------------------------------------------------------------- the flight
@@ -132,11 +133,14 @@ def event_stream(flight: Flight, cfg: EstimatorConfig) -> str:
     lines = [f"C {cfg.mode} {cfg.stages} " + " ".join(repr(float(getattr(cfg, n))) for n in CONFIG_FIELDS)]
     for i, p in zip(flight.anchors.ids, flight.anchors.positions):
         lines.append(f"A {int(i)} " + " ".join(repr(float(v)) for v in p))
-    u, imu = flight.uwb, flight.imu
-    assert imu is not None
+    u, imu, hgt = flight.uwb, flight.imu, flight.height
     for t, source, i in flight.events():
         if source == 0:
+            assert imu is not None
             lines.append(f"I {t} " + " ".join(repr(float(v)) for v in (*imu.acc[i], *imu.gyro[i])))
+        elif source == 2:
+            assert hgt is not None
+            lines.append(f"H {t} {float(hgt.z[i])!r} {float(hgt.std)!r}")
         elif u.kind == KIND_TWR:
             lines.append(f"T {t} {int(u.anchor_a[i])} {float(u.value[i])!r}")
         else:
@@ -151,8 +155,10 @@ class CRun:
     S: np.ndarray           # (M,)
     pos: np.ndarray         # (M, 3)
     var: np.ndarray         # (M, 9)
+    flags: np.ndarray       # (M,) supervisor events since the previous result
     predictions: int
     divergences: int
+    heights: int
 
 
 def run_c(exe: Path, flight: Flight, cfg: EstimatorConfig) -> CRun:
@@ -162,7 +168,8 @@ def run_c(exe: Path, flight: Flight, cfg: EstimatorConfig) -> CRun:
     rows = np.array([[float(v) for v in line.split()[1:]] for line in out if line.startswith("R")])
     summary = out[-1].split()
     return CRun(status=rows[:, 0].astype(int), innovation=rows[:, 1], S=rows[:, 2], pos=rows[:, 8:11],
-                var=rows[:, 18:27], predictions=int(summary[1]), divergences=int(summary[2]))
+                var=rows[:, 18:27], flags=rows[:, 27].astype(int), predictions=int(summary[1]),
+                divergences=int(summary[2]), heights=int(summary[3]))
 
 
 def rmse(pos: np.ndarray, flight: Flight) -> float:
@@ -213,3 +220,39 @@ def test_chi2_gate_alone_matches_twin(replay_core: Path, mode: int) -> None:
     assert np.sum(t_status == REJECTED_CHI2) >= 2 * (len(flight.uwb) // 97)  # +1 m and -0.4 m outliers
     assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
     assert rmse(c.pos, flight) < 0.15
+
+
+@pytest.mark.parametrize("mode", [MODE_IMU, MODE_UWB_ONLY], ids=["imu", "uwb_only"])
+def test_supervisor_matches_twin(replay_core: Path, mode: int) -> None:
+    """Gross range errors with the gates off throw the estimate out of the anchors' box: C and twin
+    reset at the same measurements, with the same reasons, and carry on identically."""
+    flight = synthetic_flight(KIND_TWR, noise=0.05, seed=5)
+    value = flight.uwb.value.copy()
+    value[400:403] += 40.0
+    flight = replace(flight, uwb=replace(flight.uwb, value=f32(value)))
+    cfg = replace(base_config(flight, mode, stages=0), std_twr=0.02)
+    twin = run_flight(flight, cfg)
+    c = run_c(replay_core, flight, cfg)
+    t_flags = np.array([r.flags for r in twin])
+    np.testing.assert_array_equal(c.flags, t_flags)
+    assert c.divergences >= 1 and c.divergences == int(np.count_nonzero(t_flags & FLAG_DIVERGED))
+    assert np.all(t_flags[t_flags != 0] & FLAG_OUT_OF_BOX)
+    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-3
+    assert rmse(c.pos[450:], replace(flight, truth=replace(flight.truth, pos=flight.truth.pos[450:]))) < 0.15
+
+
+def test_height_pseudo_measurements_match_twin(replay_core: Path) -> None:
+    """Planar mode: HEIGHT frames before the measurements; C and twin fuse them identically."""
+    flight = synthetic_flight(KIND_TWR, noise=0.1, outliers=True, seed=7)
+    t = flight.uwb.t_us
+    z = f32(flight.truth.pos[:, 2])
+    flight = replace(flight, height=HeightStream(t_us=t, z=z, std=0.05))
+    cfg = base_config(flight, MODE_UWB_ONLY)
+    twin = run_flight(flight, cfg)
+    c = run_c(replay_core, flight, cfg)
+    assert c.heights == len(t) and c.divergences == 0
+    np.testing.assert_array_equal(c.status, [r.status for r in twin])
+    np.testing.assert_array_equal(c.flags, [r.flags for r in twin])
+    assert np.all(c.flags == FLAG_HEIGHT_FUSED)
+    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
+    assert np.sqrt(np.mean((c.pos[:, 2] - flight.truth.pos[:, 2]) ** 2)) < 0.02

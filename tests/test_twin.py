@@ -71,11 +71,26 @@ def test_sym_clamp() -> None:
     P[4, 5] = P[5, 4] = 1e9
     P[6, 7] = P[7, 6] = -1e9
     P[8, 8] = -5.0
+    P[3, 3] = np.inf
     S = sym_clamp(P)
     assert S[0, 1] == S[1, 0] == 2.0
-    assert S[2, 3] == S[3, 2] == P_MAX
+    assert S[2, 3] == S[3, 2] == 0.0 and S[3, 3] == P_MAX   # a non-finite variance loses its correlations
     assert S[4, 5] == P_MAX and S[6, 7] == -P_MAX
     assert S[8, 8] == P_MIN and S[0, 0] == P_MIN
+
+
+def test_sym_clamp_keeps_positive_definite() -> None:
+    """Regression (rcv_twr sequence 3): clamping entry by entry left P indefinite, S < 0 and the state
+    was thrown 1e5 m away. A variance above P_MAX now scales its row and column (a congruence)."""
+    P = np.eye(9)
+    P[2, 2], P[5, 5], P[2, 5], P[5, 2], P[0, 2], P[2, 0] = 1000.0, 400.0, 400.0, 400.0, 20.0, 20.0
+    assert np.all(np.linalg.eigvalsh(P) > 0)
+    old = np.clip(P, -P_MAX, P_MAX)              # what the entry-wise clamp did
+    assert np.min(np.linalg.eigvalsh(old)) < 0
+    S = sym_clamp(P)
+    assert np.all(np.linalg.eigvalsh(S) > 0)
+    assert S[2, 2] == pytest.approx(P_MAX) and S[5, 5] == pytest.approx(P_MAX)
+    assert S[2, 5] / np.sqrt(S[2, 2] * S[5, 5]) == pytest.approx(400.0 / np.sqrt(1000.0 * 400.0))
 
 
 def test_imu_prediction_covariance_at_rest() -> None:

@@ -16,6 +16,13 @@ typedef char check_status_chi2[((int)EST_REJECTED_CHI2 == (int)UWB_STATUS_REJECT
 typedef char check_status_geom[((int)EST_REJECTED_GEOMETRY == (int)UWB_STATUS_REJECTED_GEOMETRY) ? 1 : -1];
 typedef char check_err_anchor[((int)EST_ERR_UNKNOWN_ANCHOR == (int)UWB_ERROR_CODE_UNKNOWN_ANCHOR) ? 1 : -1];
 typedef char check_err_time[((int)EST_ERR_TIME_BACKWARDS == (int)UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
+typedef char check_err_value[((int)EST_ERR_BAD_VALUE == (int)UWB_ERROR_CODE_BAD_VALUE) ? 1 : -1];
+typedef char check_flag_div[((int)EST_FLAG_DIVERGED == (int)UWB_RESULT_FLAG_DIVERGED) ? 1 : -1];
+typedef char check_flag_nf[((int)EST_FLAG_NON_FINITE == (int)UWB_RESULT_FLAG_NON_FINITE) ? 1 : -1];
+typedef char check_flag_box[((int)EST_FLAG_OUT_OF_BOX == (int)UWB_RESULT_FLAG_OUT_OF_BOX) ? 1 : -1];
+typedef char check_flag_speed[((int)EST_FLAG_SPEED == (int)UWB_RESULT_FLAG_SPEED) ? 1 : -1];
+typedef char check_flag_cov[((int)EST_FLAG_COVARIANCE == (int)UWB_RESULT_FLAG_COVARIANCE) ? 1 : -1];
+typedef char check_flag_height[((int)EST_FLAG_HEIGHT_FUSED == (int)UWB_RESULT_FLAG_HEIGHT_FUSED) ? 1 : -1];
 typedef char check_err_id[((int)EST_ERR_BAD_ANCHOR_ID == (int)UWB_ERROR_CODE_BAD_ANCHOR_ID) ? 1 : -1];
 typedef char check_drop_ref[((int)TDOA_DROP_NO_REFERENCE == (int)UWB_DROP_REASON_NO_REFERENCE) ? 1 : -1];
 typedef char check_drop_clock[((int)TDOA_DROP_CLOCK == (int)UWB_DROP_REASON_CLOCK_UNRELIABLE) ? 1 : -1];
@@ -134,6 +141,9 @@ static void on_stats_req(firmware_t *fw)
     msg.u.stats.radio_malformed = s->radio_malformed;
     msg.u.stats.radio_unknown_type = s->radio_unknown_type;
     msg.u.stats.radio_no_position = s->radio_no_position;
+    msg.u.stats.divergences = fw->est.divergences;
+    msg.u.stats.heights = fw->est.heights;
+    msg.u.stats.bad_values = s->bad_values;
     send_msg(fw, &msg);
 }
 
@@ -159,6 +169,9 @@ static void on_config(firmware_t *fw, const uwb_msg_t *in)
     cfg.init_std_xy = c->init_std_xy;
     cfg.init_std_z = c->init_std_z;
     cfg.nn_min_z = c->nn_min_z;
+    cfg.sup_margin = c->sup_margin;
+    cfg.sup_max_speed = c->sup_max_speed;
+    cfg.sup_max_var = c->sup_max_var;
     /* Refuse the whole message: a half-applied configuration would be worse than none. */
     if (c->reset > 1 || c->reserved != 0 || !estimator_config_valid(&cfg)) {
         fw->stats.bad_configs++;
@@ -209,6 +222,7 @@ static void fill_result(firmware_t *fw, uwb_result_t *r, const estimator_result_
     r->var_d0 = var[6];
     r->var_d1 = var[7];
     r->var_d2 = var[8];
+    r->flags = er->flags;
 }
 
 static void refuse_measurement(firmware_t *fw, const uwb_msg_t *in, int rc, uint32_t detail)
@@ -493,6 +507,14 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
     case UWB_MSG_TDOA:
         on_measurement(fw, in);
         break;
+    case UWB_MSG_HEIGHT:
+        rc = estimator_on_height(&fw->est, in->u.height.t_us, in->u.height.z, in->u.height.std);
+        if (rc != EST_OK) {
+            fw->stats.time_backwards += rc == EST_ERR_TIME_BACKWARDS;
+            fw->stats.bad_values += rc == EST_ERR_BAD_VALUE;
+            send_error(fw, (uint8_t)rc, in, 0);
+        }
+        break;
     case UWB_MSG_STATS_REQ:
         on_stats_req(fw);
         break;
@@ -511,7 +533,7 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
         send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, in, 0);
         break;
     }
-    /* The guard re-initialised the filter: say so (after the frame's RESULT) rather than carry on
+    /* The supervisor re-initialised the filter: say so (after the frame's RESULT) rather than carry on
      * silently; detail = divergences since power-up. */
     if (fw->est.divergences != divergences) {
         send_error(fw, UWB_ERROR_CODE_DIVERGED, in, fw->est.divergences);

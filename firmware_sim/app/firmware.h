@@ -22,7 +22,7 @@ typedef void (*fw_write_fn)(void *ctx, const uint8_t *data, size_t n);
 typedef struct {
     uint32_t frames_ok, crc_errors, framing_errors, unknown_types, bad_lengths, non_finite,
         unknown_anchors, time_backwards, bad_configs, dropped_meas, imu_samples, twr_meas, tdoa_meas,
-        results, predictions, seq_gaps;
+        results, predictions, seq_gaps, bad_values;
     /* RADIO frames: handed to the engine, measurements formed, and every packet that formed none by
      * reason (protocol enum drop_reason; no_position also counts BAD_ANCHOR). */
     uint32_t radio_packets, radio_meas, radio_no_reference, radio_clock, radio_expired, radio_malformed,

@@ -70,24 +70,44 @@ static void att_block(const float d[3], float G[3][3])
     G[2][2] = 1.0f - 0.5f * d[0] * d[0] - 0.5f * d[1] * d[1];
 }
 
-void ekf_sym_clamp(float P[EKF_N][EKF_N])
+/* On a flat row-major 9x9 array: GCC 12 misreads the array parameter's bounds at some call sites
+ * (a false -Wstringop-overflow). */
+static void sym_clamp_flat(float *P)
 {
+    /* Clamping entries one by one (as the Crazyflie does) can make P indefinite: a variance cut to
+     * EKF_P_MAX next to an uncut covariance. Then S = H P H^T + R can go negative and an update throws
+     * the state kilometres away (rcv_twr sequence 3). So a variance above EKF_P_MAX scales its whole
+     * row and column by s_i = sqrt(EKF_P_MAX / P_ii): P <- D P D is a congruence, it keeps P positive
+     * semi-definite and every correlation coefficient. A non-finite variance loses its correlations. */
+    float s[EKF_N];
+    uint8_t bad[EKF_N];
     int i, j;
     for (i = 0; i < EKF_N; i++) {
+        const float d = P[i * EKF_N + i];
+        bad[i] = (uint8_t)(isfinite(d) ? 0 : 1);
+        s[i] = (!bad[i] && d > EKF_P_MAX) ? sqrtf(EKF_P_MAX / d) : 1.0f;
+    }
+    for (i = 0; i < EKF_N; i++) {
         for (j = i; j < EKF_N; j++) {
-            float v = 0.5f * (P[i][j] + P[j][i]);
-            if (isnan(v) || v > EKF_P_MAX) {
+            float v = 0.5f * (P[i * EKF_N + j] + P[j * EKF_N + i]) * s[i] * s[j];
+            if (i == j) {
+                v = (bad[i] || isnan(v) || v > EKF_P_MAX) ? EKF_P_MAX : (v < EKF_P_MIN ? EKF_P_MIN : v);
+            } else if (bad[i] || bad[j] || isnan(v)) {
+                v = 0.0f;
+            } else if (v > EKF_P_MAX) {
                 v = EKF_P_MAX;
             } else if (v < -EKF_P_MAX) {
                 v = -EKF_P_MAX;
             }
-            if (i == j && v < EKF_P_MIN) {
-                v = EKF_P_MIN;
-            }
-            P[i][j] = v;
-            P[j][i] = v;
+            P[i * EKF_N + j] = v;
+            P[j * EKF_N + i] = v;
         }
     }
+}
+
+void ekf_sym_clamp(float P[EKF_N][EKF_N])
+{
+    sym_clamp_flat(&P[0][0]);
 }
 
 static float clamp_var(float v)
@@ -230,7 +250,7 @@ void ekf_predict_imu(ekf_t *ekf, const ekf_noise_t *noise, const float acc[3], c
     quat_rotate_body(ekf->q, rot);
     quat_to_rot(ekf->q, ekf->R);
 
-    ekf_sym_clamp(ekf->P);
+    sym_clamp_flat(&ekf->P[0][0]);
 }
 
 int ekf_imu_sample(ekf_t *ekf, const ekf_noise_t *noise, uint64_t t_us, const float acc[3],
@@ -289,7 +309,7 @@ void ekf_predict_cv(ekf_t *ekf, float q_acc, float dt)
         ekf->P[EKF_PX + i][i] += qpv;
         ekf->P[EKF_PX + i][EKF_PX + i] += q2 * dt;
     }
-    ekf_sym_clamp(ekf->P);
+    sym_clamp_flat(&ekf->P[0][0]);
 }
 
 void ekf_scalar_prepare(const ekf_t *ekf, ekf_scalar_t *m, const float h[3], float innovation,
@@ -338,7 +358,7 @@ void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
             ekf->P[i][j] += rki * m->K[j] - w[i] * m->K[j];
         }
     }
-    ekf_sym_clamp(ekf->P);
+    sym_clamp_flat(&ekf->P[0][0]);
 }
 
 void ekf_scalar_update(ekf_t *ekf, ekf_scalar_t *m, const float h[3], float innovation, float r_var)
@@ -384,7 +404,7 @@ void ekf_finalize(ekf_t *ekf)
                 ekf->P[EKF_D0 + a][EKF_D0 + b] = T[a][0] * G[b][0] + T[a][1] * G[b][1] + T[a][2] * G[b][2];
             }
         }
-        ekf_sym_clamp(ekf->P);
+        sym_clamp_flat(&ekf->P[0][0]);
     }
     ekf->S[EKF_D0] = 0.0f;
     ekf->S[EKF_D1] = 0.0f;

@@ -81,7 +81,9 @@ void ekf_scalar_update(ekf_t *ekf, ekf_scalar_t *m, const float h[3], float inno
 /* Move the attitude error into q, rotate P accordingly, zero the attitude error. */
 void ekf_finalize(ekf_t *ekf);
 
-/* P = (P + P^T) / 2, then NaN -> EKF_P_MAX, |P_ij| <= EKF_P_MAX, P_ii >= EKF_P_MIN. */
+/* P = (P + P^T) / 2; a variance above EKF_P_MAX scales its row and column down to it (keeps P positive
+ * semi-definite); a non-finite variance becomes EKF_P_MAX without correlations; other NaN -> 0;
+ * |P_ij| <= EKF_P_MAX, P_ii >= EKF_P_MIN. */
 void ekf_sym_clamp(float P[EKF_N][EKF_N]);
 
 /* 1 if the state, q and the diagonal of P are all finite. */

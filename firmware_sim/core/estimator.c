@@ -31,15 +31,18 @@ void estimator_default_config(estimator_config_t *cfg)
     cfg->init_std_xy = 1.0f;
     cfg->init_std_z = 1.0f;
     cfg->nn_min_z = 0.5f;
+    cfg->sup_margin = 5.0f;
+    cfg->sup_max_speed = 10.0f;
+    cfg->sup_max_var = 50.0f;
 }
 
 int estimator_config_valid(const estimator_config_t *cfg)
 {
     const float positive[] = {cfg->std_twr, cfg->std_tdoa, cfg->a_max_twr, cfg->a_max_tdoa,
                               cfg->gate_dt_min, cfg->chi2_twr, cfg->chi2_tdoa, cfg->proc_cv_acc,
-                              cfg->init_std_xy, cfg->init_std_z};
+                              cfg->init_std_xy, cfg->init_std_z, cfg->sup_max_speed, cfg->sup_max_var};
     const float other[] = {cfg->proc_acc_xy, cfg->proc_acc_z, cfg->init_x, cfg->init_y, cfg->init_z,
-                           cfg->nn_min_z};
+                           cfg->nn_min_z, cfg->sup_margin};
     unsigned i;
     if (cfg->mode != EST_MODE_IMU && cfg->mode != EST_MODE_UWB_ONLY) {
         return 0;
@@ -57,7 +60,7 @@ int estimator_config_valid(const estimator_config_t *cfg)
             return 0;
         }
     }
-    return cfg->proc_acc_xy >= 0.0f && cfg->proc_acc_z >= 0.0f;
+    return cfg->proc_acc_xy >= 0.0f && cfg->proc_acc_z >= 0.0f && cfg->sup_margin >= 0.0f;
 }
 
 /* Filter at the configured init position; time references forgotten. */
@@ -68,6 +71,8 @@ static void reset_filter(estimator_t *est)
     memcpy(est->last_good_pos, pos, sizeof pos);
     est->has_imu_time = 0;
     est->has_uwb_time = 0;
+    est->has_height_time = 0;
+    est->t_height_us = 0;
     est->t_imu_us = 0;
     est->t_uwb_us = 0;
     est->has_fused = 0;
@@ -75,6 +80,7 @@ static void reset_filter(estimator_t *est)
     memset(est->t_anchor_seen_us, 0, sizeof est->t_anchor_seen_us);
     memset(est->t_anchor_fused_us, 0, sizeof est->t_anchor_fused_us);
     est->cost_predict = 0;
+    est->flags = 0;
 }
 
 void estimator_init(estimator_t *est, const bias_model_t *model)
@@ -98,8 +104,18 @@ int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3])
     if (id >= ESTIMATOR_MAX_ANCHORS) {
         return EST_ERR_BAD_ANCHOR_ID;
     }
+    unsigned i, k;
     memcpy(est->anchors[id], pos, 3 * sizeof pos[0]);
     est->anchor_known = (uint16_t)(est->anchor_known | (1u << id));
+    /* the supervisor's box, from every known anchor (an anchor may be moved) */
+    memcpy(est->box_min, pos, sizeof est->box_min);
+    memcpy(est->box_max, pos, sizeof est->box_max);
+    for (i = 0; i < ESTIMATOR_MAX_ANCHORS; i++) {
+        for (k = 0; (est->anchor_known >> i) & 1u && k < 3; k++) {
+            est->box_min[k] = est->anchors[i][k] < est->box_min[k] ? est->anchors[i][k] : est->box_min[k];
+            est->box_max[k] = est->anchors[i][k] > est->box_max[k] ? est->anchors[i][k] : est->box_max[k];
+        }
+    }
     return EST_OK;
 }
 
@@ -108,24 +124,51 @@ static int anchor_known(const estimator_t *est, uint8_t id)
     return id < ESTIMATOR_MAX_ANCHORS && (est->anchor_known >> id) & 1u;
 }
 
-/* Beyond this |position| [m] the state is treated as diverged: far outside any UWB network, and
- * float32 resolution there (~1 cm) is already useless. Keeps "last good" positions sane. */
+/* Beyond this |position| [m] the state counts as diverged even without anchors: far outside any UWB
+ * network, and float32 resolution there (~1 cm) is already useless. */
 #define EST_MAX_ABS_POSITION 1e5f
 
-static int state_sane(const ekf_t *ekf)
+/* The supervisor's verdict on the current state: 0 if sane, else the EST_FLAG_* reason. The
+ * covariance bound is never below the initial variance (a huge init std is valid). */
+static uint8_t supervisor_reason(const estimator_t *est)
 {
-    return ekf_is_finite(ekf) && fabsf(ekf->S[EKF_X]) <= EST_MAX_ABS_POSITION &&
-           fabsf(ekf->S[EKF_Y]) <= EST_MAX_ABS_POSITION && fabsf(ekf->S[EKF_Z]) <= EST_MAX_ABS_POSITION;
+    const ekf_t *ekf = &est->ekf;
+    const estimator_config_t *cfg = &est->cfg;
+    const float *p = &ekf->S[EKF_X], *v = &ekf->S[EKF_PX];
+    float var_xy = cfg->init_std_xy * cfg->init_std_xy, var_z = cfg->init_std_z * cfg->init_std_z;
+    unsigned k;
+    if (!ekf_is_finite(ekf)) {
+        return EST_FLAG_NON_FINITE;
+    }
+    for (k = 0; k < 3; k++) {
+        if (fabsf(p[k]) > EST_MAX_ABS_POSITION ||
+            (est->anchor_known && (p[k] < est->box_min[k] - cfg->sup_margin ||
+                                   p[k] > est->box_max[k] + cfg->sup_margin))) {
+            return EST_FLAG_OUT_OF_BOX;
+        }
+    }
+    /* body-frame velocity: its norm is the speed whatever the frame */
+    if (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] > cfg->sup_max_speed * cfg->sup_max_speed) {
+        return EST_FLAG_SPEED;
+    }
+    var_xy = var_xy > cfg->sup_max_var ? var_xy : cfg->sup_max_var;
+    var_z = var_z > cfg->sup_max_var ? var_z : cfg->sup_max_var;
+    if (ekf->P[EKF_X][EKF_X] > var_xy || ekf->P[EKF_Y][EKF_Y] > var_xy || ekf->P[EKF_Z][EKF_Z] > var_z) {
+        return EST_FLAG_COVARIANCE;
+    }
+    return 0;
 }
 
-/* Divergence guard: a non-finite (or absurd) state restarts the filter where it last was sane,
- * with the initial covariance, keeping the time reference so the filter continues normally. */
-static void guard(estimator_t *est)
+/* Supervisor (as the Crazyflie's kalman_supervisor): a state that is not finite, outside the anchors'
+ * box, too fast or too uncertain restarts the filter at the last position that passed, with the
+ * initial covariance and zero velocity, keeping the time reference so the filter continues. */
+static void supervise(estimator_t *est)
 {
     ekf_t *ekf = &est->ekf;
     uint64_t t_us;
     uint8_t has_time;
-    if (state_sane(ekf)) {
+    const uint8_t reason = supervisor_reason(est);
+    if (reason == 0) {
         memcpy(est->last_good_pos, &ekf->S[EKF_X], sizeof est->last_good_pos);
         return;
     }
@@ -135,6 +178,7 @@ static void guard(estimator_t *est)
     ekf->t_us = t_us;
     ekf->has_time = has_time;
     est->divergences++;
+    est->flags = (uint8_t)(est->flags | EST_FLAG_DIVERGED | reason);
 }
 
 int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3])
@@ -155,7 +199,7 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
     c0 = platform_cost_now();
     if (ekf_imu_sample(&est->ekf, &noise, t_us, acc, gyro)) {
         est->predictions++;
-        guard(est);
+        supervise(est);
         est->cost_predict += platform_cost_now() - c0;
     }
     return EST_OK;
@@ -206,6 +250,29 @@ static void mark_fused(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id
     est->t_anchor_fused_us[id_b] = t_us;
 }
 
+/* UWB-only: constant-velocity prediction to t_us (the first measurement only sets the state time, so
+ * a late first measurement does not inflate P). IMU mode: nothing (updates apply at the last
+ * prediction). */
+static void predict_cv_to(estimator_t *est, uint64_t t_us)
+{
+    ekf_t *ekf = &est->ekf;
+    uint32_t c0;
+    if (est->cfg.mode != EST_MODE_UWB_ONLY) {
+        return;
+    }
+    if (!ekf->has_time) {
+        ekf->t_us = t_us;
+        ekf->has_time = 1;
+    } else if (t_us > ekf->t_us) {
+        c0 = platform_cost_now();
+        ekf_predict_cv(ekf, est->cfg.proc_cv_acc, (float)(t_us - ekf->t_us) * 1e-6f);
+        ekf->t_us = t_us;
+        est->predictions++;
+        supervise(est);
+        est->cost_predict += platform_cost_now() - c0;
+    }
+}
+
 /* The pipeline for one measurement z. anchor_b == NULL means TWR to anchor_a (then id_b == id_a). */
 static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b, const float *anchor_a,
                     const float *anchor_b, float z, estimator_result_t *out)
@@ -226,21 +293,7 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     est->t_uwb_us = t_us;
     est->has_uwb_time = 1;
 
-    /* UWB-only: constant-velocity prediction to the measurement time (the first measurement only
-     * sets the state time, so a late first measurement does not inflate P). */
-    if (cfg->mode == EST_MODE_UWB_ONLY) {
-        if (!ekf->has_time) {
-            ekf->t_us = t_us;
-            ekf->has_time = 1;
-        } else if (t_us > ekf->t_us) {
-            c0 = platform_cost_now();
-            ekf_predict_cv(ekf, cfg->proc_cv_acc, (float)(t_us - ekf->t_us) * 1e-6f);
-            ekf->t_us = t_us;
-            est->predictions++;
-            guard(est);
-            est->cost_predict += platform_cost_now() - c0;
-        }
-    }
+    predict_cv_to(est, t_us);
     out->cost_predict = est->cost_predict;
     est->cost_predict = 0;
 
@@ -274,6 +327,8 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     if (rc != MM_OK) {
         out->status = EST_REJECTED_GEOMETRY;
         out->cost_update = c1 - c0;
+        out->flags = est->flags;
+        est->flags = 0;
         return;
     }
 
@@ -301,7 +356,7 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
         ekf_scalar_apply(ekf, &m);
         ekf_finalize(ekf);
         mark_fused(est, t_us, id_a, id_b);
-        guard(est);
+        supervise(est);
         out->gain[0] = m.K[EKF_X];
         out->gain[1] = m.K[EKF_Y];
         out->gain[2] = m.K[EKF_Z];
@@ -312,6 +367,8 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     out->cost_nn = c2 - c1;
     out->cost_gates = c3 - c2;
     out->cost_update = (c1 - c0) + (platform_cost_now() - c3);
+    out->flags = est->flags;
+    est->flags = 0;
 }
 
 int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float range,
@@ -337,6 +394,28 @@ int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t
         return EST_ERR_TIME_BACKWARDS;
     }
     process(est, t_us, anchor_a, anchor_b, est->anchors[anchor_a], est->anchors[anchor_b], diff, out);
+    return EST_OK;
+}
+
+int estimator_on_height(estimator_t *est, uint64_t t_us, float z, float std)
+{
+    static const float h[3] = {0.0f, 0.0f, 1.0f};
+    ekf_t *ekf = &est->ekf;
+    ekf_scalar_t m;
+    if (!(std > 0.0f)) {
+        return EST_ERR_BAD_VALUE;
+    }
+    if (est->has_height_time && t_us < est->t_height_us) {
+        return EST_ERR_TIME_BACKWARDS;
+    }
+    est->t_height_us = t_us;
+    est->has_height_time = 1;
+    predict_cv_to(est, t_us);
+    ekf_scalar_update(ekf, &m, h, z - ekf->S[EKF_Z], std * std);
+    ekf_finalize(ekf);
+    est->heights++;
+    est->flags = (uint8_t)(est->flags | EST_FLAG_HEIGHT_FUSED);
+    supervise(est);
     return EST_OK;
 }
 

@@ -16,7 +16,18 @@ enum {
     EST_OK = 0,
     EST_ERR_UNKNOWN_ANCHOR = 4,
     EST_ERR_TIME_BACKWARDS = 5,
-    EST_ERR_BAD_ANCHOR_ID = 7
+    EST_ERR_BAD_ANCHOR_ID = 7,
+    EST_ERR_BAD_VALUE = 11
+};
+
+/* Supervisor events (= protocol enum result_flag), collected until the next result. */
+enum {
+    EST_FLAG_DIVERGED = 1,
+    EST_FLAG_NON_FINITE = 2,
+    EST_FLAG_OUT_OF_BOX = 4,
+    EST_FLAG_SPEED = 8,
+    EST_FLAG_COVARIANCE = 16,
+    EST_FLAG_HEIGHT_FUSED = 32
 };
 
 /* Measurement statuses (= protocol enum status). */
@@ -37,6 +48,8 @@ typedef struct {
     uint8_t mode, stages;
     float std_twr, std_tdoa, a_max_twr, a_max_tdoa, gate_dt_min, chi2_twr, chi2_tdoa, proc_acc_xy,
         proc_acc_z, proc_cv_acc, init_x, init_y, init_z, init_std_xy, init_std_z, nn_min_z;
+    /* Supervisor bounds (docs/ARCHITECTURE.md "Supervisor"). */
+    float sup_margin, sup_max_speed, sup_max_var;
 } estimator_config_t;
 
 typedef struct {
@@ -50,6 +63,7 @@ typedef struct {
      * cost_predict: IMU predictions since the previous result, or (UWB-only) this measurement's
      * constant-velocity prediction. */
     uint32_t cost_nn, cost_gates, cost_update, cost_predict;
+    uint8_t flags;         /* EST_FLAG_* events since the previous result */
 } estimator_result_t;
 
 typedef struct {
@@ -66,11 +80,16 @@ typedef struct {
      * how long its links have been rejected; the kinematic gate widens by it (estimator.c). */
     uint64_t t_anchor_seen_us[ESTIMATOR_MAX_ANCHORS];
     uint64_t t_anchor_fused_us[ESTIMATOR_MAX_ANCHORS];
-    float last_good_pos[3];           /* re-initialisation point of the divergence guard */
+    float box_min[3], box_max[3];     /* bounding box of the known anchors (supervisor) */
+    uint64_t t_height_us;             /* last HEIGHT pseudo-measurement (time rule) */
+    uint8_t has_height_time;
+    uint8_t flags;                    /* EST_FLAG_* since the last result */
+    float last_good_pos[3];           /* re-initialisation point of the supervisor */
     uint32_t cost_predict;            /* cost of the predictions since the last measurement */
     uint32_t predictions;             /* IMU or CV predictions since power-up */
     uint32_t imu_ignored;             /* IMU samples counted and ignored in UWB-only mode */
-    uint32_t divergences;             /* times the divergence guard re-initialised the filter */
+    uint32_t divergences;             /* times the supervisor re-initialised the filter */
+    uint32_t heights;                 /* HEIGHT pseudo-measurements fused */
 } estimator_t;
 
 /* Same defaults as harness/config.py EstimatorConfig. */
@@ -101,6 +120,12 @@ int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float rang
                      estimator_result_t *out);
 int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t anchor_b, float diff,
                       estimator_result_t *out);
+
+/* A height pseudo-measurement z [m] with standard deviation std (> 0, else EST_ERR_BAD_VALUE):
+ * UWB-only mode predicts to t_us first; fused as a scalar update of z without gates. Does not count
+ * as a fused UWB measurement for the kinematic gate. EST_ERR_TIME_BACKWARDS if t_us is before the
+ * previous HEIGHT. */
+int estimator_on_height(estimator_t *est, uint64_t t_us, float z, float std);
 
 /* Position, world velocity, attitude (w, x, y, z), covariance diagonal (any pointer may be NULL). */
 void estimator_state(const estimator_t *est, float pos[3], float vel_world[3], float quat[4],

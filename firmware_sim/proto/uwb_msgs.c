@@ -100,6 +100,7 @@ int uwb_payload_len(uint8_t type)
     case UWB_MSG_STATS_REQ: return (int)UWB_MSG_STATS_REQ_LEN;
     case UWB_MSG_RADIO: return (int)UWB_MSG_RADIO_LEN;
     case UWB_MSG_CLOCK_REQ: return (int)UWB_MSG_CLOCK_REQ_LEN;
+    case UWB_MSG_HEIGHT: return (int)UWB_MSG_HEIGHT_LEN;
     case UWB_MSG_SETPOINT: return (int)UWB_MSG_SETPOINT_LEN;
     case UWB_MSG_HELLO_REPLY: return (int)UWB_MSG_HELLO_REPLY_LEN;
     case UWB_MSG_RESULT: return (int)UWB_MSG_RESULT_LEN;
@@ -144,6 +145,9 @@ static void unpack_config(const uint8_t *p, uwb_config_t *m)
     m->init_std_xy = get_f32(p + 56);
     m->init_std_z = get_f32(p + 60);
     m->nn_min_z = get_f32(p + 64);
+    m->sup_margin = get_f32(p + 68);
+    m->sup_max_speed = get_f32(p + 72);
+    m->sup_max_var = get_f32(p + 76);
 }
 
 static void pack_config(const uwb_config_t *m, uint8_t *p)
@@ -168,6 +172,9 @@ static void pack_config(const uwb_config_t *m, uint8_t *p)
     put_f32(p + 56, m->init_std_xy);
     put_f32(p + 60, m->init_std_z);
     put_f32(p + 64, m->nn_min_z);
+    put_f32(p + 68, m->sup_margin);
+    put_f32(p + 72, m->sup_max_speed);
+    put_f32(p + 76, m->sup_max_var);
 }
 
 static void unpack_anchor(const uint8_t *p, uwb_anchor_t *m)
@@ -264,6 +271,20 @@ static void unpack_clock_req(const uint8_t *p, uwb_clock_req_t *m)
 static void pack_clock_req(const uwb_clock_req_t *m, uint8_t *p)
 {
     p[0] = m->anchor_id;
+}
+
+static void unpack_height(const uint8_t *p, uwb_height_t *m)
+{
+    m->t_us = get_u64(p + 0);
+    m->z = get_f32(p + 8);
+    m->std = get_f32(p + 12);
+}
+
+static void pack_height(const uwb_height_t *m, uint8_t *p)
+{
+    put_u64(p + 0, m->t_us);
+    put_f32(p + 8, m->z);
+    put_f32(p + 12, m->std);
 }
 
 static void unpack_setpoint(const uint8_t *p, uwb_setpoint_t *m)
@@ -367,6 +388,7 @@ static void unpack_result(const uint8_t *p, uwb_result_t *m)
     m->var_d0 = get_f32(p + 124);
     m->var_d1 = get_f32(p + 128);
     m->var_d2 = get_f32(p + 132);
+    m->flags = p[136];
 }
 
 static void pack_result(const uwb_result_t *m, uint8_t *p)
@@ -406,6 +428,7 @@ static void pack_result(const uwb_result_t *m, uint8_t *p)
     put_f32(p + 124, m->var_d0);
     put_f32(p + 128, m->var_d1);
     put_f32(p + 132, m->var_d2);
+    p[136] = m->flags;
 }
 
 static void unpack_stats(const uint8_t *p, uwb_stats_t *m)
@@ -434,6 +457,9 @@ static void unpack_stats(const uint8_t *p, uwb_stats_t *m)
     m->radio_malformed = get_u32(p + 84);
     m->radio_unknown_type = get_u32(p + 88);
     m->radio_no_position = get_u32(p + 92);
+    m->divergences = get_u32(p + 96);
+    m->heights = get_u32(p + 100);
+    m->bad_values = get_u32(p + 104);
 }
 
 static void pack_stats(const uwb_stats_t *m, uint8_t *p)
@@ -462,6 +488,9 @@ static void pack_stats(const uwb_stats_t *m, uint8_t *p)
     put_u32(p + 84, m->radio_malformed);
     put_u32(p + 88, m->radio_unknown_type);
     put_u32(p + 92, m->radio_no_position);
+    put_u32(p + 96, m->divergences);
+    put_u32(p + 100, m->heights);
+    put_u32(p + 104, m->bad_values);
 }
 
 static void unpack_error(const uint8_t *p, uwb_error_t *m)
@@ -591,6 +620,7 @@ uwb_decode_status_t uwb_body_decode(const uint8_t *body, size_t n, uwb_msg_t *ou
     case UWB_MSG_TDOA: unpack_tdoa(p, &out->u.tdoa); break;
     case UWB_MSG_RADIO: unpack_radio(p, &out->u.radio); break;
     case UWB_MSG_CLOCK_REQ: unpack_clock_req(p, &out->u.clock_req); break;
+    case UWB_MSG_HEIGHT: unpack_height(p, &out->u.height); break;
     case UWB_MSG_SETPOINT: unpack_setpoint(p, &out->u.setpoint); break;
     case UWB_MSG_HELLO_REPLY: unpack_hello_reply(p, &out->u.hello_reply); break;
     case UWB_MSG_RESULT: unpack_result(p, &out->u.result); break;
@@ -622,6 +652,7 @@ size_t uwb_body_encode(const uwb_msg_t *msg, uint8_t *body)
     case UWB_MSG_TDOA: pack_tdoa(&msg->u.tdoa, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_RADIO: pack_radio(&msg->u.radio, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_CLOCK_REQ: pack_clock_req(&msg->u.clock_req, body + UWB_HEADER_SIZE); break;
+    case UWB_MSG_HEIGHT: pack_height(&msg->u.height, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_SETPOINT: pack_setpoint(&msg->u.setpoint, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_HELLO_REPLY: pack_hello_reply(&msg->u.hello_reply, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_RESULT: pack_result(&msg->u.result, body + UWB_HEADER_SIZE); break;
@@ -641,7 +672,7 @@ int uwb_msg_finite(const uwb_msg_t *msg)
 {
     switch (msg->type) {
     case UWB_MSG_CONFIG:
-        return isfinite(msg->u.config.std_twr) && isfinite(msg->u.config.std_tdoa) && isfinite(msg->u.config.a_max_twr) && isfinite(msg->u.config.a_max_tdoa) && isfinite(msg->u.config.gate_dt_min) && isfinite(msg->u.config.chi2_twr) && isfinite(msg->u.config.chi2_tdoa) && isfinite(msg->u.config.proc_acc_xy) && isfinite(msg->u.config.proc_acc_z) && isfinite(msg->u.config.proc_cv_acc) && isfinite(msg->u.config.init_x) && isfinite(msg->u.config.init_y) && isfinite(msg->u.config.init_z) && isfinite(msg->u.config.init_std_xy) && isfinite(msg->u.config.init_std_z) && isfinite(msg->u.config.nn_min_z);
+        return isfinite(msg->u.config.std_twr) && isfinite(msg->u.config.std_tdoa) && isfinite(msg->u.config.a_max_twr) && isfinite(msg->u.config.a_max_tdoa) && isfinite(msg->u.config.gate_dt_min) && isfinite(msg->u.config.chi2_twr) && isfinite(msg->u.config.chi2_tdoa) && isfinite(msg->u.config.proc_acc_xy) && isfinite(msg->u.config.proc_acc_z) && isfinite(msg->u.config.proc_cv_acc) && isfinite(msg->u.config.init_x) && isfinite(msg->u.config.init_y) && isfinite(msg->u.config.init_z) && isfinite(msg->u.config.init_std_xy) && isfinite(msg->u.config.init_std_z) && isfinite(msg->u.config.nn_min_z) && isfinite(msg->u.config.sup_margin) && isfinite(msg->u.config.sup_max_speed) && isfinite(msg->u.config.sup_max_var);
     case UWB_MSG_ANCHOR:
         return isfinite(msg->u.anchor.x) && isfinite(msg->u.anchor.y) && isfinite(msg->u.anchor.z);
     case UWB_MSG_IMU:
@@ -650,6 +681,8 @@ int uwb_msg_finite(const uwb_msg_t *msg)
         return isfinite(msg->u.twr.range);
     case UWB_MSG_TDOA:
         return isfinite(msg->u.tdoa.diff);
+    case UWB_MSG_HEIGHT:
+        return isfinite(msg->u.height.z) && isfinite(msg->u.height.std);
     case UWB_MSG_SETPOINT:
         return isfinite(msg->u.setpoint.x) && isfinite(msg->u.setpoint.y) && isfinite(msg->u.setpoint.z) && isfinite(msg->u.setpoint.vx) && isfinite(msg->u.setpoint.vy) && isfinite(msg->u.setpoint.vz) && isfinite(msg->u.setpoint.ax) && isfinite(msg->u.setpoint.ay) && isfinite(msg->u.setpoint.az) && isfinite(msg->u.setpoint.yaw);
     case UWB_MSG_RESULT:

@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 3u
+#define UWB_PROTO_VERSION 4u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -51,6 +51,17 @@ enum {
     UWB_ERROR_CODE_NOT_CONFIGURED = 8,
     UWB_ERROR_CODE_BAD_SETPOINT = 9,
     UWB_ERROR_CODE_DIVERGED = 10,
+    UWB_ERROR_CODE_BAD_VALUE = 11,
+};
+
+/* Bit flags in RESULT.flags: supervisor events since the previous RESULT (docs/ARCHITECTURE.md, Supervisor) */
+enum {
+    UWB_RESULT_FLAG_DIVERGED = 1,
+    UWB_RESULT_FLAG_NON_FINITE = 2,
+    UWB_RESULT_FLAG_OUT_OF_BOX = 4,
+    UWB_RESULT_FLAG_SPEED = 8,
+    UWB_RESULT_FLAG_COVARIANCE = 16,
+    UWB_RESULT_FLAG_HEIGHT_FUSED = 32,
 };
 
 /* RADIO_DROP.reason: why a radio packet produced no measurement (each has a STATS counter) */
@@ -102,7 +113,7 @@ typedef struct {
 
 /* CONFIG (to_device): Estimator configuration. Refused as a whole (ERROR BAD_CONFIG) if any value is invalid. */
 #define UWB_MSG_CONFIG 0x02u
-#define UWB_MSG_CONFIG_LEN 68u
+#define UWB_MSG_CONFIG_LEN 80u
 typedef struct {
     uint8_t mode;
     uint8_t stages;
@@ -124,6 +135,9 @@ typedef struct {
     float init_std_xy;
     float init_std_z;
     float nn_min_z;
+    float sup_margin;
+    float sup_max_speed;
+    float sup_max_var;
 } uwb_config_t;
 
 /* ANCHOR (to_device): Anchor position, as the LPP short packet ANCHOR_POSITION (id + 3 x float32). */
@@ -190,6 +204,15 @@ typedef struct {
     uint8_t anchor_id;
 } uwb_clock_req_t;
 
+/* HEIGHT (to_device): A height pseudo-measurement (planar mode: the tag's height is known). Fused as a scalar update of z, without gates. No reply (ERROR if refused). */
+#define UWB_MSG_HEIGHT 0x0Bu
+#define UWB_MSG_HEIGHT_LEN 16u
+typedef struct {
+    uint64_t t_us;
+    float z;
+    float std;
+} uwb_height_t;
+
 /* SETPOINT (to_device): One control step: the commanded state at t_us. Answered by CONTROL (or ERROR). Send it after the sensor frames up to t_us. */
 #define UWB_MSG_SETPOINT 0x08u
 #define UWB_MSG_SETPOINT_LEN 50u
@@ -228,7 +251,7 @@ typedef struct {
 
 /* RESULT (to_host): Outcome of one UWB measurement and the state estimate after it. */
 #define UWB_MSG_RESULT 0x82u
-#define UWB_MSG_RESULT_LEN 136u
+#define UWB_MSG_RESULT_LEN 137u
 typedef struct {
     uint16_t meas_seq;
     uint8_t kind;
@@ -265,11 +288,12 @@ typedef struct {
     float var_d0;
     float var_d1;
     float var_d2;
+    uint8_t flags;
 } uwb_result_t;
 
 /* STATS (to_host): Counters since power-up. Every byte or frame the device did not use is in one of them. */
 #define UWB_MSG_STATS 0x83u
-#define UWB_MSG_STATS_LEN 96u
+#define UWB_MSG_STATS_LEN 108u
 typedef struct {
     uint32_t frames_ok;
     uint32_t crc_errors;
@@ -295,6 +319,9 @@ typedef struct {
     uint32_t radio_malformed;
     uint32_t radio_unknown_type;
     uint32_t radio_no_position;
+    uint32_t divergences;
+    uint32_t heights;
+    uint32_t bad_values;
 } uwb_stats_t;
 
 /* ERROR (to_host): A frame with a valid CRC was refused. */
@@ -366,6 +393,7 @@ typedef struct {
         uwb_tdoa_t tdoa;
         uwb_radio_t radio;
         uwb_clock_req_t clock_req;
+        uwb_height_t height;
         uwb_setpoint_t setpoint;
         uwb_hello_reply_t hello_reply;
         uwb_result_t result;

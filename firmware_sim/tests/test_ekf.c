@@ -220,11 +220,37 @@ static void test_sym_clamp(void)
     P[3][3] = INFINITY;
     ekf_sym_clamp(P);
     CHECK(P[0][1] == 2.0f && P[1][0] == 2.0f);
-    CHECK(P[2][3] == EKF_P_MAX && P[3][2] == EKF_P_MAX);
+    /* row 3 has a non-finite variance: it loses its correlations (the NaN too) */
+    CHECK(P[2][3] == 0.0f && P[3][2] == 0.0f);
     CHECK(P[4][5] == EKF_P_MAX);
     CHECK(P[6][7] == -EKF_P_MAX);
     CHECK(P[8][8] == EKF_P_MIN && P[0][0] == EKF_P_MIN);
     CHECK(P[3][3] == EKF_P_MAX);
+}
+
+/* Regression (rcv_twr sequence 3): clamping a large variance entry by entry left P indefinite
+ * (a variance cut to 100 next to an uncut covariance), S went negative and an update threw
+ * the state 1e5 m away. Scaling the row and column keeps P positive definite and the correlation. */
+static void test_sym_clamp_keeps_pd(void)
+{
+    float P[EKF_N][EKF_N];
+    int i;
+    memset(P, 0, sizeof P);
+    for (i = 0; i < EKF_N; i++) {
+        P[i][i] = 1.0f;
+    }
+    P[2][2] = 1000.0f;
+    P[5][5] = 400.0f;
+    P[2][5] = P[5][2] = 400.0f;   /* correlation 0.632 */
+    P[0][2] = P[2][0] = 20.0f;
+    CHECK(is_pd(P));
+    ekf_sym_clamp(P);
+    CHECK(is_pd(P));
+    CHECK_NEAR(P[2][2], EKF_P_MAX, 1e-3);
+    CHECK_NEAR(P[5][5], EKF_P_MAX, 1e-3);
+    CHECK_NEAR(P[2][5] / sqrtf(P[2][2] * P[5][5]), 400.0 / sqrt(1000.0 * 400.0), 1e-5);
+    CHECK_NEAR(P[0][2], 20.0 * sqrt(100.0 / 1000.0), 1e-4);
+    CHECK(P[0][0] == 1.0f);
 }
 
 static void test_imu_timing(void)
@@ -394,6 +420,7 @@ int main(void)
     RUN(test_scalar_update_matches_full_joseph);
     RUN(test_joseph_keeps_symmetric_pd);
     RUN(test_sym_clamp);
+    RUN(test_sym_clamp_keeps_pd);
     RUN(test_imu_timing);
     RUN(test_imu_prediction_covariance);
     RUN(test_imu_integration_exact_for_constant_acceleration);

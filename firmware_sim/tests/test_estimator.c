@@ -62,6 +62,9 @@ static void check_python_defaults(const estimator_config_t *c)
         {"init_x", offsetof(estimator_config_t, init_x)}, {"init_y", offsetof(estimator_config_t, init_y)},
         {"init_z", offsetof(estimator_config_t, init_z)}, {"init_std_xy", offsetof(estimator_config_t, init_std_xy)},
         {"init_std_z", offsetof(estimator_config_t, init_std_z)}, {"nn_min_z", offsetof(estimator_config_t, nn_min_z)},
+        {"sup_margin", offsetof(estimator_config_t, sup_margin)},
+        {"sup_max_speed", offsetof(estimator_config_t, sup_max_speed)},
+        {"sup_max_var", offsetof(estimator_config_t, sup_max_var)},
     };
     char line[256];
     unsigned found = 0, i;
@@ -143,6 +146,12 @@ static void test_config_validation(void)
     EXPECT_VALID(init_std_z, -1.0f, 0);
     EXPECT_VALID(nn_min_z, -5.0f, 1);
     EXPECT_VALID(nn_min_z, NAN, 0);
+    EXPECT_VALID(sup_margin, 0.0f, 1);
+    EXPECT_VALID(sup_margin, -0.1f, 0);
+    EXPECT_VALID(sup_max_speed, 0.0f, 0);
+    EXPECT_VALID(sup_max_speed, INFINITY, 0);
+    EXPECT_VALID(sup_max_var, 0.0f, 0);
+    EXPECT_VALID(sup_max_var, NAN, 0);
 #undef EXPECT_VALID
 }
 
@@ -473,6 +482,86 @@ static void test_divergence_guard(void)
     CHECK(est.divergences == 2);
 }
 
+/* The supervisor: each bound re-initialises the filter at the last position that passed and reports
+ * the reason in the next result's flags. */
+static void test_supervisor_bounds(void)
+{
+    estimator_result_t r;
+    float pos[3], vel[3], var[9];
+    const float p0[3] = {0.5f, 0.5f, 1.0f};
+    uint64_t t = 0;
+    uint8_t k;
+    /* out of the box: a range that (no gates) pulls the tag 20 m beyond the anchors (x 3.5 + 5) */
+    setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], p0[2]);
+    est.cfg.std_twr = 1e-3f; /* the update follows the measurement */
+    for (k = 0; k < 8; k++, t += 5000) {
+        CHECK(estimator_on_twr(&est, t, k, range_to(&est, k, p0), &r) == EST_OK);
+        CHECK(r.flags == 0);
+    }
+    CHECK(est.divergences == 0);
+    CHECK(estimator_on_twr(&est, t, 0, 40.0f, &r) == EST_OK);
+    CHECK(r.status == EST_ACCEPTED);
+    CHECK(r.flags == (EST_FLAG_DIVERGED | EST_FLAG_OUT_OF_BOX));
+    CHECK(est.divergences == 1);
+    estimator_state(&est, pos, vel, NULL, var);
+    CHECK_NEAR(pos[0], p0[0], 0.05);
+    CHECK_NEAR(pos[2], p0[2], 0.05);
+    CHECK(vel[0] == 0.0f && var[0] == 1.0f);
+    CHECK(estimator_on_twr(&est, t + 5000, 1, range_to(&est, 1, p0), &r) == EST_OK);
+    CHECK(r.flags == 0); /* reported once */
+    /* the margin is configurable: 30 m lets the same jump through */
+    setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], p0[2]);
+    est.cfg.std_twr = 1e-3f;
+    est.cfg.sup_margin = 30.0f;
+    CHECK(estimator_on_twr(&est, 0, 0, 40.0f, &r) == EST_OK);
+    CHECK(r.flags == 0 && est.divergences == 0);
+    /* speed: ranges that move 1 m per 5 ms build a velocity above 10 m/s */
+    setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], p0[2]);
+    est.cfg.sup_margin = 1000.0f;
+    est.cfg.std_twr = 1e-3f;
+    for (k = 0, t = 0; k < 200 && est.divergences == 0; k++, t += 5000) {
+        const float moving[3] = {p0[0] + 0.1f * (float)k, p0[1], p0[2]};
+        CHECK(estimator_on_twr(&est, t, (uint8_t)(k % 8), range_to(&est, (uint8_t)(k % 8), moving), &r) == EST_OK);
+    }
+    CHECK(est.divergences == 1);
+    CHECK(r.flags == (EST_FLAG_DIVERGED | EST_FLAG_SPEED));
+    /* covariance: a 10 s outage in UWB-only mode (q = 2 m/s^2: var_p grows to the clamp) */
+    setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], p0[2]);
+    CHECK(estimator_on_twr(&est, 0, 0, range_to(&est, 0, p0), &r) == EST_OK);
+    CHECK(estimator_on_twr(&est, 10000000, 1, range_to(&est, 1, p0), &r) == EST_OK);
+    CHECK(r.flags & EST_FLAG_COVARIANCE);
+    CHECK(est.divergences == 1);
+    /* a huge initial std is valid and does not trip the covariance bound by itself */
+    setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], p0[2]);
+    est.cfg.init_std_xy = 1e20f;
+    CHECK(estimator_on_twr(&est, 0, 0, range_to(&est, 0, p0), &r) == EST_OK);
+    CHECK(estimator_on_twr(&est, 5000, 1, range_to(&est, 1, p0), &r) == EST_OK);
+    CHECK(est.divergences == 0);
+}
+
+/* Planar mode: HEIGHT pseudo-measurements pin z; bad values and time going backwards are refused. */
+static void test_height_pseudo_measurement(void)
+{
+    estimator_result_t r;
+    float pos[3], var[9];
+    const float p0[3] = {0.5f, 0.5f, 1.0f};
+    setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], 0.0f);
+    CHECK(estimator_on_height(&est, 1000, 1.0f, 0.0f) == EST_ERR_BAD_VALUE);
+    CHECK(estimator_on_height(&est, 1000, 1.0f, -1.0f) == EST_ERR_BAD_VALUE);
+    CHECK(est.heights == 0);
+    CHECK(estimator_on_height(&est, 1000, 1.0f, 0.01f) == EST_OK);
+    estimator_state(&est, pos, NULL, NULL, var);
+    CHECK_NEAR(pos[2], 1.0, 1e-3);  /* prior std 1 m, measurement 1 cm */
+    CHECK(var[2] < 2e-4f);
+    CHECK(est.heights == 1);
+    CHECK(estimator_on_height(&est, 999, 1.0f, 0.01f) == EST_ERR_TIME_BACKWARDS);
+    CHECK(est.heights == 1);
+    CHECK(estimator_on_twr(&est, 1000, 0, range_to(&est, 0, p0), &r) == EST_OK);
+    CHECK(r.flags == EST_FLAG_HEIGHT_FUSED);
+    CHECK(estimator_on_twr(&est, 2000, 1, range_to(&est, 1, p0), &r) == EST_OK);
+    CHECK(r.flags == 0);
+}
+
 static void test_costs(void)
 {
     estimator_result_t r;
@@ -501,6 +590,8 @@ int main(void)
     RUN(test_gate_dt_references);
     RUN(test_bias_network_wiring);
     RUN(test_divergence_guard);
+    RUN(test_supervisor_bounds);
+    RUN(test_height_pseudo_measurement);
     RUN(test_costs);
     return UNIT_DONE();
 }

@@ -58,6 +58,9 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_f32(out + w, cap - w, "init_std_xy", msg->u.config.init_std_xy);
         w += fmt_f32(out + w, cap - w, "init_std_z", msg->u.config.init_std_z);
         w += fmt_f32(out + w, cap - w, "nn_min_z", msg->u.config.nn_min_z);
+        w += fmt_f32(out + w, cap - w, "sup_margin", msg->u.config.sup_margin);
+        w += fmt_f32(out + w, cap - w, "sup_max_speed", msg->u.config.sup_max_speed);
+        w += fmt_f32(out + w, cap - w, "sup_max_var", msg->u.config.sup_max_var);
         break;
     case UWB_MSG_ANCHOR:
         w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.anchor.anchor_id);
@@ -96,6 +99,11 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         break;
     case UWB_MSG_CLOCK_REQ:
         w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.clock_req.anchor_id);
+        break;
+    case UWB_MSG_HEIGHT:
+        w += fmt_u64(out + w, cap - w, "t_us", (unsigned long long)msg->u.height.t_us);
+        w += fmt_f32(out + w, cap - w, "z", msg->u.height.z);
+        w += fmt_f32(out + w, cap - w, "std", msg->u.height.std);
         break;
     case UWB_MSG_SETPOINT:
         w += fmt_u64(out + w, cap - w, "t_us", (unsigned long long)msg->u.setpoint.t_us);
@@ -161,6 +169,7 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_f32(out + w, cap - w, "var_d0", msg->u.result.var_d0);
         w += fmt_f32(out + w, cap - w, "var_d1", msg->u.result.var_d1);
         w += fmt_f32(out + w, cap - w, "var_d2", msg->u.result.var_d2);
+        w += fmt_u64(out + w, cap - w, "flags", (unsigned long long)msg->u.result.flags);
         break;
     case UWB_MSG_STATS:
         w += fmt_u64(out + w, cap - w, "frames_ok", (unsigned long long)msg->u.stats.frames_ok);
@@ -187,6 +196,9 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_u64(out + w, cap - w, "radio_malformed", (unsigned long long)msg->u.stats.radio_malformed);
         w += fmt_u64(out + w, cap - w, "radio_unknown_type", (unsigned long long)msg->u.stats.radio_unknown_type);
         w += fmt_u64(out + w, cap - w, "radio_no_position", (unsigned long long)msg->u.stats.radio_no_position);
+        w += fmt_u64(out + w, cap - w, "divergences", (unsigned long long)msg->u.stats.divergences);
+        w += fmt_u64(out + w, cap - w, "heights", (unsigned long long)msg->u.stats.heights);
+        w += fmt_u64(out + w, cap - w, "bad_values", (unsigned long long)msg->u.stats.bad_values);
         break;
     case UWB_MSG_ERROR:
         w += fmt_u64(out + w, cap - w, "code", (unsigned long long)msg->u.error.code);

@@ -4,14 +4,16 @@
  * Input lines (stdin), fields separated by blanks:
  *   C mode stages std_twr std_tdoa a_max_twr a_max_tdoa gate_dt_min chi2_twr chi2_tdoa
  *     proc_acc_xy proc_acc_z proc_cv_acc init_x init_y init_z init_std_xy init_std_z nn_min_z
+ *     sup_margin sup_max_speed sup_max_var
  *                               configure with reset (prints "E 6" if invalid)
  *   A id x y z                  anchor
  *   I t ax ay az gx gy gz       IMU sample (t in us)
  *   T t id range                TWR
  *   D t a b diff                TDoA, diff = d(tag, B) - d(tag, A)
+ *   H t z std                   height pseudo-measurement
  * Output: one line per measurement,
- *   R status innovation S bias d_max gx gy gz px py pz vx vy vz qw qx qy qz var0..var8
- * or "E code" for a refused input; a final "S predictions divergences" line.
+ *   R status innovation S bias d_max gx gy gz px py pz vx vy vz qw qx qy qz var0..var8 flags
+ * or "E code" for a refused input; a final "S predictions divergences heights" line.
  * Option --no-model runs without the compiled-in bias networks. */
 #include <inttypes.h>
 #include <stdio.h>
@@ -25,13 +27,14 @@ static const bias_model_t no_model = {NULL, NULL, 0};
 static int parse_config(const char *s, estimator_config_t *c)
 {
     unsigned mode, stages;
-    int n = sscanf(s, "%u %u %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f", &mode, &stages,
+    int n = sscanf(s, "%u %u %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f", &mode, &stages,
                    &c->std_twr, &c->std_tdoa, &c->a_max_twr, &c->a_max_tdoa, &c->gate_dt_min,
                    &c->chi2_twr, &c->chi2_tdoa, &c->proc_acc_xy, &c->proc_acc_z, &c->proc_cv_acc,
-                   &c->init_x, &c->init_y, &c->init_z, &c->init_std_xy, &c->init_std_z, &c->nn_min_z);
+                   &c->init_x, &c->init_y, &c->init_z, &c->init_std_xy, &c->init_std_z, &c->nn_min_z,
+                   &c->sup_margin, &c->sup_max_speed, &c->sup_max_var);
     c->mode = (uint8_t)mode;
     c->stages = (uint8_t)stages;
-    return n == 18 && mode < 256 && stages < 256;
+    return n == 21 && mode < 256 && stages < 256;
 }
 
 static void print_result(const estimator_t *est, const estimator_result_t *r)
@@ -54,7 +57,7 @@ static void print_result(const estimator_t *est, const estimator_result_t *r)
     for (i = 0; i < 9; i++) {
         printf(" %.9g", (double)var[i]);
     }
-    printf("\n");
+    printf(" %u\n", (unsigned)r->flags);
 }
 
 int main(int argc, char **argv)
@@ -122,6 +125,15 @@ int main(int argc, char **argv)
                 printf("E %d\n", rc);
             }
             break;
+        case 'H':
+            if (sscanf(line + 1, "%" SCNu64 " %f %f", &t, &v[0], &v[1]) != 3) {
+                goto bad;
+            }
+            rc = estimator_on_height(&est, t, v[0], v[1]);
+            if (rc != EST_OK) {
+                printf("E %d\n", rc);
+            }
+            break;
         case '\n':
         case '#':
             break;
@@ -133,6 +145,6 @@ int main(int argc, char **argv)
         fprintf(stderr, "replay_core: cannot parse line %ld: %s", lineno, line);
         return 2;
     }
-    printf("S %" PRIu32 " %" PRIu32 "\n", est.predictions, est.divergences);
+    printf("S %" PRIu32 " %" PRIu32 " %" PRIu32 "\n", est.predictions, est.divergences, est.heights);
     return 0;
 }

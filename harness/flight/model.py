@@ -68,6 +68,18 @@ class UwbStream:
 
 
 @dataclass(frozen=True)
+class HeightStream:
+    """Planar mode: height pseudo-measurements of the tag (HEIGHT frames), e.g. a known constant height."""
+
+    t_us: np.ndarray    # (H,) int64, non-decreasing
+    z: np.ndarray       # (H,) height [m]
+    std: float          # standard deviation [m], > 0
+
+    def __len__(self) -> int:
+        return int(self.t_us.shape[0])
+
+
+@dataclass(frozen=True)
 class RadioStream:
     """What the tag's radio received (LPS radio level), one row per anchor packet, time ordered.
     `uwb` of the same flight holds the measurement-level equivalent (the differences these packets
@@ -134,6 +146,7 @@ class Flight:
     imu: ImuStream | None = None
     meta: dict[str, object] = field(default_factory=dict)
     radio: RadioStream | None = None
+    height: HeightStream | None = None
 
     @property
     def has_imu(self) -> bool:
@@ -163,17 +176,32 @@ class Flight:
             raise FlightError(f"{self.name}: measurements name unknown anchors {sorted(missing)}")
         if self.imu is not None and len(self.imu) and np.any(np.diff(self.imu.t_us) < 0):
             raise FlightError(f"{self.name}: IMU timestamps go backwards")
+        h = self.height
+        if h is not None:
+            if h.z.shape != h.t_us.shape or np.any(np.diff(h.t_us) < 0):
+                raise FlightError(f"{self.name}: height stream must be time-ordered with one z per time")
+            if not (np.all(np.isfinite(h.z)) and np.isfinite(h.std) and h.std > 0):
+                raise FlightError(f"{self.name}: heights must be finite and their std > 0")
 
     def events(self) -> Iterator[tuple[int, int, int]]:
-        """Time-ordered merge of IMU and UWB: yields (t_us, source, index), source 0 = IMU, 1 = UWB.
+        """Time-ordered merge: yields (t_us, source, index), source 0 = IMU, 1 = UWB, 2 = HEIGHT.
 
-        At equal timestamps IMU comes first, so a measurement sees every IMU sample up to its time.
+        At equal timestamps IMU comes first, then HEIGHT, then UWB, so a measurement sees every IMU
+        sample and height up to its time (prepare.py streams them in the same order).
         """
-        imu_t = self.imu.t_us if self.has_imu else np.zeros(0, dtype=np.int64)
-        uwb_t = self.uwb.t_us
-        t = np.concatenate([imu_t, uwb_t])
-        src = np.concatenate([np.zeros(len(imu_t), dtype=np.int8), np.ones(len(uwb_t), dtype=np.int8)])
-        idx = np.concatenate([np.arange(len(imu_t)), np.arange(len(uwb_t))])
-        order = np.lexsort((src, t))
-        for k in order:
+        t, src, idx = self.event_order()
+        for k in range(len(t)):
             yield int(t[k]), int(src[k]), int(idx[k])
+
+    def event_order(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(t_us, source, index) arrays of every event in stream order (see events())."""
+        imu_t = self.imu.t_us if self.has_imu else np.zeros(0, dtype=np.int64)
+        h_t = self.height.t_us if self.height is not None else np.zeros(0, dtype=np.int64)
+        uwb_t = self.uwb.t_us
+        t = np.concatenate([imu_t, uwb_t, h_t]).astype(np.int64)
+        src = np.concatenate([np.zeros(len(imu_t), dtype=np.int8), np.ones(len(uwb_t), dtype=np.int8),
+                              np.full(len(h_t), 2, dtype=np.int8)])
+        idx = np.concatenate([np.arange(len(imu_t)), np.arange(len(uwb_t)), np.arange(len(h_t))])
+        rank = np.array([0, 2, 1], dtype=np.int8)[src]   # IMU, HEIGHT, UWB at equal times
+        order = np.lexsort((rank, t))
+        return t[order], src[order], idx[order]

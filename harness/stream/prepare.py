@@ -37,7 +37,8 @@ def setup_frames(config: EstimatorConfig, flight: Flight, seq0: int, reset: bool
                      chi2_tdoa=config.chi2_tdoa, proc_acc_xy=config.proc_acc_xy, proc_acc_z=config.proc_acc_z,
                      proc_cv_acc=config.proc_cv_acc, init_x=config.init_x, init_y=config.init_y,
                      init_z=config.init_z, init_std_xy=config.init_std_xy, init_std_z=config.init_std_z,
-                     nn_min_z=config.nn_min_z)]
+                     nn_min_z=config.nn_min_z, sup_margin=config.sup_margin,
+                     sup_max_speed=config.sup_max_speed, sup_max_var=config.sup_max_var)]
     for aid, pos in zip(flight.anchors.ids, flight.anchors.positions) if anchors else ():
         msgs.append(m.Anchor(anchor_id=int(aid), x=float(pos[0]), y=float(pos[1]), z=float(pos[2])))
     out = b"".join(encode_frame(msg, seq0 + i) for i, msg in enumerate(msgs))
@@ -53,51 +54,56 @@ def _radio_rows(flight: Flight, seqs: np.ndarray) -> np.ndarray:
 
 
 def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = False) -> PreparedFlight:
-    """Encode every IMU sample and UWB measurement of the flight, merged in time order. radio: the
-    flight's radio packets (RADIO frames) take the place of its measurements."""
+    """Encode every IMU sample, HEIGHT pseudo-measurement and UWB measurement of the flight, merged in time
+    order (IMU, then HEIGHT, then UWB at equal times, as Flight.events()). radio: the flight's radio
+    packets (RADIO frames) take the place of its measurements."""
     flight.validate()
     if radio and flight.radio is None:
         raise ValueError(f"{flight.name}: no radio-level stream (simulate_radio / radio_from_recording)")
     u = flight.uwb
     imu = flight.imu if (include_imu and flight.has_imu) else None
+    hgt = flight.height
     n_imu = len(imu) if imu is not None else 0
     uwb_t = flight.radio.t_us if (radio and flight.radio is not None) else u.t_us
     n_uwb = len(uwb_t)
-    t = np.concatenate([imu.t_us if imu is not None else np.zeros(0, np.int64), uwb_t]).astype(np.int64)
-    src = np.concatenate([np.zeros(n_imu, np.int8), np.ones(n_uwb, np.int8)])
-    order = np.lexsort((src, t))                   # IMU first at equal times
+    n_h = len(hgt) if hgt is not None else 0
+    t = np.concatenate([imu.t_us if imu is not None else np.zeros(0, np.int64), uwb_t,
+                        hgt.t_us if hgt is not None else np.zeros(0, np.int64)]).astype(np.int64)
+    rank = np.concatenate([np.zeros(n_imu, np.int8), np.full(n_uwb, 2, np.int8), np.ones(n_h, np.int8)])
+    order = np.lexsort((rank, t))
     pos_of = np.empty_like(order)
     pos_of[order] = np.arange(len(order))          # stream position of each source row
     seqs = (seq0 + pos_of) & 0xFFFF
+    uwb_rows_of = slice(n_imu, n_imu + n_uwb)
 
     if radio:
-        uwb_rows = _radio_rows(flight, seqs[n_imu:])
+        uwb_rows = _radio_rows(flight, seqs[uwb_rows_of])
     elif u.kind == KIND_TWR:
         uwb_rows = encode_rows(m.Twr, {"t_us": u.t_us, "anchor_id": u.anchor_a, "range": u.value},
-                               seqs[n_imu:])
+                               seqs[uwb_rows_of])
     else:
         uwb_rows = encode_rows(m.Tdoa, {"t_us": u.t_us, "anchor_a": u.anchor_a, "anchor_b": u.anchor_b,
-                                        "diff": u.value}, seqs[n_imu:])
-    sizes = np.empty(len(order), dtype=np.int64)
-    sizes[pos_of[n_imu:]] = uwb_rows.shape[1]
-    imu_rows = None
+                                        "diff": u.value}, seqs[uwb_rows_of])
+    parts = [(uwb_rows_of, uwb_rows)]
     if imu is not None:
-        imu_rows = encode_rows(m.Imu, {"t_us": imu.t_us, "ax": imu.acc[:, 0], "ay": imu.acc[:, 1],
-                                       "az": imu.acc[:, 2], "gx": imu.gyro[:, 0], "gy": imu.gyro[:, 1],
-                                       "gz": imu.gyro[:, 2]}, seqs[:n_imu])
-        sizes[pos_of[:n_imu]] = imu_rows.shape[1]
+        parts.append((slice(0, n_imu), encode_rows(m.Imu, {
+            "t_us": imu.t_us, "ax": imu.acc[:, 0], "ay": imu.acc[:, 1], "az": imu.acc[:, 2],
+            "gx": imu.gyro[:, 0], "gy": imu.gyro[:, 1], "gz": imu.gyro[:, 2]}, seqs[:n_imu])))
+    if hgt is not None:
+        parts.append((slice(n_imu + n_uwb, None), encode_rows(m.Height, {
+            "t_us": hgt.t_us, "z": hgt.z, "std": np.full(n_h, hgt.std)}, seqs[n_imu + n_uwb:])))
+    sizes = np.empty(len(order), dtype=np.int64)
+    for rows_of, rows in parts:
+        sizes[pos_of[rows_of]] = rows.shape[1]
     ends = np.cumsum(sizes)
     starts = ends - sizes
     buf = np.empty(int(ends[-1]) if len(ends) else 0, dtype=np.uint8)
-    uwb_start = starts[pos_of[n_imu:]]
-    buf[uwb_start[:, None] + np.arange(uwb_rows.shape[1])] = uwb_rows
-    if imu_rows is not None:
-        imu_start = starts[pos_of[:n_imu]]
-        buf[imu_start[:, None] + np.arange(imu_rows.shape[1])] = imu_rows
+    for rows_of, rows in parts:
+        buf[starts[pos_of[rows_of]][:, None] + np.arange(rows.shape[1])] = rows
     return PreparedFlight(
         stream=buf.tobytes(),
-        meas_end=ends[pos_of[n_imu:]],
-        meas_seq=seqs[n_imu:].astype(np.uint16),
+        meas_end=ends[pos_of[uwb_rows_of]],
+        meas_seq=seqs[uwb_rows_of].astype(np.uint16),
         event_t_us=t[order],
         event_end=ends,
         n_imu=n_imu,

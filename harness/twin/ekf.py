@@ -91,7 +91,12 @@ def attitude_block(d: np.ndarray) -> np.ndarray:
 
 
 def sym_clamp(P: np.ndarray) -> np.ndarray:
-    """Symmetrise ``(P + P^T)/2`` and clamp: NaN -> P_MAX, ``|P_ij| <= P_MAX``, ``P_ii >= P_MIN``.
+    """Symmetrise ``(P + P^T)/2`` and bound it as ekf_core.c does, keeping it positive semi-definite.
+
+    A variance above P_MAX scales its row and column by ``sqrt(P_MAX / P_ii)`` (a congruence: PSD and
+    the correlation coefficients are kept; clamping entries one by one made P indefinite, S < 0, and
+    an update threw the state kilometres away). A non-finite variance becomes P_MAX without
+    correlations; other NaN -> 0; ``|P_ij| <= P_MAX``; ``P_ii >= P_MIN``.
 
     Parameters
     ----------
@@ -104,10 +109,19 @@ def sym_clamp(P: np.ndarray) -> np.ndarray:
         A new symmetric, bounded matrix.
     """
     S = 0.5 * (P + P.T)
-    S = np.where(np.isnan(S), P_MAX, S)
-    S = np.clip(S, -P_MAX, P_MAX)
     d = np.diagonal(S).copy()
-    np.fill_diagonal(S, np.maximum(d, P_MIN))
+    bad = ~np.isfinite(d)
+    scale = np.ones(len(d))
+    big = ~bad & (d > P_MAX)
+    scale[big] = np.sqrt(P_MAX / d[big])
+    with np.errstate(invalid="ignore"):
+        S = S * np.outer(scale, scale)
+    S[bad, :] = 0.0
+    S[:, bad] = 0.0
+    S = np.clip(np.where(np.isnan(S), 0.0, S), -P_MAX, P_MAX)
+    d = np.diagonal(S).copy()
+    d[bad] = P_MAX
+    np.fill_diagonal(S, np.clip(d, P_MIN, P_MAX))
     return S
 
 

@@ -2,7 +2,7 @@
 
 Order per UWB measurement (docs/ARCHITECTURE.md): [UWB-only: constant-velocity prediction] ->
 measurement model -> bias network -> kinematic gate -> chi-square gate -> Joseph update ->
-finalize -> divergence guard.
+finalize -> supervisor. HEIGHT pseudo-measurements (planar mode) are scalar updates of z.
 """
 
 from __future__ import annotations
@@ -21,8 +21,16 @@ if TYPE_CHECKING:
     from harness.flight.model import Flight
 
 MAX_ANCHORS = 16
-#: Divergence guard: beyond this |position| [m] the state counts as diverged (as in estimator.c).
+#: Supervisor: beyond this |position| [m] the state counts as diverged even without anchors (estimator.c).
 MAX_ABS_POSITION = 1e5
+
+# protocol enum result_flag (supervisor events since the previous result)
+FLAG_DIVERGED = 1
+FLAG_NON_FINITE = 2
+FLAG_OUT_OF_BOX = 4
+FLAG_SPEED = 8
+FLAG_COVARIANCE = 16
+FLAG_HEIGHT_FUSED = 32
 
 # protocol enum status
 ACCEPTED = 0
@@ -34,6 +42,7 @@ REJECTED_GEOMETRY = 3
 ERR_UNKNOWN_ANCHOR = 4
 ERR_TIME_BACKWARDS = 5
 ERR_BAD_ANCHOR_ID = 7
+ERR_BAD_VALUE = 11
 
 
 class TwinError(ValueError):
@@ -84,6 +93,8 @@ class TwinResult:
         ``|y| / sqrt(S)`` (0 for geometry).
     pos, vel, quat, var : ndarray, shapes (3,), (3,), (4,), (9,)
         Estimate after the measurement.
+    flags : int
+        Supervisor events (FLAG_*) since the previous result.
     """
 
     status: int
@@ -97,6 +108,7 @@ class TwinResult:
     vel: np.ndarray
     quat: np.ndarray
     var: np.ndarray
+    flags: int = 0
 
 
 class TwinEstimator:
@@ -123,6 +135,7 @@ class TwinEstimator:
         self.predictions = 0
         self.imu_ignored = 0
         self.divergences = 0
+        self.heights = 0
         self._reset_filter()
 
     # ---------------------------------------------------------------------------- configuration
@@ -132,6 +145,8 @@ class TwinEstimator:
         self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
         self.t_imu_us: int | None = None
         self.t_uwb_us: int | None = None
+        self.t_height_us: int | None = None
+        self.flags = 0
         self.t_fused_us: int | None = None  # last UWB measurement fused (kinematic gate reference)
         # per anchor, as the firmware: last measured / last part of a fused measurement (0 = never)
         self.t_anchor_seen_us = [0] * MAX_ANCHORS
@@ -164,7 +179,7 @@ class TwinEstimator:
         if self.ekf.imu_sample(t_us, np.asarray(acc, dtype=np.float64), np.asarray(gyro, dtype=np.float64),
                                c.proc_acc_xy, c.proc_acc_z):
             self.predictions += 1
-            self._guard()
+            self._supervise()
 
     def on_twr(self, t_us: int, anchor: int, rng: float) -> TwinResult:
         """One two-way range to ``anchor``."""
@@ -194,9 +209,29 @@ class TwinEstimator:
         if self.t_uwb_us is not None and t_us < self.t_uwb_us:
             raise TwinError(ERR_TIME_BACKWARDS, f"UWB time {t_us} < {self.t_uwb_us}")
 
-    def _guard(self) -> None:
-        """Divergence guard: restart at the last sane position if anything went non-finite (or absurd)."""
-        if self.ekf.is_finite() and bool(np.all(np.abs(self.ekf.x[POS]) <= MAX_ABS_POSITION)):
+    def _supervisor_reason(self) -> int:
+        """0 if the state is sane, else the FLAG_* reason (estimator.c supervisor_reason)."""
+        c, e = self.config, self.ekf
+        if not e.is_finite():
+            return FLAG_NON_FINITE
+        p = e.x[POS]
+        if bool(np.any(np.abs(p) > MAX_ABS_POSITION)):
+            return FLAG_OUT_OF_BOX
+        if self.anchors:
+            box = np.array(list(self.anchors.values()))
+            if bool(np.any(p < box.min(axis=0) - c.sup_margin) or np.any(p > box.max(axis=0) + c.sup_margin)):
+                return FLAG_OUT_OF_BOX
+        if float(np.sum(e.x[3:6] ** 2)) > c.sup_max_speed ** 2:
+            return FLAG_SPEED
+        bound = np.maximum([c.init_std_xy ** 2, c.init_std_xy ** 2, c.init_std_z ** 2], c.sup_max_var)
+        if bool(np.any(np.diagonal(e.P)[:3] > bound)):
+            return FLAG_COVARIANCE
+        return 0
+
+    def _supervise(self) -> None:
+        """Restart at the last position that passed, with the initial covariance, if the state is not sane."""
+        reason = self._supervisor_reason()
+        if reason == 0:
             self.last_good_pos = self.ekf.x[POS].copy()
             return
         t_us = self.ekf.t_us
@@ -204,6 +239,37 @@ class TwinEstimator:
         self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
         self.ekf.t_us = t_us
         self.divergences += 1
+        self.flags |= FLAG_DIVERGED | reason
+
+    def _predict_cv_to(self, t_us: int) -> None:
+        """UWB-only: constant-velocity prediction to t_us (the first call only sets the state time)."""
+        c, ekf = self.config, self.ekf
+        if c.mode != MODE_UWB_ONLY:
+            return
+        if ekf.t_us is None:
+            ekf.t_us = t_us
+        elif t_us > ekf.t_us:
+            ekf.predict_cv(c.proc_cv_acc, (t_us - ekf.t_us) * 1e-6)
+            ekf.t_us = t_us
+            self.predictions += 1
+            self._supervise()
+
+    def on_height(self, t_us: int, z: float, std: float) -> None:
+        """A height pseudo-measurement: scalar update of z without gates (estimator_on_height)."""
+        t_us = int(t_us)
+        if not std > 0.0:
+            raise TwinError(ERR_BAD_VALUE, f"height std must be > 0, got {std}")
+        if self.t_height_us is not None and t_us < self.t_height_us:
+            raise TwinError(ERR_TIME_BACKWARDS, f"HEIGHT time {t_us} < {self.t_height_us}")
+        self.t_height_us = t_us
+        self._predict_cv_to(t_us)
+        ekf = self.ekf
+        upd = ekf.prepare(np.array([0.0, 0.0, 1.0]), float(z) - float(ekf.x[2]), float(std) ** 2)
+        ekf.apply(upd)
+        ekf.finalize()
+        self.heights += 1
+        self.flags |= FLAG_HEIGHT_FUSED
+        self._supervise()
 
     def _bias(self, net: BiasNet | None, anchor_a: np.ndarray, anchor_b: np.ndarray | None) -> float:
         c = self.config
@@ -221,15 +287,8 @@ class TwinEstimator:
         tdoa = anchor_b is not None
         self.t_uwb_us = t_us
         t_ref = ekf.t_us  # IMU mode: last prediction; UWB-only: state time before this prediction
-        if c.mode == MODE_UWB_ONLY:
-            if ekf.t_us is None:
-                ekf.t_us = t_us  # the first measurement only sets the state time
-            elif t_us > ekf.t_us:
-                ekf.predict_cv(c.proc_cv_acc, (t_us - ekf.t_us) * 1e-6)
-                ekf.t_us = t_us
-                self.predictions += 1
-                self._guard()
-                ekf = self.ekf
+        self._predict_cv_to(t_us)
+        ekf = self.ekf
         # time this link's anchors had been rejected up to their previous measurement (estimator.c)
         rejected = max((self.t_anchor_seen_us[i] - self.t_anchor_fused_us[i]
                         if self.t_fused_us is not None and self.t_anchor_seen_us[i] > self.t_anchor_fused_us[i]
@@ -272,15 +331,16 @@ class TwinEstimator:
             for i in ids:
                 self.t_anchor_fused_us[i] = t_us
             gain = upd.K[POS].copy()
-            self._guard()
+            self._supervise()
         return self._result(status, y, upd.S, bias, d_max, gain, upd.mahalanobis)
 
     def _result(self, status: int, y: float, S: float, bias: float, d_max: float, gain: np.ndarray,
                 mahalanobis: float) -> TwinResult:
         s = self.state()
+        flags, self.flags = self.flags, 0
         return TwinResult(status=status, innovation=float(y), innovation_var=float(S), bias=float(bias),
                           d_max=float(d_max), gain=gain, mahalanobis=float(mahalanobis),
-                          pos=s.pos, vel=s.vel, quat=s.quat, var=s.var)
+                          pos=s.pos, vel=s.vel, quat=s.quat, var=s.var, flags=flags)
 
 
 def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None = None) -> list[TwinResult]:
@@ -288,11 +348,15 @@ def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None =
     twin = TwinEstimator(config, flight.anchors.as_dict(), model)
     u = flight.uwb
     imu = flight.imu
+    hgt = flight.height
     out: list[TwinResult] = []
     for t_us, source, i in flight.events():
         if source == 0:
             assert imu is not None
             twin.on_imu(t_us, imu.acc[i], imu.gyro[i])
+        elif source == 2:
+            assert hgt is not None
+            twin.on_height(t_us, float(hgt.z[i]), float(hgt.std))
         elif u.kind == 1:
             out.append(twin.on_twr(t_us, int(u.anchor_a[i]), float(u.value[i])))
         else:
