@@ -379,6 +379,9 @@ def print_report(out: dict[str, Any]) -> None:
     g = out["goals"]
     print(f"goal: TDoA update incl. network <= {GOAL_TDOA_NN_INSTR:,} instructions: {g['tdoa_nn_instructions']:,.0f} "
           f"-> {'OK' if g['tdoa_nn_ok'] else 'MISSED'}")
+    if "radio" in out:
+        from harness.bench_radio import format_row
+        print("radio level: " + format_row(out["radio"]))
     print("== bias network alone (uwb-nnbench.elf, same run, same inputs): instructions per call")
     print("   shipped = firmware_sim/models/bias_model_default.h; probe = random network of the same shapes whose")
     print("   outputs stay inside the clamp (harness/stm32_build.py), so the PyTorch check tests every output")
@@ -416,6 +419,9 @@ def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_
     for name, elf in (("m4", build_m4 / "uwb-fw.elf"), ("portable", build_portable / "uwb-fw.elf")):
         with qemu_device(elf, log_dir) as dev:
             stages += stage_costs(dev, name, duration_s, seed)
+            if name == "m4":
+                from harness.bench_radio import radio_stage
+                out["radio"] = asdict(radio_stage(dev, duration_s, seed))
             stack_used[name] = dev.stack_high_water()   # the deepest the flights took the painted stack
             if dev.last_hello is not None:
                 out["model_hash"] = f"{dev.last_hello.model_hash:016x}"
@@ -432,6 +438,8 @@ def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_
         "tdoa_nn_instructions": tdoa_instr, "tdoa_nn_ok": bool(tdoa_instr <= GOAL_TDOA_NN_INSTR),
         "flash_ok": out["size"]["flash"] <= 65536, "ram_ok": out["size"]["ram"] <= 32768,
         "nn_within_tolerance": all(r["max_err_torch"] <= NN_TOLERANCE for r in out["network"]),
+        "radio_tdoa3_instructions": out["radio"]["compute"],
+        "radio_tdoa3_ok": bool(out["radio"]["compute"] <= 25_000),
     }
     return out
 

@@ -108,11 +108,17 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     if (s->results != sink_a.check.results) {
         fuzz_fail("stats.results differs from the RESULT frames sent");
     }
-    /* Finite measurements are counted in twr/tdoa_meas and end in a RESULT or a drop; non-finite
-     * ones are dropped before being counted (and also counted in non_finite). */
-    if ((size_t)s->results + s->dropped_meas < (size_t)s->twr_meas + s->tdoa_meas ||
-        (size_t)s->results + s->dropped_meas - s->twr_meas - s->tdoa_meas > s->non_finite) {
+    /* Finite measurements are counted in twr/tdoa_meas (or radio_meas: formed by the TDoA engine) and
+     * end in a RESULT or a drop; non-finite ones are dropped before being counted (and also counted in
+     * non_finite). */
+    if ((size_t)s->results + s->dropped_meas < (size_t)s->twr_meas + s->tdoa_meas + s->radio_meas ||
+        (size_t)s->results + s->dropped_meas - s->twr_meas - s->tdoa_meas - s->radio_meas > s->non_finite) {
         fuzz_fail("measurement accounting");
+    }
+    /* Every radio packet formed a measurement or was dropped for one counted reason. */
+    if (s->radio_packets != s->radio_meas + s->radio_no_reference + s->radio_clock + s->radio_expired +
+                                s->radio_malformed + s->radio_unknown_type + s->radio_no_position) {
+        fuzz_fail("radio packet accounting");
     }
     return 0;
 }
