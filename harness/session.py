@@ -98,8 +98,17 @@ def shared_data_dir() -> Path:
     return Path(os.environ.get("UWB_HIL_DATA", SHARED_DATA))
 
 
-#: position-only networks trained on the shared recordings (`make models`), by measurement kind
-POSITION_ONLY_MODELS = {KIND_TDOA: "firmware_sim/models/util_tdoa_pos.npz", KIND_TWR: "firmware_sim/models/rcv_twr.npz"}
+#: position-only networks trained on the shared recordings (`make models`), by measurement kind (the
+#: rcv_twr network takes the attitude: there is no shipped position-only TWR network)
+POSITION_ONLY_MODELS = {KIND_TDOA: "firmware_sim/models/util_tdoa_pos.npz"}
+
+
+def position_only_hint(kind: int) -> str:
+    """Where to get a network without attitude inputs for this measurement kind."""
+    train = f"train one with `uwb-hil train --recording ... --layout pos --out {kind_name(kind)}_pos.npz`"
+    if kind in POSITION_ONLY_MODELS:
+        return f"--model {POSITION_ONLY_MODELS[kind]} (built by `make models`), or {train}"
+    return train
 
 
 def check_network_inputs(flight: Flight, cfg: EstimatorConfig, layouts: tuple[int, int]) -> None:
@@ -118,5 +127,5 @@ def check_network_inputs(flight: Flight, cfg: EstimatorConfig, layouts: tuple[in
     why = "has no IMU" if not flight.has_imu else "is replayed with --uwb-only"
     raise InputError(f"the device's {kind_name(kind).upper()} bias network takes roll, pitch and yaw (pose layout "
                      f"{layout}), but {flight.name} {why}: the firmware has no attitude to give it and its correction "
-                     f"would be made up. Use a position-only network (--model {POSITION_ONLY_MODELS[kind]}, built by "
-                     "`make models`), or --stages outlier, or pass --force to run it anyway")
+                     f"would be made up. Use a position-only network ({position_only_hint(kind)}), or --stages outlier, or "
+                     "pass --force to run it anyway")

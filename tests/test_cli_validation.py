@@ -93,7 +93,8 @@ def test_attitude_network_is_refused_on_a_replay_without_attitude(capsys: pytest
     assert cli.main([*base, "--stages", "outlier"]) == 0
     capsys.readouterr()
     assert cli.main(["run", "--duration", "3", "--uwb-only"]) == 2   # a simulated flight replayed UWB-only
-    assert "is replayed with --uwb-only" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "is replayed with --uwb-only" in err and "--layout pos" in err and "rcv_twr.npz" not in err
     assert cli.main(["run", "--duration", "3"]) == 0                # with its IMU the firmware has the attitude
 
 

@@ -227,17 +227,15 @@ def _resolve_training_paths(paths: list[str], data_dir: Path) -> list[Path]:
 def _check_attitude(model: BiasModel, kind: str, test: list[Flight], model_path: str) -> None:
     """A pose-layout network needs the attitude truth of every evaluated recording."""
     from harness.errors import InputError
-    from harness.session import POSITION_ONLY_MODELS
+    from harness.session import position_only_hint
     net = model.network(kind)
     if net is None or net.layout not in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE):
         return
     lacking = [f.name for f in test if f.truth.quat is None]
     if lacking:
-        raw = KIND_TWR if kind == "twr" else 2
         raise InputError(f"{model_path}: its {kind.upper()} network takes roll, pitch and yaw (pose layout "
                          f"{net.layout}), but {', '.join(lacking)} has no attitude truth: evaluate a position-only "
-                         f"network instead, e.g. --model {POSITION_ONLY_MODELS[raw]} (built from ../shared/data by "
-                         "`make models`), or train one with `uwb-hil train --layout pos`")
+                         f"network instead: {position_only_hint(test[0].uwb.kind)}")
 
 
 # ------------------------------------------------------------------------------------------ shipped models
