@@ -1,0 +1,245 @@
+/* The tag's TDoA engine and its packet parser, on hand-built packet sequences: exact differences with
+ * ideal clocks across the 2^32 and 2^40 wraps, a skewed anchor clock, the bucket rule's warm-up,
+ * expiry, eviction, TDoA3 short entries, and the firmware's RADIO path (RESULT, RADIO_DROP, STATS). */
+#include <math.h>
+#include <string.h>
+
+#include "cobs.h"
+#include "firmware.h"
+#include "lps_packets.h"
+#include "tdoa_engine.h"
+#include "unit.h"
+
+#define MASK32 0xFFFFFFFFull
+#define MASK40 0xFFFFFFFFFFull
+#define STEP_TICKS 639976000ull          /* 10 ms */
+#define TOF01 33000u
+#define M_PER_TICK (TDOA_SPEED_OF_LIGHT / TDOA_TS_FREQ)
+
+static const uint64_t tag_range[2] = {5000u, 5800u};        /* ticks, antenna delay included */
+static const uint64_t offset[2] = {0x12345678ull, 0xF0000000ull};
+
+typedef struct {
+    uint64_t last_t[2];
+    uint8_t seq[2], has[2];
+    double skew1;     /* anchor 1's clock rate - 1 */
+} scen_t;
+
+static uint64_t anchor_clock(const scen_t *s, int a, uint64_t t)
+{
+    return a == 1 ? offset[1] + (uint64_t)llround((double)t * (1.0 + s->skew1)) : offset[0] + t;
+}
+
+static void put32(uint8_t *p, uint32_t v)
+{
+    p[0] = (uint8_t)v;
+    p[1] = (uint8_t)(v >> 8);
+    p[2] = (uint8_t)(v >> 16);
+    p[3] = (uint8_t)(v >> 24);
+}
+
+/* TDoA3 packet of anchor a at global tick t (full entry for the other anchor if it was heard; short
+ * entry when `short_entry`), LPP position appended when `lpp`. Returns the length. */
+static size_t tdoa3_packet(scen_t *s, int a, uint64_t t, int short_entry, int lpp, uint8_t *p)
+{
+    const int b = 1 - a;
+    size_t n = 7;
+    p[0] = LPS_TYPE_TDOA3;
+    p[1] = s->seq[a];
+    put32(p + 2, (uint32_t)(anchor_clock(s, a, t) & MASK32));
+    p[6] = s->has[b];
+    if (s->has[b]) {
+        p[n] = (uint8_t)b;
+        p[n + 1] = (uint8_t)(((s->seq[b] - 1u) & 0x7Fu) | (short_entry ? 0u : 0x80u));
+        put32(p + n + 2, (uint32_t)(anchor_clock(s, a, s->last_t[b] + TOF01) & MASK32));
+        n += 6;
+        if (!short_entry) {
+            p[n] = (uint8_t)(TOF01 & 0xFF);
+            p[n + 1] = (uint8_t)(TOF01 >> 8);
+            n += 2;
+        }
+    }
+    if (lpp) {
+        const float pos[3] = {(float)a, 2.0f, 1.5f};
+        p[n] = LPS_LPP_SHORT;
+        p[n + 1] = LPS_LPP_POSITION;
+        memcpy(p + n + 2, pos, sizeof pos);
+        n += 14;
+    }
+    s->last_t[a] = t;
+    s->has[a] = 1;
+    s->seq[a] = (uint8_t)((s->seq[a] + 1) & 0x7F);
+    return n;
+}
+
+static int feed(tdoa_engine_t *e, scen_t *s, int a, uint64_t t, int short_entry, tdoa_meas_t *m)
+{
+    uint8_t p[128];
+    lps_packet_t pkt;
+    size_t n = tdoa3_packet(s, a, t, short_entry, 0, p);
+    CHECK(lps_parse(p, n, (uint8_t)a, &pkt) == LPS_OK);
+    return tdoa_engine_process(e, &pkt, (uint8_t)a, (t + tag_range[a]) & MASK40, t / 63898u, m);
+}
+
+static void test_exact_across_wraps(void)
+{
+    static tdoa_engine_t e;
+    scen_t s;
+    tdoa_meas_t m;
+    const uint64_t base = (1ull << 40) - 20 * STEP_TICKS;  /* the tag's counter wraps mid-sequence */
+    int k, meas = 0, clock = 0;
+    memset(&s, 0, sizeof s);
+    tdoa_engine_init(&e);
+    for (k = 0; k < 60; k++) {
+        int a = k % 2;
+        int rc = feed(&e, &s, a, base + (uint64_t)k * STEP_TICKS, k % 4 == 3, &m);
+        if (rc == TDOA_MEASUREMENT) {
+            const double want = ((double)tag_range[a] - (double)tag_range[1 - a]) * M_PER_TICK;
+            meas++;
+            CHECK(m.anchor_b == a && m.anchor_a == 1 - a);
+            CHECK_NEAR(m.diff, want, 1e-9);
+        } else {
+            clock += rc == TDOA_DROP_CLOCK;
+        }
+    }
+    CHECK(clock == 4);          /* two packets per anchor before its clock correction is reliable */
+    CHECK(meas == 56);
+    CHECK(tdoa_engine_anchor(&e, 0)->bucket == TDOA_CC_BUCKET_MAX);
+    CHECK_NEAR(tdoa_engine_anchor(&e, 1)->cc, 1.0, 1e-15);
+}
+
+static void test_skewed_anchor_clock(void)
+{
+    static tdoa_engine_t e;
+    scen_t s;
+    tdoa_meas_t m;
+    int k, meas = 0;
+    memset(&s, 0, sizeof s);
+    s.skew1 = 8e-6;
+    tdoa_engine_init(&e);
+    for (k = 0; k < 40; k++) {
+        int a = k % 2;
+        if (feed(&e, &s, a, 5000000000ull + (uint64_t)k * STEP_TICKS, 0, &m) == TDOA_MEASUREMENT) {
+            const double want = ((double)tag_range[a] - (double)tag_range[1 - a]) * M_PER_TICK;
+            meas++;
+            CHECK_NEAR(m.diff, want, 2.0 * M_PER_TICK);   /* integer stamps: within two ticks */
+        }
+    }
+    CHECK(meas == 36);
+    CHECK_NEAR(tdoa_engine_anchor(&e, 1)->cc, 1.0 / (1.0 + 8e-6), 2e-9);   /* 0.002 ppm: tick rounding */
+}
+
+static void test_expired_reference(void)
+{
+    static tdoa_engine_t e;
+    scen_t s;
+    tdoa_meas_t m;
+    int k;
+    memset(&s, 0, sizeof s);
+    tdoa_engine_init(&e);
+    for (k = 0; k < 8; k++) {
+        feed(&e, &s, k % 2, (uint64_t)(k + 1) * STEP_TICKS, 0, &m);
+    }
+    /* anchor 1 reports anchor 0's packet of 10 ms ago, but the tag hears it 100 ms later */
+    CHECK(feed(&e, &s, 1, 18 * STEP_TICKS, 0, &m) == TDOA_DROP_EXPIRED);
+}
+
+static void test_eviction_and_malformed(void)
+{
+    static tdoa_engine_t e;
+    lps_packet_t pkt;
+    tdoa_meas_t m;
+    uint8_t p[7] = {LPS_TYPE_TDOA3, 0, 1, 0, 0, 0, 0};
+    unsigned id;
+    tdoa_engine_init(&e);
+    for (id = 0; id <= TDOA_STORAGE_COUNT; id++) {
+        CHECK(lps_parse(p, sizeof p, (uint8_t)id, &pkt) == LPS_OK);
+        CHECK(tdoa_engine_process(&e, &pkt, (uint8_t)id, 1000u * id, 1000u * id, &m) == TDOA_DROP_CLOCK);
+    }
+    CHECK(tdoa_engine_anchor(&e, 0) == NULL);      /* the one heard longest ago made room */
+    CHECK(tdoa_engine_anchor(&e, 1) != NULL && tdoa_engine_anchor(&e, TDOA_STORAGE_COUNT) != NULL);
+    p[6] = 1;                                      /* one entry announced, none there */
+    CHECK(lps_parse(p, sizeof p, 3, &pkt) == LPS_ERR_MALFORMED);
+    p[0] = 0x31;
+    CHECK(lps_parse(p, sizeof p, 3, &pkt) == LPS_ERR_UNKNOWN_TYPE);
+    CHECK(lps_parse(p, 0, 3, &pkt) == LPS_ERR_MALFORMED);
+}
+
+/* ------------------------------------------------------------------- the firmware's RADIO path */
+typedef struct {
+    uint8_t data[1 << 16];
+    size_t len;
+} sink_t;
+
+static sink_t sink;
+static firmware_t fw;
+
+static void sink_write(void *ctx, const uint8_t *d, size_t n)
+{
+    sink_t *s = (sink_t *)ctx;
+    if (s->len + n <= sizeof s->data) {
+        memcpy(s->data + s->len, d, n);
+        s->len += n;
+    }
+}
+
+static void count_replies(int *results, int *drops)
+{
+    size_t i, start = 0;
+    *results = *drops = 0;
+    for (i = 0; i < sink.len; i++) {
+        if (sink.data[i] == 0) {
+            uint8_t body[UWB_MAX_BODY];
+            uwb_msg_t msg;
+            long n = cobs_decode(sink.data + start, i - start, body, sizeof body);
+            if (n > 0 && uwb_body_decode(body, (size_t)n, &msg) == UWB_DECODE_OK) {
+                *results += msg.type == UWB_MSG_RESULT;
+                *drops += msg.type == UWB_MSG_RADIO_DROP;
+            }
+            start = i + 1;
+        }
+    }
+}
+
+static void test_firmware_radio_path(void)
+{
+    scen_t s;
+    int k, results, drops;
+    memset(&s, 0, sizeof s);
+    sink.len = 0;
+    firmware_init(&fw, sink_write, &sink, "test");
+    for (k = 0; k < 20; k++) {
+        uwb_msg_t msg;
+        uint8_t body[UWB_MAX_BODY], enc[UWB_MAX_ENCODED + 1];
+        const int a = k % 2;
+        const uint64_t t = 7000000000ull + (uint64_t)k * STEP_TICKS;
+        size_t n, m;
+        memset(&msg, 0, sizeof msg);
+        msg.type = UWB_MSG_RADIO;
+        msg.seq = (uint16_t)k;
+        msg.u.radio.t_us = 1000u + 10000u * (uint64_t)k;
+        msg.u.radio.rx_ts = (t + tag_range[a]) & MASK40;
+        msg.u.radio.src_addr = 0xBCCF000000000000ull | (uint64_t)a;
+        msg.u.radio.length = (uint8_t)tdoa3_packet(&s, a, t, 0, 1, msg.u.radio.payload);
+        n = uwb_body_encode(&msg, body);
+        m = cobs_encode(body, n, enc);
+        enc[m++] = 0;
+        firmware_feed(&fw, enc, m);
+    }
+    count_replies(&results, &drops);
+    CHECK(results == 16 && drops == 4);
+    CHECK(fw.stats.radio_packets == 20 && fw.stats.radio_meas == 16 && fw.stats.radio_clock == 4);
+    CHECK(fw.stats.results == 16);
+    CHECK((fw.est.anchor_known & 3u) == 3u);        /* positions from the packets' LPP */
+    CHECK_NEAR(fw.est.anchors[1][0], 1.0, 0.0);
+}
+
+int main(void)
+{
+    RUN(test_exact_across_wraps);
+    RUN(test_skewed_anchor_clock);
+    RUN(test_expired_reference);
+    RUN(test_eviction_and_malformed);
+    RUN(test_firmware_radio_path);
+    return UNIT_DONE();
+}
