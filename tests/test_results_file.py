@@ -202,7 +202,7 @@ class CliThread(threading.Thread):
 def test_a_second_run_on_the_same_file_fails_while_the_first_writes(tmp_path: Path,
                                                                     capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "run.jsonl"
-    first = CliThread(["run", *FLIGHT, "--pacing", "realtime", "--speed", "10", "--results", str(path)])
+    first = CliThread(["run", *FLIGHT, "--pacing", "realtime", "--speed", "4", "--results", str(path)])
     first.start()
     deadline = time.monotonic() + 30
     while _result_lines(path) < 100:
