@@ -48,7 +48,7 @@ test-py: $(STAMP) firmware
 # get torch. LIGHT_VENV is rebuilt each time (local wheels: about a minute).
 LIGHT_VENV ?= build/light-venv
 test-light-install: firmware
-	bash scripts/check_light_install.sh $(LIGHT_VENV)
+	PYTHON=$(PYTHON) bash scripts/check_light_install.sh $(LIGHT_VENV)
 
 # Fuzzing (clang + libFuzzer, installed when missing): `make test` runs a bounded fuzz (TEST_FUZZ_SECONDS
 # in total across the targets); `make fuzz FUZZ_SECONDS=600` fuzzes longer. Any crash, leak or

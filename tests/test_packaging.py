@@ -94,7 +94,7 @@ assert "torch" not in sys.modules or sys.modules["torch"] is None
     assert proc.returncode == 0, proc.stderr[-2000:]
     docs = proc.stdout.replace("}\n{", "}\n\x00{").split("\x00")
     demo, run = json.loads(docs[0]), json.loads(docs[1])
-    assert len(demo["runs"]) == 6 and all(r["accuracy"]["rmse"] < 0.5 for r in demo["runs"])
+    assert len(demo["runs"]) >= 6 and all(r["accuracy"]["rmse"] < 0.5 for r in demo["runs"])   # modes x 3 configs
     assert run["results"] == run["measurements"] > 0
 
 
