@@ -18,15 +18,13 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from harness.config import PRESETS, EstimatorConfig
 from harness.flight.model import Flight
 from harness.flight.radio import radio_level
 from harness.flight.scenarios import scenario_flight
 from harness.report.metrics import accuracy_summary
 from harness.report.radio import query_clocks, radio_summary
-from harness.session import DeviceSpec, config_for, open_device
+from harness.session import DeviceSpec, config_for, open_device, shared_data_dir
 from harness.stream.streamer import Pacing, Streamer
 
 
@@ -88,7 +86,7 @@ def print_table(pairs: list[tuple[Row, Row]]) -> float:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--util", action="store_true", help="recorded UTIL flights instead of simulated ones")
-    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+    ap.add_argument("--data", default=str(shared_data_dir()), help="the shared data folder (UTIL recordings)")
     ap.add_argument("--trial", type=int, default=1, help="UTIL trial number (one per constellation and protocol)")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--duration", type=float, default=30.0)

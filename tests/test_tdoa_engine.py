@@ -99,7 +99,6 @@ def _skew_and_errors(f: Flight) -> tuple[dict[int, float], np.ndarray, np.ndarra
     eng = TdoaEngine()
     total, clock = [], []
     true = dict(zip(zip(f.uwb.t_us.tolist(), f.uwb.anchor_b.tolist()), f.uwb.true_value.tolist()))
-    from harness.flight.radio_clock import TS_FREQ  # noqa: F401  (documents the tick unit)
     assert r.true_skew_pkt is not None
     for k, (t, rx, src, p) in enumerate(zip(*_cols(r))):
         sender = src & 0xFF

@@ -19,14 +19,14 @@ link errors), so a flight can be flown either way and the two compared.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from harness.flight.arena import NLOS_BOXES, Arena
 from harness.flight.errors_model import (DW1000_TICK_M, SPEED_OF_LIGHT, SimConfig, _link_nlos, hardware_params,
                                          link_directions, range_bias)
-from harness.flight.model import KIND_TDOA, Flight, RadioStream, UwbStream
+from harness.flight.model import Flight
 from harness.flight.radio_clock import TS_FREQ, DeviceClock
 from harness.flight.radio_assemble import RadioSimError, assemble
 
