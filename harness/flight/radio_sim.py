@@ -42,6 +42,7 @@ class RadioConfig:
     max_ppm: float = 10.0            # clock skews drawn uniformly within +-max_ppm (and kept there)
     walk_ppm: float = 0.02           # random walk of each skew [ppm / sqrt(s)]
     rx_noise_m: float = 0.0          # extra white noise on every RX timestamp [m]
+    tx_noise_m: float = 0.0          # jitter of the actual emission around the scheduled TX stamp [m]
     tof_noise_m: float = 0.0         # noise of the anchors' ToF estimates [m]
     antenna_delay_ticks: float = 32951.0
     loss: float = 0.0                # probability that the tag misses a packet
@@ -58,7 +59,7 @@ class RadioConfig:
     def validate(self) -> None:
         if self.protocol not in PROTOCOLS:
             raise RadioSimError(f"radio protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
-        for name in ("max_ppm", "walk_ppm", "rx_noise_m", "tof_noise_m", "antenna_delay_ticks"):
+        for name in ("max_ppm", "walk_ppm", "rx_noise_m", "tx_noise_m", "tof_noise_m", "antenna_delay_ticks"):
             if not (getattr(self, name) >= 0 and np.isfinite(getattr(self, name))):
                 raise RadioSimError(f"{name} must be finite and >= 0")
         if self.max_ppm > 20.0:
@@ -144,6 +145,7 @@ def simulate_radio(flight: Flight, cfg: RadioConfig, sim: SimConfig | None) -> F
         stamp = np.floor(raw / 512.0) * 512.0
         tx_ticks[sel] = stamp
         t_tx[sel] = clocks[int(a)].true_time(stamp, t_nom[sel])
+    t_tx = t_tx + rng_noise.normal(0.0, cfg.tx_noise_m / SPEED_OF_LIGHT, size=len(who))
     half_delay_s = 0.5 * cfg.antenna_delay_ticks / TS_FREQ
     apos = {int(i): p for i, p in zip(flight.anchors.ids, flight.anchors.positions)}
     arena = Arena(anchors=flight.anchors, boxes=NLOS_BOXES if (sim is not None and sim.obstacles) else ())
