@@ -5,6 +5,7 @@ a flash hook before the session, picking a board by USB serial number or $UWB_HI
 from __future__ import annotations
 
 import json
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -84,6 +85,19 @@ def test_the_schema_check_rejects_properties_inside_a_testcase(tmp_path: Path) -
                    '<property name="uwb_model_hash" value="0x1"/></properties></testcase></testsuite></testsuites>')
     problems = xunit2_problems(bad)
     assert problems and "properties" in problems[0]
+
+
+def test_the_structural_check_without_lxml_applies_the_same_rule(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "lxml", None)
+    case = '<testcase classname="t" name="test_a" time="0.1">{}</testcase>'
+    suite = '<testsuites><testsuite name="pytest" tests="1" failures="0" errors="0">{}</testsuite></testsuites>'
+    good, bad = tmp_path / "good.xml", tmp_path / "bad.xml"
+    good.write_text(suite.format('<properties><property name="uwb_model_hash" value="0x1"/></properties>'
+                                 + case.format('<failure message="x">tb</failure><system-out>o</system-out>')))
+    bad.write_text(suite.format(case.format('<properties><property name="a" value="b"/></properties>')))
+    assert xunit2_problems(good) == []
+    assert xunit2_problems(bad) == ["testcase test_a: element <properties> not allowed"]
 
 
 # --------------------------------------------------------------------------------------- fixture scope
