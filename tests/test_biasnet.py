@@ -113,18 +113,35 @@ def nn_eval_for(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
     return build
 
 
-def c_predict(exe: Path, kind: str, x: np.ndarray) -> tuple[str, np.ndarray]:
+def c_predict(exe: Path, kind: str, x: np.ndarray) -> tuple[str, np.ndarray, np.ndarray]:
+    """(header line, bias, std) as the C code computes them."""
     text = "".join(f"{kind} " + " ".join(repr(float(v)) for v in row) + "\n" for row in x.astype(np.float32))
     out = subprocess.run([str(exe)], input=text, capture_output=True, text=True, check=True, timeout=120).stdout
     lines = out.splitlines()
     assert not [ln for ln in lines[1:] if ln.startswith("E")]
-    return lines[0], np.array([float(v) for v in lines[1:]])
+    vals = np.array([[float(v) for v in ln.split()] for ln in lines[1:]]).reshape(-1, 2)
+    return lines[0], vals[:, 0], vals[:, 1]
 
 
-@pytest.mark.parametrize("which", ["random", "shipped"])
+def with_std_heads(model: BiasModel, seed: int) -> BiasModel:
+    """A std head whose output spans [std_min, std_max] and beyond (clamping is exercised too)."""
+    rng = np.random.default_rng(seed)
+    nets = {}
+    for kind in ("twr", "tdoa"):
+        net = model.network(kind)
+        assert net is not None
+        w3s = rng.normal(0.0, 6.0, 50).astype(np.float32)  # log std spread ~ +-1.8 over the input box
+        x = rng.uniform(net.in_min, net.in_max, size=(500, net.n_in))
+        b3s = float(np.log(0.1) - np.mean(net.hidden(x) @ w3s))    # centred on 0.1 m
+        nets[kind] = replace(net, w3s=w3s, b3s=b3s, std_min=0.03, std_max=0.4)
+    return BiasModel(twr=nets["twr"], tdoa=nets["tdoa"], name=model.name + "-std")
+
+
+@pytest.mark.parametrize("which", ["random", "random-std", "shipped"])
 def test_c_torch_numpy_agree_on_10000_inputs(nn_eval_for, which: str) -> None:  # noqa: ANN001
     import torch
-    model = random_model(7) if which == "random" else BiasModel.load(DEFAULT_NPZ)
+    model = {"random": lambda: random_model(7), "random-std": lambda: with_std_heads(random_model(8), 9),
+             "shipped": lambda: BiasModel.load(DEFAULT_NPZ)}[which]()
     exe = nn_eval_for(model)
     rng = np.random.default_rng(3)
     for kind in ("twr", "tdoa"):
@@ -133,8 +150,18 @@ def test_c_torch_numpy_agree_on_10000_inputs(nn_eval_for, which: str) -> None:  
         # Inputs spread a little beyond the training ranges, where clamping and extrapolation happen too.
         span = net.in_max - net.in_min
         x = rng.uniform(net.in_min - 0.1 * span, net.in_max + 0.1 * span, size=(10_000, net.n_in)).astype(np.float32)
-        header, c = c_predict(exe, kind, x)
+        header, c, c_std = c_predict(exe, kind, x)
         assert header.split()[1] == model.hash_hex
+        _, n_std = net.predict_with_std_batch(x)
+        if net.has_std:  # float32 expf vs float64 exp: relative agreement
+            assert np.max(np.abs(c_std - n_std) / n_std) <= 1e-5, kind
+            at_min, at_max = np.isclose(c_std, net.std_min, rtol=1e-7), np.isclose(c_std, net.std_max, rtol=1e-7)
+            assert np.all(((c_std >= net.std_min) & (c_std <= net.std_max)) | at_min | at_max)
+            if which == "random-std":  # not vacuous: varied, and partly clamped at each bound
+                assert np.mean(at_min) > 0.01 and np.mean(at_max) > 0.01
+                assert np.mean(~at_min & ~at_max) > 0.3
+        else:
+            assert np.all(c_std == 0.0) and np.all(n_std == 0.0)
         with torch.no_grad():
             t = to_torch(net)(torch.from_numpy(x)).numpy().astype(np.float64)  # type: ignore[operator]
         n = net.predict_batch(x)

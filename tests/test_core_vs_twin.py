@@ -161,8 +161,10 @@ class CRun:
     heights: int
 
 
-def run_c(exe: Path, flight: Flight, cfg: EstimatorConfig) -> CRun:
-    out = subprocess.run([str(exe), "--no-model"], input=event_stream(flight, cfg), capture_output=True,
+def run_c(exe: Path, flight: Flight, cfg: EstimatorConfig, with_model: bool = False) -> CRun:
+    """``with_model``: the compiled-in bias networks run (else --no-model)."""
+    args = [str(exe)] if with_model else [str(exe), "--no-model"]
+    out = subprocess.run(args, input=event_stream(flight, cfg), capture_output=True,
                          text=True, check=True).stdout.splitlines()
     assert not [line for line in out if line.startswith("E")], "the core refused an input"
     rows = np.array([[float(v) for v in line.split()[1:]] for line in out if line.startswith("R")])
@@ -256,3 +258,59 @@ def test_height_pseudo_measurements_match_twin(replay_core: Path) -> None:
     assert np.all(c.flags == FLAG_HEIGHT_FUSED)
     assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
     assert np.sqrt(np.mean((c.pos[:, 2] - flight.truth.pos[:, 2]) ** 2)) < 0.02
+
+
+# ----------------------------------------------------------- with a bias network that predicts its std
+def std_head_model() -> "BiasModel":
+    """Random pose networks (bias within +-0.1 m) with a std head spanning its bounds on this flight."""
+    from harness.biasnet.model import BiasModel, init_network
+    from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
+    rng = np.random.default_rng(21)
+    lo6 = np.array([-6.0, -6.0, -3.0, -0.3, -0.3, -np.pi])
+    lo9 = np.concatenate([lo6[:3], lo6])
+    nets = {}
+    for kind, layout, lo in (("twr", LAYOUT_TWR_POSE, lo6), ("tdoa", LAYOUT_TDOA_POSE, lo9)):
+        net = init_network(layout, lo, -lo, -0.1, 0.1, rng)
+        w3s = rng.normal(0.0, 6.0, 50).astype(np.float32)
+        x = rng.uniform(net.in_min, net.in_max, size=(500, net.n_in))
+        nets[kind] = replace(net, b3=net.b3 + 0.5, w3s=w3s, b3s=float(np.log(0.08) - np.mean(net.hidden(x) @ w3s)),
+                             std_min=0.03, std_max=0.3)
+    return BiasModel(twr=nets["twr"], tdoa=nets["tdoa"], name="std-head-test")
+
+
+@pytest.fixture(scope="module")
+def replay_core_std(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, "BiasModel"]:
+    from harness.biasnet.export import export_c
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler")
+    model = std_head_model()
+    root = tmp_path_factory.mktemp("replay_std")
+    header = export_c(model, root / "model.h")
+    exe = root / "replay_core"
+    sources = sorted(str(p) for p in (FW / "core").glob("*.c"))
+    cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-Icore", "-Iproto", "-Iapp", "-Imodels", "-O2",
+           f"-DBIAS_MODEL_HEADER=\"{header}\"", "-D_POSIX_C_SOURCE=200809L", "-o", str(exe), *sources,
+           "host/platform_host.c", "tools/replay_core.c", "-lm"]
+    subprocess.run(cmd, cwd=FW, check=True, capture_output=True, text=True)
+    return exe, model
+
+
+@pytest.mark.parametrize("kind", [KIND_TWR, KIND_TDOA], ids=["twr", "tdoa"])
+def test_core_matches_twin_with_a_std_head_network(replay_core_std: tuple[Path, "BiasModel"], kind: int) -> None:
+    from harness.config import STAGES_ALL
+    exe, model = replay_core_std
+    flight = synthetic_flight(kind, noise=0.05, outliers=True, seed=11 + kind)
+    cfg = base_config(flight, MODE_IMU, stages=STAGES_ALL)
+    twin = run_flight(flight, cfg, model)
+    c = run_c(exe, flight, cfg, with_model=True)
+    np.testing.assert_array_equal(c.status, np.array([r.status for r in twin]))
+    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
+    t_s = np.array([r.innovation_var for r in twin])
+    assert np.max(np.abs(c.S - t_s) / t_s) < 1e-3
+    # The network's std, not the configured one, is in S: S - H P H^T varies with the input, within
+    # [std_min^2, std_max^2] (H P H^T >= 0, so S >= std_min^2 always, and often S < std_cfg^2).
+    std_cfg = cfg.std_tdoa if kind == KIND_TDOA else cfg.std_twr
+    airborne = np.array([r.pos[2] for r in twin]) > cfg.nn_min_z
+    assert np.all(t_s[airborne] >= 0.03 ** 2 * 0.999)
+    assert np.mean(t_s[airborne] < std_cfg ** 2) > 0.3

@@ -11,6 +11,8 @@
  * arbitrarily large correction. */
 #include "bias_nn.h"
 
+#include <math.h>
+
 /* The compiled-in model: BIAS_MODEL_HEADER (a header written by `uwb-hil export-c`) or the shipped
  * default. The header defines BIAS_MODEL_TWR, BIAS_MODEL_TDOA (pointers or NULL) and BIAS_MODEL_HASH. */
 #ifdef BIAS_MODEL_HEADER
@@ -89,7 +91,28 @@ static void dense_relu(const float *x, uint8_t n_in, const float *restrict w, co
     }
 }
 
-float bias_nn_predict(const bias_nn_t *net, const float *features)
+float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN])
+{
+    float s = net->b3s, std;
+    int i;
+    if (net->w3s == NULL) {
+        return 0.0f;
+    }
+    for (i = 0; i < BIAS_NN_HIDDEN; i++) {
+        s += h2[i] * net->w3s[i];
+    }
+    std = expf(s);
+    /* NaN fails both comparisons' "inside" side and ends at std_max: trust least when unsure */
+    if (!(std <= net->std_max)) {
+        std = net->std_max;
+    }
+    if (std < net->std_min) {
+        std = net->std_min;
+    }
+    return std;
+}
+
+float bias_nn_predict(const bias_nn_t *net, const float *features, float *std_out)
 {
     float x[BIAS_NN_MAX_IN], h1[BIAS_NN_HIDDEN], h2[BIAS_NN_HIDDEN];
     float y;
@@ -104,6 +127,9 @@ float bias_nn_predict(const bias_nn_t *net, const float *features)
     y = net->b3;
     for (i = 0; i < BIAS_NN_HIDDEN; i++) {
         y += h2[i] * net->w3[i];
+    }
+    if (std_out != NULL) {
+        *std_out = bias_nn_std_head(net, h2);
     }
     y = y * (net->out_max - net->out_min) + net->out_min;
     if (y < net->out_min) {

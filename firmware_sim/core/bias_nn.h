@@ -1,4 +1,6 @@
-/* The bias network: 2 hidden layers x 50 ReLU -> 1 linear output, float32, const weights (flash). */
+/* The bias network: 2 hidden layers x 50 ReLU -> 1 linear output (the bias), float32, const weights
+ * (flash); optionally a second linear head on the same hidden layer: the log of the standard deviation
+ * of the corrected error, bounded to [std_min, std_max] (harness/biasnet/uncertainty.py). */
 #ifndef UWB_BIAS_NN_H
 #define UWB_BIAS_NN_H
 
@@ -31,6 +33,10 @@ typedef struct {
     const float *in_max; /* n_in */
     float out_min;
     float out_max;
+    const float *w3s;    /* 50: std head (log std), or NULL: the network predicts no std */
+    float b3s;
+    float std_min;       /* bounds of the predicted std [m] */
+    float std_max;
 } bias_nn_t;
 
 /* The compiled-in model: one network per measurement kind (either may be NULL). */
@@ -49,8 +55,13 @@ uint8_t bias_nn_layout_inputs(uint8_t layout);
 uint8_t bias_nn_features(uint8_t layout, const float tag[3], const float rpy[3],
                          const float anchor_a[3], const float anchor_b[3], float out[BIAS_NN_MAX_IN]);
 
-/* Scale, run, de-scale and clamp: the bias in metres (measured - true). */
-float bias_nn_predict(const bias_nn_t *net, const float *features);
+/* Scale, run, de-scale and clamp: the bias in metres (measured - true). If std_out is not NULL it
+ * receives the predicted std of the corrected error [m], clamped to [std_min, std_max] (NaN -> std_max),
+ * or 0 when the network has no std head. */
+float bias_nn_predict(const bias_nn_t *net, const float *features, float *std_out);
+
+/* The std head on a computed second hidden layer h2 (shared by bias_nn.c and the M4 kernel). */
+float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN]);
 
 /* The model the firmware is built with (firmware_sim/models/bias_model_default.h, or the
  * header named by -DBIAS_MODEL_HEADER). Defined in bias_nn.c. */

@@ -212,11 +212,14 @@ static int64_t diff_us(uint64_t t1, uint64_t t0)
 }
 
 /* Bias (measured - true) from the network of this kind, or 0 when the stage is off, there is no
- * network, or the estimate is below nn_min_z (take-off: the paper does not correct there). */
+ * network, or the estimate is below nn_min_z (take-off: the paper does not correct there).
+ * *std_out: the network's predicted std of the corrected error [m] (bounded by the network's
+ * std_min/std_max), or 0 when it has none or did not run: the caller then uses the configured std. */
 static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *anchor_a,
-                     const float *anchor_b)
+                     const float *anchor_b, float *std_out)
 {
     float rpy[3], feat[BIAS_NN_MAX_IN];
+    *std_out = 0.0f;
     if (!(est->cfg.stages & EST_STAGE_BIAS_NN) || net == NULL || !(est->ekf.S[EKF_Z] > est->cfg.nn_min_z)) {
         return 0.0f;
     }
@@ -224,7 +227,7 @@ static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *
     if (bias_nn_features(net->layout, &est->ekf.S[EKF_X], rpy, anchor_a, anchor_b, feat) == 0) {
         return 0.0f;
     }
-    return bias_nn_predict(net, feat);
+    return bias_nn_predict(net, feat, std_out);
 }
 
 /* How long the links of anchor id had been rejected up to its previous measurement (0 if that one
@@ -283,7 +286,7 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     const bias_nn_t *net = NULL;
     const uint64_t t_ref = ekf->t_us;
     const int have_ref = ekf->has_time;
-    float h, H[3], dt, y, bias;
+    float h, H[3], dt, y, bias, std_nn, std;
     ekf_scalar_t m;
     uint32_t c0, c1, c2, c3;
     int64_t since_us, rej_a, rej_b;
@@ -336,12 +339,14 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     if (est->model != NULL) {
         net = tdoa ? est->model->tdoa : est->model->twr;
     }
-    bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a);
+    bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a, &std_nn);
     y = (z - bias) - h;
+    /* the network's own std of what it leaves, when it predicts one; else the configured std */
+    std = std_nn > 0.0f ? std_nn : (tdoa ? cfg->std_tdoa : cfg->std_twr);
     c2 = platform_cost_now();
 
     /* 3./4. gates (S is needed by the chi-square gate and reported in every case) */
-    ekf_scalar_prepare(ekf, &m, H, y, tdoa ? cfg->std_tdoa * cfg->std_tdoa : cfg->std_twr * cfg->std_twr);
+    ekf_scalar_prepare(ekf, &m, H, y, std * std);
     out->status = EST_ACCEPTED;
     if ((cfg->stages & EST_STAGE_KINEMATIC_GATE) && !gate_kinematic_pass(y, out->d_max, tdoa ? 2.0f : 1.0f)) {
         out->status = EST_REJECTED_KINEMATIC;

@@ -405,7 +405,8 @@ static const float bias_net_twr_in_max[6] = {
 
 static const bias_nn_t bias_net_twr = {
     1u, 6u, bias_net_twr_w1, bias_net_twr_b1, bias_net_twr_w2, bias_net_twr_b2, bias_net_twr_w3, 0.193215653f,
-    bias_net_twr_in_min, bias_net_twr_in_max, -0.199098244f, 0.696920812f
+    bias_net_twr_in_min, bias_net_twr_in_max, -0.199098244f, 0.696920812f,
+    (const float *)0, 0.0f, 0.0f, 0.0f
 };
 
 /* TDOA network: layout 2, 9 inputs. */
@@ -828,7 +829,8 @@ static const float bias_net_tdoa_in_max[9] = {
 
 static const bias_nn_t bias_net_tdoa = {
     2u, 9u, bias_net_tdoa_w1, bias_net_tdoa_b1, bias_net_tdoa_w2, bias_net_tdoa_b2, bias_net_tdoa_w3, 0.370020032f,
-    bias_net_tdoa_in_min, bias_net_tdoa_in_max, -0.683427155f, 0.697546184f
+    bias_net_tdoa_in_min, bias_net_tdoa_in_max, -0.683427155f, 0.697546184f,
+    (const float *)0, 0.0f, 0.0f, 0.0f
 };
 
 #define BIAS_MODEL_TWR (&bias_net_twr)

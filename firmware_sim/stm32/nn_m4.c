@@ -90,7 +90,7 @@ static float dense_out(const float *h, const float *w, float b)
 
 typedef void (*layer_fn)(const float *x, unsigned n_in, const float *w, const float *b, float *out);
 
-static inline float predict_with(const bias_nn_t *net, const float *features, layer_fn layer)
+static inline float predict_with(const bias_nn_t *net, const float *features, float *std_out, layer_fn layer)
 {
     float x[BIAS_NN_MAX_IN];
     float h1[H], h2[H];
@@ -104,6 +104,9 @@ static inline float predict_with(const bias_nn_t *net, const float *features, la
     layer(x, n_in, net->w1, net->b1, h1);
     layer(h1, H, net->w2, net->b2, h2);
     y = dense_out(h2, net->w3, net->b3);
+    if (std_out != (float *)0) {
+        *std_out = bias_nn_std_head(net, h2); /* 50 MACs and one expf: the core's C is enough */
+    }
     y = y * (net->out_max - net->out_min) + net->out_min;
     if (y < net->out_min) {
         y = net->out_min;
@@ -114,17 +117,17 @@ static inline float predict_with(const bias_nn_t *net, const float *features, la
     return y;
 }
 
-float nn_m4_predict(const bias_nn_t *net, const float *features)
+float nn_m4_predict(const bias_nn_t *net, const float *features, float *std_out)
 {
-    return predict_with(net, features, dense_relu_m4);
+    return predict_with(net, features, std_out, dense_relu_m4);
 }
 
-float nn_m4_predict_c(const bias_nn_t *net, const float *features)
+float nn_m4_predict_c(const bias_nn_t *net, const float *features, float *std_out)
 {
-    return predict_with(net, features, dense_relu);
+    return predict_with(net, features, std_out, dense_relu);
 }
 
-float __wrap_bias_nn_predict(const bias_nn_t *net, const float *features)
+float __wrap_bias_nn_predict(const bias_nn_t *net, const float *features, float *std_out)
 {
-    return nn_m4_predict(net, features);
+    return nn_m4_predict(net, features, std_out);
 }

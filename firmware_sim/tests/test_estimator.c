@@ -417,6 +417,42 @@ static void test_bias_network_wiring(void)
     CHECK_NEAR(r.bias, expected_bias(dp), 1e-5);
     CHECK_NEAR(r.innovation, -r.bias, 1e-5); /* y = (z - bias) - h with z = h */
 
+    /* std head: S = H P H^T + std^2 with the network's std instead of std_twr, bounded by its limits */
+    {
+        estimator_result_t r_head;
+        const float s_plain = r.innovation_var;
+        net.w3s = zeros;
+        net.std_min = 0.02f;
+        net.std_max = 0.5f;
+        net.b3s = logf(0.1f);
+        estimator_configure(&est, &cfg, 1);
+        CHECK(estimator_on_twr(&est, 1000, 7, h, &r_head) == EST_OK);
+        CHECK_NEAR(r_head.bias, r.bias, 1e-6);
+        CHECK_NEAR(r_head.innovation_var - s_plain, 0.1f * 0.1f - cfg.std_twr * cfg.std_twr, 1e-5);
+        net.b3s = logf(5.0f); /* above std_max: clamped */
+        estimator_configure(&est, &cfg, 1);
+        CHECK(estimator_on_twr(&est, 1000, 7, h, &r_head) == EST_OK);
+        CHECK_NEAR(r_head.innovation_var - s_plain, 0.25f - cfg.std_twr * cfg.std_twr, 1e-5);
+        net.b3s = logf(1e-4f); /* below std_min: clamped */
+        estimator_configure(&est, &cfg, 1);
+        CHECK(estimator_on_twr(&est, 1000, 7, h, &r_head) == EST_OK);
+        CHECK_NEAR(r_head.innovation_var - s_plain, 0.02f * 0.02f - cfg.std_twr * cfg.std_twr, 1e-5);
+        /* below nn_min_z the network does not run: the configured std again */
+        cfg.init_z = 0.4f;
+        estimator_configure(&est, &cfg, 1);
+        CHECK(estimator_on_twr(&est, 1000, 7, 3.0f, &r_head) == EST_OK);
+        CHECK(r_head.bias == 0.0f);
+        {
+            estimator_result_t r_nohead;
+            net.w3s = NULL;
+            estimator_configure(&est, &cfg, 1);
+            CHECK(estimator_on_twr(&est, 1000, 7, 3.0f, &r_nohead) == EST_OK);
+            CHECK_NEAR(r_head.innovation_var, r_nohead.innovation_var, 1e-7);
+        }
+        cfg.init_z = p0[2];
+        estimator_configure(&est, &cfg, 1);
+    }
+
     /* below nn_min_z: no correction */
     cfg.init_z = 0.4f;
     estimator_configure(&est, &cfg, 1);

@@ -4,7 +4,8 @@
  *
  * First output line: "H hash_hex layout_twr layout_tdoa".
  * Input lines: "twr f0 .. fn-1" or "tdoa f0 .. fn-1" (n = the network's input count).
- * Output: one line per input, the predicted bias with 9 significant digits, or "E reason". */
+ * Output: one line per input, the predicted bias and std (0 without a std head) with 9 significant
+ * digits, or "E reason". */
 #include <inttypes.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -48,7 +49,11 @@ int main(void)
             printf("E expected %u features\n", (unsigned)net->n_in);
             continue;
         }
-        printf("%.9g\n", (double)bias_nn_predict(net, x));
+        {
+            float std = -1.0f;
+            const float bias = bias_nn_predict(net, x, &std);
+            printf("%.9g %.9g\n", (double)bias, (double)std);
+        }
     }
     return 0;
 }

@@ -46,7 +46,7 @@ def firmware_for(model: BiasModel, build_root: Path | None = None, timeout_s: fl
 def build_nn_eval(header: Path, out: Path, timeout_s: float = 120.0) -> Path:
     """firmware_sim/tools/nn_eval compiled against ``header`` (an exported model)."""
     cmd = [_compiler(), *CFLAGS, f"-DBIAS_MODEL_HEADER=\"{Path(header).resolve()}\"", "-Icore", "-Imodels",
-           "-o", str(out), "core/bias_nn.c", "tools/nn_eval.c"]
+           "-o", str(out), "core/bias_nn.c", "tools/nn_eval.c", "-lm"]
     proc = subprocess.run(cmd, cwd=FW_DIR, capture_output=True, text=True, timeout=timeout_s)
     if proc.returncode != 0:
         raise BuildError(f"building nn_eval failed:\n{proc.stderr}")

@@ -16,6 +16,7 @@ from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
 from harness.biasnet.model import BiasModel
 from harness.biasnet.recipes import SimRecipe, load_recordings
 from harness.biasnet.train import TrainConfig, TrainReport, train_network
+from harness.biasnet.uncertainty import calibration
 from harness.flight.model import KIND_TWR, Flight
 from harness.session import shared_data_dir
 from harness.optional import require_torch
@@ -137,6 +138,8 @@ def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float
     out: dict[str, Any] = {"kind": kind, "layout": net.layout, "model_hash": model.hash_hex,
                            "test": [f.name for f in test], "half_window_s": half_window_s}
     evals: list[Evaluation] = [evaluate("network", ts, lambda s: net.predict_batch(s.x), fast=fast)]
+    if net.has_std:  # does the predicted std describe the error left on these unseen flights?
+        out["std_calibration"] = calibration(net, ts)
     if train:
         tr = build_samples(train, net.layout, xi)
         out["baseline_train"] = [f.name for f in train]
@@ -173,6 +176,11 @@ def _print_compare(res: dict[str, Any]) -> None:
     console = Console(width=120)
     console.print(table)
     console.print(pairs)
+    cal = res.get("std_calibration")
+    if cal:
+        console.print(f"network std head: predicted std (RMS) {cal['std_rms']:.4f} m for a residual of "
+                      f"{cal['residual_rms']:.4f} m; mean (r/std)^2 {cal['mean_z2']:.2f} (1 = calibrated), "
+                      f"|r| < 1.96 std for {100 * cal['inside_95']:.1f} % (95 % for a Gaussian)")
 
 
 def cmd_eval(args: argparse.Namespace) -> int:

@@ -38,9 +38,15 @@ def _net_block(kind: str, net: BiasNetwork) -> str:
     out = [f"/* {kind.upper()} network: layout {net.layout}, {net.n_in} inputs. */\n"]
     for name in ("w1", "b1", "w2", "b2", "w3", "in_min", "in_max"):
         out.append(_c_array(f"{p}_{name}", getattr(net, name)))
+    if net.w3s is not None:
+        out.append(_c_array(f"{p}_w3s", net.w3s))
+        head = f"{p}_w3s, {_c_float(net.b3s)}, {_c_float(net.std_min)}, {_c_float(net.std_max)}"
+    else:
+        head = "(const float *)0, 0.0f, 0.0f, 0.0f"
     out.append(f"static const bias_nn_t {p} = {{\n"
                f"    {net.layout}u, {net.n_in}u, {p}_w1, {p}_b1, {p}_w2, {p}_b2, {p}_w3, {_c_float(net.b3)},\n"
-               f"    {p}_in_min, {p}_in_max, {_c_float(net.out_min)}, {_c_float(net.out_max)}\n}};\n")
+               f"    {p}_in_min, {p}_in_max, {_c_float(net.out_min)}, {_c_float(net.out_max)},\n"
+               f"    {head}\n}};\n")
     return "\n".join(out)
 
 

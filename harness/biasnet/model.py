@@ -2,6 +2,9 @@
 
 A model holds up to two networks (TWR and TDoA), each 2 hidden layers x 50 ReLU -> 1 linear output with
 min-max input scaling and a clamped, de-scaled output (the maths of firmware_sim/core/bias_nn.c).
+A network may carry a second head on the same hidden layer: the log of the standard deviation of the
+corrected error, ``std = clamp(exp(h2 . w3s + b3s), std_min, std_max)``, which the firmware uses as the
+measurement's standard deviation (train.py fits it; the bounds are stored with the weights).
 Files are ``.npz`` written and read with ``allow_pickle=False``: loading never runs code.
 
 The model hash (reported by the firmware in HELLO) is the first 8 bytes, little-endian, of SHA-256 over
@@ -23,7 +26,8 @@ from harness.twin.features import (LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR
                                    layout_inputs)
 
 HIDDEN = 50
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2          # 2: optional std head; version-1 files (no head) still load
+_READABLE_VERSIONS = (1, 2)
 _MAGIC = b"UWBNN\x01"
 _KINDS = ("twr", "tdoa")
 _TWR_LAYOUTS = (LAYOUT_TWR_POSE, LAYOUT_TWR_POS)
@@ -49,6 +53,10 @@ class BiasNetwork:
     in_max: np.ndarray  # (n_in,)
     out_min: float
     out_max: float
+    w3s: np.ndarray | None = None  # (50,) std head (log std), or None: no uncertainty output
+    b3s: float = 0.0
+    std_min: float = 0.0           # bounds of the predicted std [m] (0 < std_min < std_max with a head)
+    std_max: float = 0.0
 
     def __post_init__(self) -> None:
         n_in = layout_inputs(self.layout)
@@ -72,26 +80,70 @@ class BiasNetwork:
             raise ModelFormatError("in_max must exceed in_min for every input (widen constant features)")
         if not self.out_max > self.out_min:
             raise ModelFormatError("out_max must exceed out_min")
+        self._check_std_head()
+
+    def _check_std_head(self) -> None:
+        for name in ("b3s", "std_min", "std_max"):
+            object.__setattr__(self, name, float(np.float32(getattr(self, name))))
+        if self.w3s is None:
+            return
+        arr = np.ascontiguousarray(self.w3s, dtype=np.float32)
+        if arr.shape != (HIDDEN,):
+            raise ModelFormatError(f"w3s must have shape ({HIDDEN},), got {arr.shape}")
+        if not (np.all(np.isfinite(arr)) and np.isfinite(self.b3s)):
+            raise ModelFormatError("the std head holds NaN or Inf")
+        if not (np.isfinite(self.std_max) and 0.0 < self.std_min < self.std_max):
+            raise ModelFormatError(f"std bounds must satisfy 0 < std_min < std_max, got {self.std_min}, {self.std_max}")
+        object.__setattr__(self, "w3s", arr)
+
+    @property
+    def has_std(self) -> bool:
+        return self.w3s is not None
 
     @property
     def n_in(self) -> int:
         return int(self.w1.shape[0])
 
     # ------------------------------------------------------------------------------------ inference
-    def predict_batch(self, features: np.ndarray) -> np.ndarray:
-        """Bias [m] for each row of ``features`` (N, n_in), float64 arithmetic on the float32 tables."""
+    def hidden(self, features: np.ndarray) -> np.ndarray:
+        """Second hidden layer (N, 50) for each row of ``features`` (N, n_in), float64 arithmetic."""
         x = np.asarray(features, dtype=np.float64).reshape(-1, self.n_in)
         lo, hi = self.in_min.astype(np.float64), self.in_max.astype(np.float64)
         xs = (x - lo) / (hi - lo)
         h1 = np.maximum(xs @ self.w1.astype(np.float64) + self.b1, 0.0)
-        h2 = np.maximum(h1 @ self.w2.astype(np.float64) + self.b2, 0.0)
+        return np.maximum(h1 @ self.w2.astype(np.float64) + self.b2, 0.0)
+
+    def _bias_from_hidden(self, h2: np.ndarray) -> np.ndarray:
         y = h2 @ self.w3.astype(np.float64) + self.b3
         y = y * (self.out_max - self.out_min) + self.out_min
         return np.clip(y, self.out_min, self.out_max)
 
+    def _std_from_hidden(self, h2: np.ndarray) -> np.ndarray:
+        assert self.w3s is not None
+        with np.errstate(over="ignore"):
+            std = np.exp(h2 @ self.w3s.astype(np.float64) + self.b3s)
+        # NaN -> std_max (trust least), as bias_nn.c
+        std = np.where(np.isnan(std) | (std > self.std_max), self.std_max, std)
+        return np.maximum(std, self.std_min)
+
+    def predict_batch(self, features: np.ndarray) -> np.ndarray:
+        """Bias [m] for each row of ``features`` (N, n_in), float64 arithmetic on the float32 tables."""
+        return self._bias_from_hidden(self.hidden(features))
+
+    def predict_with_std_batch(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bias and predicted std [m] per row; std 0 when the network has no std head."""
+        h2 = self.hidden(features)
+        std = self._std_from_hidden(h2) if self.w3s is not None else np.zeros(len(h2))
+        return self._bias_from_hidden(h2), std
+
     def predict(self, features: np.ndarray) -> float:
         """Bias [m] for one feature vector (the twin's ``BiasNet`` protocol)."""
         return float(self.predict_batch(np.asarray(features).reshape(1, -1))[0])
+
+    def predict_with_std(self, features: np.ndarray) -> tuple[float, float]:
+        """Bias and std [m] for one feature vector (std 0 without a std head)."""
+        b, s = self.predict_with_std_batch(np.asarray(features).reshape(1, -1))
+        return float(b[0]), float(s[0])
 
     # --------------------------------------------------------------------------------- serialisation
     def canonical_bytes(self) -> bytes:
@@ -102,6 +154,9 @@ class BiasNetwork:
         parts.append(self.in_min.astype("<f4").tobytes())
         parts.append(self.in_max.astype("<f4").tobytes())
         parts.append(struct.pack("<ff", self.out_min, self.out_max))
+        if self.w3s is not None:  # only with a head: networks without one keep their hash
+            parts.append(b"S" + self.w3s.astype("<f4").tobytes())
+            parts.append(struct.pack("<fff", self.b3s, self.std_min, self.std_max))
         return b"".join(parts)
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
@@ -110,6 +165,10 @@ class BiasNetwork:
             out[f"{prefix}_{name}"] = getattr(self, name)
         for name in ("b3", "out_min", "out_max"):
             out[f"{prefix}_{name}"] = np.array(getattr(self, name), dtype=np.float32)
+        if self.w3s is not None:
+            out[f"{prefix}_w3s"] = self.w3s
+            for name in ("b3s", "std_min", "std_max"):
+                out[f"{prefix}_{name}"] = np.array(getattr(self, name), dtype=np.float32)
         return out
 
     @classmethod
@@ -118,11 +177,17 @@ class BiasNetwork:
         missing = [f"{prefix}_{n}" for n in names if f"{prefix}_{n}" not in arrays]
         if missing:
             raise ModelFormatError(f"{source}: missing arrays {missing}")
+        head = [f"{prefix}_{n}" for n in ("w3s", "b3s", "std_min", "std_max")]
+        present = [n for n in head if n in arrays]
+        if present and len(present) != len(head):
+            raise ModelFormatError(f"{source}: incomplete std head: has {present}, needs {head}")
+        std = ({"w3s": arrays[head[0]], "b3s": float(arrays[head[1]]), "std_min": float(arrays[head[2]]),
+                "std_max": float(arrays[head[3]])} if present else {})
         try:
             return cls(layout=int(arrays[f"{prefix}_layout"]),
                        **{n: arrays[f"{prefix}_{n}"] for n in ("w1", "b1", "w2", "b2", "w3", "in_min", "in_max")},
                        b3=float(arrays[f"{prefix}_b3"]), out_min=float(arrays[f"{prefix}_out_min"]),
-                       out_max=float(arrays[f"{prefix}_out_max"]))
+                       out_max=float(arrays[f"{prefix}_out_max"]), **std)
         except ModelFormatError as exc:
             raise ModelFormatError(f"{source}: {prefix} network: {exc}") from None
         except (TypeError, ValueError) as exc:
@@ -172,7 +237,9 @@ class BiasModel:
     # ------------------------------------------------------------------------------------------ files
     def save(self, path: Path) -> Path:
         path = Path(path)
-        arrays: dict[str, np.ndarray] = {"format_version": np.array(FORMAT_VERSION, dtype=np.int64),
+        # version 1 when no network has a std head: such files stay readable by older code
+        version = FORMAT_VERSION if any(n is not None and n.has_std for n in (self.twr, self.tdoa)) else 1
+        arrays: dict[str, np.ndarray] = {"format_version": np.array(version, dtype=np.int64),
                                          "name": np.array(self.name),
                                          "hash": np.array(self.hash_hex),
                                          "meta_json": np.array(json.dumps(self.meta, sort_keys=True, default=str))}
@@ -196,8 +263,8 @@ class BiasModel:
         except (OSError, ValueError, EOFError) as exc:
             raise ModelFormatError(f"{path}: not a bias-model .npz ({exc})") from None
         version = int(arrays.get("format_version", -1))
-        if version != FORMAT_VERSION:
-            raise ModelFormatError(f"{path}: format_version {version}, expected {FORMAT_VERSION}")
+        if version not in _READABLE_VERSIONS:
+            raise ModelFormatError(f"{path}: format_version {version}, expected one of {_READABLE_VERSIONS}")
         nets = {kind: BiasNetwork.from_arrays(arrays, kind, str(path)) if f"{kind}_layout" in arrays else None
                 for kind in _KINDS}
         try:

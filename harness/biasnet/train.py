@@ -16,6 +16,7 @@ import numpy as np
 
 from harness.biasnet.dataset import Samples, split_by_flight
 from harness.biasnet.model import HIDDEN, BiasNetwork
+from harness.biasnet.uncertainty import StdHeadConfig, fit_std_head
 from harness.optional import require_torch
 
 
@@ -34,6 +35,8 @@ class TrainConfig:
     seed: int = 0
     threads: int = 1                # a 2x50 network gains nothing from intra-op threads; they only contend
     time_budget_s: float | None = None  # stop after this much training time (keeps the best epoch)
+    #: the std head (uncertainty.py), fitted on the validation flights after training; None: no head
+    std_head: StdHeadConfig | None = field(default_factory=StdHeadConfig)
 
     def validate(self) -> None:
         if self.optimizer not in ("sgd", "adam"):
@@ -153,6 +156,8 @@ def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Sampl
         for p, b in zip(net.parameters(), best[1]):
             p.copy_(b)
     result = to_network(net, train.layout, in_min, in_max, out_min, out_max)
+    if cfg.std_head is not None:
+        result = fit_std_head(result, val, cfg.std_head)
     pred = result.predict_batch(val.x)
     report.val_rmse_before_m = float(np.sqrt(np.mean(val.bias ** 2)))
     report.val_rmse_after_m = float(np.sqrt(np.mean((val.bias - pred) ** 2)))

@@ -54,7 +54,8 @@ class TwinError(ValueError):
 
 
 class BiasNet(Protocol):
-    """One bias network: its input layout and ``predict(features (n_in,)) -> bias [m]``."""
+    """One bias network: its input layout and ``predict(features (n_in,)) -> bias [m]``. A network
+    with ``predict_with_std(features) -> (bias, std)`` also gives the measurement std (0: none)."""
 
     layout: int
 
@@ -271,15 +272,20 @@ class TwinEstimator:
         self.flags |= FLAG_HEIGHT_FUSED
         self._supervise()
 
-    def _bias(self, net: BiasNet | None, anchor_a: np.ndarray, anchor_b: np.ndarray | None) -> float:
+    def _bias(self, net: BiasNet | None, anchor_a: np.ndarray, anchor_b: np.ndarray | None) -> tuple[float, float]:
+        """(bias, predicted std or 0), as nn_bias() in estimator.c."""
         c = self.config
         if not (c.stages & STAGE_BIAS_NN) or net is None or not (self.ekf.x[2] > c.nn_min_z):
-            return 0.0
+            return 0.0, 0.0
         f = features(int(net.layout), self.ekf.x[POS], self.ekf.rpy(), anchor_a,
                      anchor_b if anchor_b is not None else anchor_a)
         if f.size == 0:
-            return 0.0
-        return float(net.predict(f))
+            return 0.0, 0.0
+        with_std = getattr(net, "predict_with_std", None)
+        if with_std is not None:
+            bias, std = with_std(f)
+            return float(bias), float(std)
+        return float(net.predict(f)), 0.0
 
     def _process(self, t_us: int, ids: tuple[int, int], anchor_a: np.ndarray, anchor_b: np.ndarray | None,
                  z: float) -> TwinResult:
@@ -310,10 +316,11 @@ class TwinEstimator:
         h, H3 = model
 
         net = getattr(self.model, "tdoa" if tdoa else "twr", None) if self.model is not None else None
-        bias = self._bias(net, anchor_a, anchor_b)
+        bias, std_nn = self._bias(net, anchor_a, anchor_b)
         y = (z - bias) - h
 
-        std = c.std_tdoa if tdoa else c.std_twr
+        # the network's own std of what it leaves, when it predicts one; else the configured std
+        std = std_nn if std_nn > 0.0 else (c.std_tdoa if tdoa else c.std_twr)
         upd = ekf.prepare(H3, y, std * std)
         status = ACCEPTED
         if c.stages & STAGE_KINEMATIC_GATE and not gates.kinematic_pass(y, d_max, 2.0 if tdoa else 1.0):
