@@ -11,16 +11,25 @@ MODE_UWB_ONLY = 1
 STAGE_BIAS_NN = 1
 STAGE_KINEMATIC_GATE = 2
 STAGE_CHI2_GATE = 4
-STAGES_ALL = STAGE_BIAS_NN | STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
+STAGE_NN_STD = 8          # measurement std = the network's predicted std (when it runs)
+STAGE_ROBUST_UPDATE = 16  # M-estimation weights on the update (robust_update.c)
+STAGES_ALL = STAGE_BIAS_NN | STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE  # the paper's outlier rejection + network
 STAGES_OUTLIER = STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
+STAGES_VALID = STAGES_ALL | STAGE_NN_STD | STAGE_ROBUST_UPDATE      # every bit CONFIG may set
 FLOAT32_MAX = 3.4028234663852886e38   # largest finite IEEE-754 single (the CONFIG frame's field type)
 
-#: The three configurations of the paper's experiments.
+#: The three configurations of the paper's experiments, then the alternatives of issue 14: the network's
+#: std as the measurement std, and the robust update in place of the chi-square gate.
 PRESETS: dict[str, int] = {
     "none": 0,
     "outlier": STAGES_OUTLIER,
     "outlier+nn": STAGES_ALL,
+    "outlier+nn+std": STAGES_ALL | STAGE_NN_STD,
+    "robust": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE,
+    "robust+nn": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE | STAGE_BIAS_NN,
 }
+#: What campaigns fly by default (the paper's table); the others are asked for by name.
+PAPER_PRESETS: tuple[str, ...] = ("none", "outlier", "outlier+nn")
 
 
 class ConfigError(ValueError):
@@ -62,7 +71,7 @@ class EstimatorConfig:
         """Raise ConfigError naming the first invalid field (the firmware refuses the same values)."""
         if self.mode not in (MODE_IMU, MODE_UWB_ONLY):
             raise ConfigError(f"mode must be {MODE_IMU} (IMU) or {MODE_UWB_ONLY} (UWB-only), got {self.mode}")
-        if self.stages & ~STAGES_ALL:
+        if self.stages & ~STAGES_VALID:
             raise ConfigError(f"stages has unknown bits: {self.stages:#x}")
         for name, value in asdict(self).items():
             if isinstance(value, float) and not math.isfinite(value):

@@ -27,6 +27,8 @@ class Stage(enum.IntEnum):
     BIAS_NN = 1
     KINEMATIC_GATE = 2
     CHI2_GATE = 4
+    NN_STD = 8
+    ROBUST_UPDATE = 16
 
 
 class MeasKind(enum.IntEnum):

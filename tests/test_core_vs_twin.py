@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.config import (MODE_IMU, MODE_UWB_ONLY, STAGE_CHI2_GATE, STAGES_OUTLIER, EstimatorConfig)
+from harness.config import (MODE_IMU, MODE_UWB_ONLY, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, STAGES_OUTLIER,
+                            EstimatorConfig)
 from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStream, ImuStream, Truth, UwbStream
 from harness.twin.estimator import (ACCEPTED, FLAG_DIVERGED, FLAG_HEIGHT_FUSED, FLAG_OUT_OF_BOX, REJECTED_CHI2,
                                     REJECTED_KINEMATIC, TwinResult, run_flight)
@@ -297,20 +298,50 @@ def replay_core_std(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, "Bi
 
 
 @pytest.mark.parametrize("kind", [KIND_TWR, KIND_TDOA], ids=["twr", "tdoa"])
-def test_core_matches_twin_with_a_std_head_network(replay_core_std: tuple[Path, "BiasModel"], kind: int) -> None:
-    from harness.config import STAGES_ALL
+@pytest.mark.parametrize("preset", ["outlier+nn", "outlier+nn+std", "robust+nn"])
+def test_core_matches_twin_with_a_std_head_network(replay_core_std: tuple[Path, "BiasModel"], kind: int,
+                                                   preset: str) -> None:
+    from harness.config import PRESETS
     exe, model = replay_core_std
     flight = synthetic_flight(kind, noise=0.05, outliers=True, seed=11 + kind)
-    cfg = base_config(flight, MODE_IMU, stages=STAGES_ALL)
+    cfg = base_config(flight, MODE_IMU, stages=PRESETS[preset])
     twin = run_flight(flight, cfg, model)
     c = run_c(exe, flight, cfg, with_model=True)
     np.testing.assert_array_equal(c.status, np.array([r.status for r in twin]))
     assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
     t_s = np.array([r.innovation_var for r in twin])
     assert np.max(np.abs(c.S - t_s) / t_s) < 1e-3
-    # The network's std, not the configured one, is in S: S - H P H^T varies with the input, within
-    # [std_min^2, std_max^2] (H P H^T >= 0, so S >= std_min^2 always, and often S < std_cfg^2).
+    assert rmse(c.pos, flight) < 0.15
     std_cfg = cfg.std_tdoa if kind == KIND_TDOA else cfg.std_twr
     airborne = np.array([r.pos[2] for r in twin]) > cfg.nn_min_z
-    assert np.all(t_s[airborne] >= 0.03 ** 2 * 0.999)
-    assert np.mean(t_s[airborne] < std_cfg ** 2) > 0.3
+    if preset == "outlier+nn+std":
+        # The network's std, not the configured one, is in S: S - H P H^T varies with the input, within
+        # [std_min^2, std_max^2] (H P H^T >= 0, so S >= std_min^2 always, and often S < std_cfg^2).
+        assert np.all(t_s[airborne] >= 0.03 ** 2 * 0.999)
+        assert np.mean(t_s[airborne] < std_cfg ** 2) > 0.3
+    else:  # the configured std: S >= std_cfg^2 always
+        assert np.all(t_s >= std_cfg ** 2 * 0.999)
+    if preset == "robust+nn":  # no chi-square gate: the -0.4 m outliers are accepted, down-weighted
+        status = np.array([r.status for r in twin])
+        assert not np.any(status == REJECTED_CHI2)
+        if kind == KIND_TDOA:  # 0.4 m is 2.7 sigma at std_tdoa 0.15: R / w with w < 1 (1.6 sigma for TWR: ~1)
+            assert np.all(t_s[61::97] > 1.2 * std_cfg ** 2)
+
+
+@pytest.mark.parametrize("mode", [MODE_IMU, MODE_UWB_ONLY], ids=["imu", "uwb_only"])
+def test_robust_update_matches_twin_and_resists_outliers(replay_core: Path, mode: int) -> None:
+    from harness.config import PRESETS, STAGE_ROBUST_UPDATE
+    flight = synthetic_flight(KIND_TWR, noise=0.05, outliers=True, seed=9)
+    cfg = replace(base_config(flight, mode, stages=PRESETS["robust"]), std_twr=0.1)
+    twin = run_flight(flight, cfg)
+    c = run_c(replay_core, flight, cfg)
+    np.testing.assert_array_equal(c.status, np.array([r.status for r in twin]))
+    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
+    # Without any gate, the +1 m (10 sigma) and -0.4 m outliers are all fused: the weights alone must keep
+    # them from pulling the estimate, the C core as the twin.
+    alone = replace(cfg, stages=STAGE_ROBUST_UPDATE)
+    c_alone = run_c(replay_core, flight, alone)
+    t_alone = np.array([r.pos for r in run_flight(flight, alone)])
+    assert np.max(np.abs(c_alone.pos - t_alone)) < 1e-4
+    no_rejection = rmse(np.array([r.pos for r in run_flight(flight, replace(cfg, stages=0))]), flight)
+    assert rmse(c_alone.pos, flight) < 0.7 * no_rejection

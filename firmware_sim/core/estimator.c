@@ -9,6 +9,7 @@
 #include "mm_tdoa.h"
 #include "mm_twr.h"
 #include "platform.h"
+#include "robust_update.h"
 
 void estimator_default_config(estimator_config_t *cfg)
 {
@@ -47,7 +48,7 @@ int estimator_config_valid(const estimator_config_t *cfg)
     if (cfg->mode != EST_MODE_IMU && cfg->mode != EST_MODE_UWB_ONLY) {
         return 0;
     }
-    if (cfg->stages & ~EST_STAGES_ALL) {
+    if (cfg->stages & ~EST_STAGES_VALID) {
         return 0;
     }
     for (i = 0; i < sizeof positive / sizeof positive[0]; i++) {
@@ -341,8 +342,8 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     }
     bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a, &std_nn);
     y = (z - bias) - h;
-    /* the network's own std of what it leaves, when it predicts one; else the configured std */
-    std = std_nn > 0.0f ? std_nn : (tdoa ? cfg->std_tdoa : cfg->std_twr);
+    /* NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std */
+    std = ((cfg->stages & EST_STAGE_NN_STD) && std_nn > 0.0f) ? std_nn : (tdoa ? cfg->std_tdoa : cfg->std_twr);
     c2 = platform_cost_now();
 
     /* 3./4. gates (S is needed by the chi-square gate and reported in every case) */
@@ -356,8 +357,14 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     }
     c3 = platform_cost_now();
 
-    /* 5. update */
+    /* 5. update; the robust stage inflates R by its M-estimation weight first (gates saw the nominal S) */
     if (out->status == EST_ACCEPTED) {
+        if (cfg->stages & EST_STAGE_ROBUST_UPDATE) {
+            const float r_w = robust_r_var(y, m.S - m.r_var, m.r_var);
+            if (r_w > m.r_var) {
+                ekf_scalar_prepare(ekf, &m, H, y, r_w);
+            }
+        }
         ekf_scalar_apply(ekf, &m);
         ekf_finalize(ekf);
         mark_fused(est, t_us, id_a, id_b);

@@ -40,8 +40,17 @@ enum {
 
 /* Modes and stage bits (= protocol enums ekf_mode, stage). */
 enum { EST_MODE_IMU = 0, EST_MODE_UWB_ONLY = 1 };
-enum { EST_STAGE_BIAS_NN = 1, EST_STAGE_KINEMATIC_GATE = 2, EST_STAGE_CHI2_GATE = 4 };
+enum {
+    EST_STAGE_BIAS_NN = 1,
+    EST_STAGE_KINEMATIC_GATE = 2,
+    EST_STAGE_CHI2_GATE = 4,
+    EST_STAGE_NN_STD = 8,       /* measurement std = the network's predicted std when it runs */
+    EST_STAGE_ROBUST_UPDATE = 16 /* M-estimation weights on the update (robust_update.h) */
+};
+/* The paper's outlier rejection + network (the power-up default). */
 #define EST_STAGES_ALL (EST_STAGE_BIAS_NN | EST_STAGE_KINEMATIC_GATE | EST_STAGE_CHI2_GATE)
+/* Every bit CONFIG may set. */
+#define EST_STAGES_VALID (EST_STAGES_ALL | EST_STAGE_NN_STD | EST_STAGE_ROBUST_UPDATE)
 
 /* What CONFIG carries (harness/config.py EstimatorConfig). */
 typedef struct {

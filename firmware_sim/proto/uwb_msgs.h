@@ -23,6 +23,8 @@ enum {
     UWB_STAGE_BIAS_NN = 1,
     UWB_STAGE_KINEMATIC_GATE = 2,
     UWB_STAGE_CHI2_GATE = 4,
+    UWB_STAGE_NN_STD = 8,
+    UWB_STAGE_ROBUST_UPDATE = 16,
 };
 
 /* Kind of UWB measurement in RESULT.kind */

@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "estimator.h"
+#include "robust_update.h"
 #include "unit.h"
 
 static const bias_model_t no_model = {NULL, NULL, 0};
@@ -126,7 +127,8 @@ static void test_config_validation(void)
     EXPECT_VALID(mode, 1, 1);
     EXPECT_VALID(mode, 2, 0);
     EXPECT_VALID(stages, 0, 1);
-    EXPECT_VALID(stages, 8, 0);
+    EXPECT_VALID(stages, EST_STAGES_VALID, 1);
+    EXPECT_VALID(stages, 32, 0);
     EXPECT_VALID(std_twr, 0.0f, 0);
     EXPECT_VALID(std_twr, -0.1f, 0);
     EXPECT_VALID(std_tdoa, NAN, 0);
@@ -425,6 +427,10 @@ static void test_bias_network_wiring(void)
         net.std_min = 0.02f;
         net.std_max = 0.5f;
         net.b3s = logf(0.1f);
+        estimator_configure(&est, &cfg, 1); /* without the NN_STD stage: the configured std */
+        CHECK(estimator_on_twr(&est, 1000, 7, h, &r_head) == EST_OK);
+        CHECK_NEAR(r_head.innovation_var, s_plain, 1e-7);
+        cfg.stages = EST_STAGE_BIAS_NN | EST_STAGE_NN_STD;
         estimator_configure(&est, &cfg, 1);
         CHECK(estimator_on_twr(&est, 1000, 7, h, &r_head) == EST_OK);
         CHECK_NEAR(r_head.bias, r.bias, 1e-6);
@@ -450,6 +456,7 @@ static void test_bias_network_wiring(void)
             CHECK_NEAR(r_head.innovation_var, r_nohead.innovation_var, 1e-7);
         }
         cfg.init_z = p0[2];
+        cfg.stages = EST_STAGE_BIAS_NN;
         estimator_configure(&est, &cfg, 1);
     }
 
@@ -473,6 +480,41 @@ static void test_bias_network_wiring(void)
     net.layout = 99;
     CHECK(estimator_on_twr(&est, 2000, 7, h, &r) == EST_OK);
     CHECK(r.bias == 0.0f);
+}
+
+static float dist3(const float a[3], const float b[3])
+{
+    const float dx = a[0] - b[0], dy = a[1] - b[1], dz = a[2] - b[2];
+    return sqrtf(dx * dx + dy * dy + dz * dz);
+}
+
+static void test_robust_update(void)
+{
+    estimator_result_t r;
+    float pos_plain[3], pos_robust[3], h;
+    const float p0[3] = {0.5f, -0.5f, 1.0f};
+    /* the weight: ~1 for a residual within the noise, R/w large for a gross one, bounded for NaN */
+    CHECK_NEAR(robust_r_var(0.0f, 0.01f, 0.01f), 0.01f, 1e-9);
+    CHECK(robust_r_var(0.05f, 0.01f, 0.01f) < 0.0102f);
+    CHECK(robust_r_var(2.0f, 0.01f, 0.01f) > 10.0f * 0.01f);
+    CHECK_NEAR(robust_r_var(NAN, 0.01f, 0.01f), 0.01f / ROBUST_W_MIN, 1e-3);
+    CHECK(robust_r_var(-2.0f, 0.01f, 0.01f) == robust_r_var(2.0f, 0.01f, 0.01f));
+    /* a converged filter (2 s of good ranges), then a 2 m outlier, no gates: the plain update follows it,
+     * the robust one barely moves (with an uncertain prior it could not tell, and should not) */
+    setup(EST_MODE_IMU, 0, p0[0], p0[1], p0[2]);
+    run_static(p0, 2);
+    h = range_to(&est, 7, p0);
+    CHECK(estimator_on_twr(&est, 2001000u, 7, h + 2.0f, &r) == EST_OK);
+    CHECK(r.status == EST_ACCEPTED);
+    estimator_state(&est, pos_plain, NULL, NULL, NULL);
+    setup(EST_MODE_IMU, EST_STAGE_ROBUST_UPDATE, p0[0], p0[1], p0[2]);
+    run_static(p0, 2);
+    CHECK(estimator_on_twr(&est, 2001000u, 7, h + 2.0f, &r) == EST_OK);
+    CHECK(r.status == EST_ACCEPTED);
+    estimator_state(&est, pos_robust, NULL, NULL, NULL);
+    CHECK(dist3(pos_plain, p0) > 0.1f);
+    CHECK(dist3(pos_robust, p0) < 0.2f * dist3(pos_plain, p0));
+    CHECK(r.innovation_var > 10.0f * (0.25f * 0.25f)); /* S of the update carries the inflated R */
 }
 
 static void test_divergence_guard(void)
@@ -625,6 +667,7 @@ int main(void)
     RUN(test_statuses);
     RUN(test_gate_dt_references);
     RUN(test_bias_network_wiring);
+    RUN(test_robust_update);
     RUN(test_divergence_guard);
     RUN(test_supervisor_bounds);
     RUN(test_height_pseudo_measurement);

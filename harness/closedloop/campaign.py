@@ -21,7 +21,7 @@ from harness.closedloop.metrics import aggregate, flight_metrics
 from harness.closedloop.mission import MISSIONS, Mission, plan
 from harness.closedloop.sensors import NOISE_KINDS, SensorConfig
 from harness.closedloop.vehicle import VehicleParams
-from harness.config import MODE_IMU, PRESETS, EstimatorConfig
+from harness.config import MODE_IMU, PAPER_PRESETS, PRESETS, EstimatorConfig
 from harness.flight.arena import NLOS_BOXES, Arena
 from harness.flight.errors_model import PROFILES, sim_config
 
@@ -161,8 +161,8 @@ def add_fly_parser(sub: Any, add_device_options: Callable[[argparse.ArgumentPars
                    help="twr, tdoa or both (comma list)")
     p.add_argument("--mission", type=_csv(MISSIONS, "--mission"), default=("circle", "circle-z"),
                    help=f"comma list of {', '.join(MISSIONS)} (default circle,circle-z)")
-    p.add_argument("--config", type=_csv(tuple(PRESETS), "--config"), default=tuple(PRESETS),
-                   help="comma list of none, outlier, outlier+nn (default all three)")
+    p.add_argument("--config", type=_csv(tuple(PRESETS), "--config"), default=PAPER_PRESETS,
+                   help=f"comma list of {', '.join(PRESETS)} (default none, outlier, outlier+nn)")
     p.add_argument("--seeds", type=int, default=10, help="flights per cell (seeds seed0 .. seed0+N-1)")
     p.add_argument("--seed0", type=int, default=1, help="seed of the first flight (seeds seed0 .. seed0 + seeds - 1)")
     p.add_argument("--laps", type=float, default=1.0, help="circle laps (2 m radius at 0.375 m/s: 33.5 s each)")

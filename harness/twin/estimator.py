@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from harness.config import MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, EstimatorConfig
+from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, STAGE_NN_STD,
+                            STAGE_ROBUST_UPDATE, EstimatorConfig)
 from harness.twin import gates, measurements
 from harness.twin.ekf import POS, ErrorStateEkf
 from harness.twin.features import features
@@ -319,8 +320,8 @@ class TwinEstimator:
         bias, std_nn = self._bias(net, anchor_a, anchor_b)
         y = (z - bias) - h
 
-        # the network's own std of what it leaves, when it predicts one; else the configured std
-        std = std_nn if std_nn > 0.0 else (c.std_tdoa if tdoa else c.std_twr)
+        # NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std
+        std = std_nn if (c.stages & STAGE_NN_STD and std_nn > 0.0) else (c.std_tdoa if tdoa else c.std_twr)
         upd = ekf.prepare(H3, y, std * std)
         status = ACCEPTED
         if c.stages & STAGE_KINEMATIC_GATE and not gates.kinematic_pass(y, d_max, 2.0 if tdoa else 1.0):
@@ -330,6 +331,10 @@ class TwinEstimator:
 
         gain = np.zeros(3)
         if status == ACCEPTED:
+            if c.stages & STAGE_ROBUST_UPDATE:  # M-estimation weight; the gates saw the nominal S
+                r_w = gates.robust_r_var(y, upd.S - upd.R, upd.R)
+                if r_w > upd.R:
+                    upd = ekf.prepare(H3, y, r_w)
             ekf.apply(upd)
             ekf.finalize()
             if self.t_fused_us is None:

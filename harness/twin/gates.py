@@ -35,3 +35,23 @@ def kinematic_pass(innovation: float, d_max: float, factor: float) -> bool:
 def chi2_pass(innovation: float, S: float, threshold: float) -> bool:
     """Normalised innovation squared test ``y^2 / S <= threshold`` (1 degree of freedom)."""
     return bool(innovation * innovation / S <= threshold)
+
+
+#: robust_update.h: Cauchy constant, iterations, smallest weight
+ROBUST_CAUCHY_C = 2.3849
+ROBUST_ITERATIONS = 3
+ROBUST_W_MIN = 1e-4
+
+
+def robust_r_var(y: float, hph: float, r_var: float) -> float:
+    """R / w of the M-estimation update (twin of robust_r_var in robust_update.c): Cauchy weight of the
+    residual the update with R / w would leave, iterated from w = 1."""
+    sigma_c = ROBUST_CAUCHY_C * np.sqrt(r_var)
+    w = 1.0
+    for _ in range(ROBUST_ITERATIONS):
+        rw = r_var / w
+        u = (y * rw / (hph + rw)) / sigma_c
+        w = 1.0 / (1.0 + u * u)
+        if not w >= ROBUST_W_MIN:
+            w = ROBUST_W_MIN
+    return float(r_var / w)
