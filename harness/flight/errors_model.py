@@ -35,7 +35,7 @@ obstacle boxes in the arena, more multipath). `uwb-hil calibrate` prints these m
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable, Union
 
 import numpy as np
 
@@ -48,6 +48,28 @@ if TYPE_CHECKING:
 SPEED_OF_LIGHT = 299_792_458.0
 DW1000_TICK_M = SPEED_OF_LIGHT / (499.2e6 * 128.0)   # 4.69 mm
 N_HARMONICS = 8
+
+#: Where random draws come from: one generator for everything (a whole flight, in the order the functions
+#: below draw), or one generator per named segment (harness/flight/chunked.py: a flight built in time
+#: slices draws each segment's numbers in pieces and gets exactly the whole flight's values).
+RngSource = Union[np.random.Generator, Callable[[str], np.random.Generator]]
+
+
+def _gen(rng: RngSource, segment: str) -> np.random.Generator:
+    return rng if isinstance(rng, np.random.Generator) else rng(segment)
+
+
+#: (segment, numpy method, draws per item), in the order uwb_errors / apply_imu_errors draw them
+def uwb_draw_layout(kind: int) -> list[tuple[str, str, int]]:
+    links = ("a",) if kind == KIND_TWR else ("a", "b")
+    out = [(f"{k}.{name}", method, 1) for k in links
+           for name, method in (("multipath", "random"), ("delayed", "random"), ("multipath_m", "exponential"),
+                                ("block_m", "exponential"))]
+    return out + [("noise", "normal", 1)]
+
+
+IMU_DRAW_LAYOUT = [(f"{sensor}.{name}", "normal", per) for sensor in ("acc", "gyro")
+                   for name, per in (("bias0", 0), ("rw", 3), ("white", 3))]   # bias0: 3 draws in all
 
 
 @dataclass(frozen=True)
@@ -193,21 +215,22 @@ class UwbErrors:
 
 
 def _link_nlos(cfg: NlosConfig, arena: Arena, anchor_pos: np.ndarray, tag_pos: np.ndarray,
-               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+               rng: RngSource, link: str = "a") -> tuple[np.ndarray, np.ndarray]:
     """Excess path of each link: multipath events (rare, more likely near the ground) and obstacle
     penetration delays (a blocked line of sight: a fixed delay plus an exponential spread)."""
     n = tag_pos.shape[0]
     blocked = arena.blocked(tag_pos, anchor_pos) if arena.boxes else np.zeros(n, dtype=bool)
     p = cfg.p_base + cfg.p_ground * np.exp(-np.maximum(tag_pos[:, 2], 0.0) / cfg.h_ground)
-    multipath = rng.random(n) < np.clip(p, 0.0, 1.0)
-    delayed = blocked & (rng.random(n) < cfg.p_block)
-    excess = (np.where(multipath, rng.exponential(cfg.mean_m, size=n), 0.0)
-              + np.where(delayed, cfg.block_delay_m + rng.exponential(cfg.block_mean_m, size=n), 0.0))
+    multipath = _gen(rng, f"{link}.multipath").random(n) < np.clip(p, 0.0, 1.0)
+    delayed = blocked & (_gen(rng, f"{link}.delayed").random(n) < cfg.p_block)
+    excess = (np.where(multipath, _gen(rng, f"{link}.multipath_m").exponential(cfg.mean_m, size=n), 0.0)
+              + np.where(delayed, cfg.block_delay_m + _gen(rng, f"{link}.block_m").exponential(cfg.block_mean_m,
+                                                                                           size=n), 0.0))
     return excess, multipath | delayed
 
 
 def uwb_errors(cfg: SimConfig, kind: int, arena: Arena, tag_pos: np.ndarray, tag_quat: np.ndarray,
-               a_ids: np.ndarray, b_ids: np.ndarray, rng: np.random.Generator) -> UwbErrors:
+               a_ids: np.ndarray, b_ids: np.ndarray, rng: RngSource) -> UwbErrors:
     """Errors of each measurement (TWR: link to anchor a; TDoA: value d_B - d_A)."""
     anchors = arena.anchors
     if anchors.orientations is None:
@@ -217,16 +240,16 @@ def uwb_errors(cfg: SimConfig, kind: int, arena: Arena, tag_pos: np.ndarray, tag
     ka = np.array([idx[int(i)] for i in a_ids], dtype=np.int64)
     pa, qa = anchors.positions[ka], anchors.orientations[ka]
     ba = range_bias(cfg.antenna, hw, a_ids, pa, qa, tag_pos, tag_quat)
-    na, ha = _link_nlos(cfg.nlos, arena, pa, tag_pos, rng)
+    na, ha = _link_nlos(cfg.nlos, arena, pa, tag_pos, rng, "a")
     n = tag_pos.shape[0]
     if kind == KIND_TWR:
         bias, nlos, flag = ba + cfg.twr_offset, na, ha
-        noise = rng.normal(0.0, cfg.twr_std, size=n)
+        noise = _gen(rng, "noise").normal(0.0, cfg.twr_std, size=n)
     elif kind == KIND_TDOA:
         kb = np.array([idx[int(i)] for i in b_ids], dtype=np.int64)
         pb, qb = anchors.positions[kb], anchors.orientations[kb]
         bb = range_bias(cfg.antenna, hw, b_ids, pb, qb, tag_pos, tag_quat)
-        nb, hb = _link_nlos(cfg.nlos, arena, pb, tag_pos, rng)
+        nb, hb = _link_nlos(cfg.nlos, arena, pb, tag_pos, rng, "b")
         _, ut_a, _ = link_directions(pa, qa, tag_pos, tag_quat)
         _, ut_b, _ = link_directions(pb, qb, tag_pos, tag_quat)
         pair = np.zeros(n)
@@ -234,7 +257,7 @@ def uwb_errors(cfg: SimConfig, kind: int, arena: Arena, tag_pos: np.ndarray, tag
             pair[(a_ids == a) & (b_ids == b)] = hw.pair_offset(a, b, cfg.antenna)
         bias = bb - ba + pair + cfg.antenna.pair_att_k * (ut_b[:, 2] - ut_a[:, 2])
         nlos, flag = nb - na, ha | hb
-        noise = rng.normal(0.0, cfg.tdoa_std, size=n)
+        noise = _gen(rng, "noise").normal(0.0, cfg.tdoa_std, size=n)
     else:
         raise ValueError(f"unknown measurement kind {kind}")
     raw = bias + nlos + noise
@@ -247,17 +270,37 @@ def quantise(value: np.ndarray, quantum: float) -> np.ndarray:
 
 # --------------------------------------------------------------------------------------- IMU
 def apply_imu_errors(acc: np.ndarray, gyro: np.ndarray, dt: float, cfg: ImuConfig,
-                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                     rng: RngSource) -> tuple[np.ndarray, np.ndarray]:
     """Measured (specific force, rate) = true + turn-on bias + random-walk bias + white noise."""
+    out_acc, out_gyro, _ = imu_errors_continued(acc, gyro, dt, cfg, rng, None)
+    return out_acc, out_gyro
+
+
+#: per sensor: (turn-on bias (1, 3), random walk so far (1, 3)) after the previous slice
+ImuCarry = dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+def imu_errors_continued(acc: np.ndarray, gyro: np.ndarray, dt: float, cfg: ImuConfig, rng: RngSource,
+                         carry: ImuCarry | None) -> tuple[np.ndarray, np.ndarray, ImuCarry]:
+    """apply_imu_errors on one time slice of a longer flight (`carry` from the previous slice, None for
+    the first): the bias random walk continues summing from where it was, in the same order."""
     n = acc.shape[0]
     out = []
-    for true, noise, bias0, rw in ((acc, cfg.acc_noise, cfg.acc_bias, cfg.acc_bias_rw),
-                                   (gyro, cfg.gyro_noise, cfg.gyro_bias, cfg.gyro_bias_rw)):
-        b = rng.normal(0.0, bias0, size=(1, 3)) + np.cumsum(rng.normal(0.0, rw * np.sqrt(dt), size=(n, 3)), axis=0)
-        out.append(true + b + rng.normal(0.0, noise, size=(n, 3)))
-    return out[0], out[1]
+    new_carry: ImuCarry = {}
+    for sensor, true, noise, bias0, rw in (("acc", acc, cfg.acc_noise, cfg.acc_bias, cfg.acc_bias_rw),
+                                           ("gyro", gyro, cfg.gyro_noise, cfg.gyro_bias, cfg.gyro_bias_rw)):
+        if carry is None:
+            b0, walked = _gen(rng, f"{sensor}.bias0").normal(0.0, bias0, size=(1, 3)), np.zeros((1, 3))
+        else:
+            b0, walked = carry[sensor]
+        steps = _gen(rng, f"{sensor}.rw").normal(0.0, rw * np.sqrt(dt), size=(n, 3))
+        walk = np.cumsum(np.concatenate([walked, steps]), axis=0)[1:]     # sequential sums, as one cumsum
+        out.append(true + (b0 + walk) + _gen(rng, f"{sensor}.white").normal(0.0, noise, size=(n, 3)))
+        new_carry[sensor] = (b0, walk[-1:].copy() if n else walked)
+    return out[0], out[1], new_carry
 
 
 __all__ = ["AntennaConfig", "NlosConfig", "ImuConfig", "SimConfig", "PROFILES", "sim_config", "range_bias",
-           "hardware_params", "uwb_errors", "apply_imu_errors", "quantise", "link_directions",
+           "hardware_params", "uwb_errors", "apply_imu_errors", "imu_errors_continued", "uwb_draw_layout",
+           "IMU_DRAW_LAYOUT", "RngSource", "quantise", "link_directions",
            "azimuth_elevation", "harmonics", "DW1000_TICK_M"]

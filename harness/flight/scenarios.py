@@ -22,15 +22,15 @@ from typing import Any
 import numpy as np
 
 from harness.flight.arena import NLOS_BOXES, Arena, default_anchors
-from harness.flight.errors_model import SimConfig, apply_imu_errors, quantise, sim_config, uwb_errors
-from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
-from harness.flight.trajectory import (Trajectory, circle_path, compose_flight, random_path, sample)
+from harness.flight.chunked import IMU_RATE_HZ, SimPlan
+from harness.flight.errors_model import SimConfig, sim_config
+from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight
+from harness.flight.trajectory import Trajectory, circle_path, compose_flight, random_path
 
 SCENARIOS = ("circle", "circle-z", "random", "spin", "hover")
 NOISE_KINDS = ("none", "gaussian", "realistic")
 MODES = ("twr", "tdoa", "tdoa2", "tdoa3")
 
-IMU_RATE_HZ = 1000
 
 
 class ScenarioError(ValueError):
@@ -136,11 +136,9 @@ def _schedule(mode: str, anchors: Anchors, duration_s: float, rate_hz: float, rn
     return t_us, a.astype(np.int64), b.astype(np.int64)
 
 
-def scenario_flight(name: str, mode: str = "twr", duration_s: float = 30.0, seed: int = 1,
-                    noise: str = "realistic", noise_std: float = 0.1, **kw: Any) -> Flight:
-    """A simulated flight. Options (kw): profile ("los" | "nlos"), config (a SimConfig overriding the
-    profile), anchors (Anchors), rate_hz (UWB rate, default 200 TWR / 400 TDoA), takeoff, ramp_s,
-    takeoff_s, ground_wait_s, height, speed, radius, yaw, z_amp, spin_dps, point, margin, z_min, z_max."""
+def plan_scenario(name: str, mode: str = "twr", duration_s: float = 30.0, seed: int = 1,
+                  noise: str = "realistic", noise_std: float = 0.1, **kw: Any) -> SimPlan:
+    """Everything of a simulated flight but its arrays (see scenario_flight for the options)."""
     if mode not in MODES:
         raise ScenarioError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
     if noise not in NOISE_KINDS:
@@ -168,38 +166,8 @@ def scenario_flight(name: str, mode: str = "twr", duration_s: float = 30.0, seed
     if kw:
         raise ScenarioError(f"unknown option(s) for scenario {name!r}: {', '.join(sorted(kw))}")
     total_s = traj.duration
-
-    # Truth and IMU at 1 kHz over the whole flight (covers every measurement time).
-    n_imu = int(np.floor(total_s * IMU_RATE_HZ)) + 1
-    t_imu_us = (np.arange(n_imu, dtype=np.int64) * (1_000_000 // IMU_RATE_HZ))
-    s = sample(traj, t_imu_us * 1e-6)
-
     kind_mode = "twr" if mode == "twr" else ("tdoa3" if mode == "tdoa3" else "tdoa2")
     t_us, a_ids, b_ids = _schedule(kind_mode, arena.anchors, total_s, rate_hz, rng_sched, cfg.schedule_jitter)
-    # Measurement-time truth: exact positions; attitude interpolated from the 1 kHz truth (1 ms apart).
-    truth = Truth(t_us=t_imu_us, pos=s.pos, quat=s.quat, vel=s.vel)
-    m_pos = traj.pos(t_us * 1e-6)
-    index = {int(i): k for k, i in enumerate(arena.anchors.ids)}
-    pa = arena.anchors.positions[np.array([index[int(i)] for i in a_ids], dtype=np.int64)].reshape(-1, 3)
-    da = np.linalg.norm(m_pos - pa, axis=1)
-    if kind_mode == "twr":
-        true_value = da
-        kind = KIND_TWR
-    else:
-        pb = arena.anchors.positions[np.array([index[int(i)] for i in b_ids], dtype=np.int64)].reshape(-1, 3)
-        true_value = np.linalg.norm(m_pos - pb, axis=1) - da
-        kind = KIND_TDOA
-
-    if noise == "none":
-        value = true_value.copy()
-        acc, gyro = s.f_body.copy(), s.omega.copy()
-    elif noise == "gaussian":
-        value = true_value + rng_uwb.normal(0.0, noise_std, size=true_value.shape)
-        acc, gyro = apply_imu_errors(s.f_body, s.omega, 1.0 / IMU_RATE_HZ, cfg.imu, rng_imu)
-    else:
-        err = uwb_errors(cfg, kind, arena, m_pos, truth.quat_at(t_us), a_ids, b_ids, rng_uwb)
-        value = quantise(true_value + err.total, cfg.quantum_m)
-        acc, gyro = apply_imu_errors(s.f_body, s.omega, 1.0 / IMU_RATE_HZ, cfg.imu, rng_imu)
 
     meta: dict[str, object] = {
         "source": "simulator", "scenario": name, "mode": kind_mode, "seed": seed, "noise": noise,
@@ -211,16 +179,20 @@ def scenario_flight(name: str, mode: str = "twr", duration_s: float = 30.0, seed
         meta["profile"] = cfg.name
         meta["sim_config"] = asdict(cfg)
         meta["obstacles"] = [asdict(b) for b in arena.boxes]
-    flight = Flight(
-        name=f"sim-{name}-{kind_mode}-{noise}-s{seed}",
-        anchors=arena.anchors,
-        uwb=UwbStream(kind=kind, t_us=t_us, anchor_a=a_ids, anchor_b=b_ids, value=value, true_value=true_value),
-        truth=truth,
-        imu=ImuStream(t_us=t_imu_us, acc=acc, gyro=gyro),
-        meta=meta,
-    )
-    flight.validate()
-    return flight
+    # Truth and IMU at 1 kHz over the whole flight (covers every measurement time), measurement-time
+    # truth exact, attitude interpolated from the 1 kHz truth: built by SimPlan, whole or in slices.
+    return SimPlan(name=f"sim-{name}-{kind_mode}-{noise}-s{seed}", arena=arena, traj=traj, cfg=cfg,
+                   kind=KIND_TWR if kind_mode == "twr" else KIND_TDOA, noise=noise, noise_std=noise_std,
+                   sched_t=t_us, sched_a=a_ids, sched_b=b_ids, rng_uwb=rng_uwb, rng_imu=rng_imu, meta=meta)
 
 
-__all__ = ["min_duration_s", "SCENARIOS", "NOISE_KINDS", "MODES", "ScenarioError", "scenario_flight"]
+def scenario_flight(name: str, mode: str = "twr", duration_s: float = 30.0, seed: int = 1,
+                    noise: str = "realistic", noise_std: float = 0.1, **kw: Any) -> Flight:
+    """A simulated flight, built whole (`plan_scenario(...).chunks()` builds the same flight in slices).
+    Options (kw): profile ("los" | "nlos"), config (a SimConfig overriding the profile), anchors
+    (Anchors), rate_hz (UWB rate, default 200 TWR / 400 TDoA), takeoff, ramp_s, takeoff_s,
+    ground_wait_s, height, speed, radius, yaw, z_amp, spin_dps, point, margin, z_min, z_max."""
+    return plan_scenario(name, mode, duration_s, seed, noise, noise_std, **kw).whole()
+
+
+__all__ = ["min_duration_s", "SCENARIOS", "NOISE_KINDS", "MODES", "ScenarioError", "plan_scenario", "scenario_flight"]

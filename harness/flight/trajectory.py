@@ -144,8 +144,20 @@ def quat_to_euler(q: np.ndarray) -> np.ndarray:
     return np.stack([roll, pitch, yaw], axis=1)
 
 
+#: where the previous slice of a chunked sampling ended: (its last raw quaternion, that sample's sign flip)
+SampleCarry = tuple[np.ndarray, int]
+
+
 def sample(traj: Trajectory, t: np.ndarray) -> TrajectorySample:
     """Position, velocity, acceleration, attitude, body rates and specific force at times t [s]."""
+    return sample_continued(traj, t, None)[0]
+
+
+def sample_continued(traj: Trajectory, t: np.ndarray, carry: SampleCarry | None,
+                     carry_at: int = -1) -> tuple[TrajectorySample, SampleCarry]:
+    """`sample` of one time slice of a longer sampling: `carry` (from the previous slice, None for the
+    first) keeps the quaternion sign continuous across slices, so slices equal the whole sampling.
+    Returns the carry of sample `carry_at` of this slice (the last one the next slice follows)."""
     t = np.asarray(t, dtype=np.float64)
     p = [traj.pos(t + k * _H) for k in (-2, -1, 0, 1, 2)]   # 5 evaluations give a(t-H), a(t), a(t+H)
     h2 = _H * _H
@@ -163,9 +175,14 @@ def sample(traj: Trajectory, t: np.ndarray) -> TrajectorySample:
     f_body = np.einsum("nji,nj->ni", r0, thrust)
     quat = rot_to_quat(r0)
     # keep the quaternion sign continuous (q and -q are the same attitude; interpolation needs continuity)
-    flip = np.cumsum(np.concatenate([[0], (np.sum(quat[1:] * quat[:-1], axis=1) < 0).astype(int)])) % 2
+    if carry is None:
+        first, parity = 0, 0
+    else:
+        first, parity = int(np.sum(quat[0] * carry[0]) < 0), carry[1]
+    flip = (parity + np.cumsum(np.concatenate([[first], (np.sum(quat[1:] * quat[:-1], axis=1) < 0).astype(int)]))) % 2
+    out_carry: SampleCarry = (quat[carry_at].copy(), int(flip[carry_at])) if len(quat) else (np.zeros(4), 0)
     quat[flip == 1] *= -1.0
-    return TrajectorySample(t=t, pos=pos, vel=vel, acc=acc, quat=quat, omega=omega, f_body=f_body)
+    return TrajectorySample(t=t, pos=pos, vel=vel, acc=acc, quat=quat, omega=omega, f_body=f_body), out_carry
 
 
 # ------------------------------------------------------------------------------------ path builders
