@@ -1,0 +1,134 @@
+"""Stream a flight given as consecutive slices (harness/flight/chunked.py) through one device.
+
+Each slice goes out as a Streamer run; the first resets the filter, the next ones send their CONFIG
+without reset, so the device sees one continuous flight (tests/test_streaming.py: same estimates as the
+whole flight). What is kept across slices is compact: the RESULT rows (one per measurement), and for
+the summary a `Flight` holding only the measurements and the true position at each measurement time
+(so `run_summary` computes the same accuracy as with the whole flight). The 1 kHz IMU samples and the
+1 kHz truth of a slice are dropped once it has been streamed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from harness.config import EstimatorConfig
+from harness.flight.model import Flight, Truth, UwbStream
+from harness.stream.streamer import RESULTS_DTYPE, Pacing, ResultsWriter, RunResult, Streamer
+
+
+@dataclass
+class ChunkedRun:
+    run: RunResult        # every measurement's RESULT row, device STATS after the last slice
+    flight: Flight        # compact: measurements + truth at measurement times (no IMU)
+    chunks: int
+
+
+class _SliceWriter:
+    """One results file for all slices: rows indexed over the whole flight; closed at the very end."""
+
+    def __init__(self, inner: ResultsWriter) -> None:
+        self.inner = inner
+        self.offset = 0
+
+    def write_rows(self, idx: np.ndarray, rows: np.ndarray) -> None:
+        self.inner.write_rows(idx + self.offset, rows)
+
+    def write_record(self, record: dict[str, Any]) -> None:
+        self.inner.write_record(record)
+
+    def close(self) -> None:
+        """Called by Streamer.run after each slice: the file stays open for the next one."""
+
+
+class _Compact:
+    """Accumulates the measurements and the truth at their times, slice by slice."""
+
+    def __init__(self) -> None:
+        self.parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t_us", "a", "b", "value", "truth")}
+        self.kind = 0
+
+    def add(self, piece: Flight) -> None:
+        u = piece.uwb
+        self.kind = u.kind
+        self.parts["t_us"].append(u.t_us)
+        self.parts["a"].append(u.anchor_a)
+        self.parts["b"].append(u.anchor_b)
+        self.parts["value"].append(u.value)
+        self.parts["truth"].append(piece.truth.position_at(u.t_us))
+
+    def flight(self, first: Flight) -> Flight:
+        cat = {k: np.concatenate(v) for k, v in self.parts.items()}
+        uwb = UwbStream(kind=self.kind, t_us=cat["t_us"], anchor_a=cat["a"], anchor_b=cat["b"], value=cat["value"])
+        # truth sampled exactly at the measurement times: interpolating it there gives these values back
+        truth = Truth(t_us=cat["t_us"].astype(np.int64), pos=cat["truth"])
+        return replace(first, uwb=uwb, truth=truth, imu=None, meta={**first.meta, "compact": True})
+
+
+def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
+                  config: EstimatorConfig | Callable[[Flight], EstimatorConfig], pacing: Pacing = Pacing(),
+                  n_measurements: int | None = None, results_path: Path | None = None,
+                  header_extra: dict[str, Any] | None = None,
+                  progress: Callable[[int, int], None] | None = None) -> ChunkedRun:
+    """Stream `pieces` (consecutive slices of one flight) as one run. `config` may be a function of the
+    first slice (e.g. session.config_for); `n_measurements` (the whole flight's) goes into the header
+    and the progress total."""
+    rows: list[np.ndarray] = []       # per slice, or one preallocated array when the total is known
+    filled = np.zeros(n_measurements, RESULTS_DTYPE) if n_measurements else None
+    errors: list[Any] = []
+    compact = _Compact()
+    writer: _SliceWriter | None = None
+    first: Flight | None = None
+    cfg: EstimatorConfig | None = None
+    last: RunResult | None = None
+    done = slices = 0
+    t0 = time.perf_counter()
+    try:
+        for i, piece in enumerate(pieces):
+            if first is None:
+                first = piece
+                cfg = config(piece) if callable(config) else config
+                header = {"flight": piece.name, "config": asdict(cfg), "pacing": asdict(pacing),
+                          "n_measurements": n_measurements, **(header_extra or {})}
+                writer = _SliceWriter(ResultsWriter(results_path, header))
+            assert cfg is not None and writer is not None
+            total = n_measurements or 0
+
+            def slice_progress(k: int, n: int, base: int = done) -> None:
+                if progress is not None:
+                    progress(base + k, max(total, base + n))
+
+            last = streamer.run(piece, cfg, pacing, writer=writer, reset=(i == 0),  # type: ignore[arg-type]
+                                progress=slice_progress)
+            if filled is not None and done + len(last.results) <= len(filled):
+                filled[done:done + len(last.results)] = last.results
+            else:
+                rows.append(last.results)
+            errors += last.errors
+            compact.add(piece)
+            slices += 1
+            done += len(piece.uwb)
+            writer.offset = done
+    finally:
+        if writer is not None:
+            writer.inner.close()
+    if first is None or last is None or cfg is None:
+        raise ValueError("stream_chunks: no slice to stream")
+    flight = compact.flight(first)
+    if filled is not None and not rows and done == len(filled):
+        results = filled
+    else:
+        results = np.concatenate(([filled[:done]] if filled is not None else []) + rows)
+    t = flight.uwb.t_us
+    sim = (int(t[-1]) - int(t[0])) * 1e-6 if len(t) else 0.0
+    run = RunResult(flight=first.name, config=cfg, pacing=pacing, results=results, stats=last.stats,
+                    decoder_errors=last.decoder_errors, errors=errors, wall_s=time.perf_counter() - t0, sim_s=sim)
+    return ChunkedRun(run=run, flight=flight, chunks=slices)
+
+
+__all__ = ["ChunkedRun", "stream_chunks"]
