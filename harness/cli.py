@@ -52,6 +52,15 @@ def make_run_flight(args: argparse.Namespace) -> Flight:
     return radio_level(flight, radio, seed=args.seed, loss=getattr(args, "radio_loss", 0.0))
 
 
+def _long_simulation(args: argparse.Namespace) -> Any:
+    """The SimPlan of a simulated flight long enough to be streamed in slices, else None."""
+    from harness.stream.chunked_run import STREAM_ABOVE_S
+    if args.recording or args.duration <= STREAM_ABOVE_S:
+        return None
+    from harness.flight.scenarios import plan_scenario
+    return plan_scenario(args.scenario, mode=args.mode, duration_s=args.duration, seed=args.seed)
+
+
 # ------------------------------------------------------------------------------------------ output
 def _progress_bar(total_label: str) -> tuple[Callable[[int, int], None], Callable[[], None]]:
     """A rich progress bar when stderr is a terminal; silent otherwise."""
@@ -231,24 +240,38 @@ def _results_path(args: argparse.Namespace) -> Path | None:
 def cmd_run(args: argparse.Namespace) -> int:
     if getattr(args, "resume", None):
         return cmd_resume(args)
-    flight = make_run_flight(args)
-    cfg = _run_config(args, flight)
+    # long simulated flights are built and streamed in slices (not at radio level: that needs the whole flight)
+    plan = None if getattr(args, "radio", None) else _long_simulation(args)
+    flight = make_run_flight(args) if plan is None else None
     pacing = Pacing(mode=args.pacing, window=args.window, speed=args.speed)
     results_path = _results_path(args)
     spec, want_hash = _model_device_spec(args)
     with open_device(spec, expected_model_hash=want_hash) as device:
         hello = device.hello(timeout=args.timeout)
-        if not args.force:
-            check_network_inputs(flight, cfg, (hello.layout_twr, hello.layout_tdoa))
-        update, stop = _progress_bar(f"{flight.name} ({args.stages})")
+        layouts = (hello.layout_twr, hello.layout_tdoa)
+
+        def checked_config(first: Flight) -> EstimatorConfig:
+            cfg = _run_config(args, first)
+            if not args.force:
+                check_network_inputs(first, cfg, layouts)
+            return cfg
+
+        update, stop = _progress_bar(f"{flight.name if flight is not None else plan.name} ({args.stages})")
         header = {"source": _run_source(args), "device": _hello_dict(hello)}
-        if results_path is not None:
-            from harness.stream.results_file import flight_digest
-            header["flight_digest"] = flight_digest(flight)
         streamer = Streamer(device, timeout_s=args.timeout)
         try:
-            run = streamer.run(flight, cfg, pacing, results_path=results_path, progress=update, header_extra=header,
-                               overwrite=args.overwrite, radio=bool(args.radio))
+            if plan is not None:
+                from harness.stream.chunked_run import stream_plan
+                chunked = stream_plan(streamer, plan, checked_config, pacing, results_path=results_path,
+                                      header_extra=header, progress=update, overwrite=args.overwrite)
+                run, flight = chunked.run, chunked.flight
+            else:
+                cfg = checked_config(flight)
+                if results_path is not None:
+                    from harness.stream.results_file import flight_digest
+                    header["flight_digest"] = flight_digest(flight)
+                run = streamer.run(flight, cfg, pacing, results_path=results_path, progress=update,
+                                   header_extra=header, overwrite=args.overwrite, radio=bool(args.radio))
         finally:
             stop()
         radio = _radio_section(streamer, run, flight) if args.radio else None
