@@ -7,7 +7,8 @@ finite, exactly symmetric, bounded and positive definite after every measurement
 reported (ERROR DIVERGED) exactly once, and the filter re-converges after the outage and the divergence.
 Also NEES over Monte-Carlo seeds (harness/report/consistency.py).
 
-`make test` flies UWB_LONGFLIGHT_S = 150 s; `make longflight` flies 3600 s. Figures are printed (-s).
+`make test` flies UWB_LONGFLIGHT_S = 150 s; `make longflight` flies 3600 s. The flight is built, faulted and
+streamed in 30 s slices, so a 1-hour flight never sits in memory whole. Figures are printed (-s).
 """
 
 from __future__ import annotations
@@ -15,8 +16,10 @@ from __future__ import annotations
 import math
 
 import os
+import resource
 import subprocess
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,15 +28,16 @@ import pytest
 
 from harness.config import PRESETS, EstimatorConfig
 from harness.device.emulator import EmulatorDevice
-from harness.flight.faults import FlightFaults, InjectedFaults, inject
+from harness.flight.chunked import SimPlan
+from harness.flight.faults import FlightFaults, InjectedFaults, inject_chunks
 from harness.flight.model import Flight
-from harness.flight.scenarios import scenario_flight
+from harness.flight.scenarios import plan_scenario, scenario_flight
 from harness.report.chi2 import chi2_cdf, chi2_quantile
 from harness.report.consistency import monte_carlo_nees, position_nees
 from harness.report.health import reconvergence_s, rejection_streaks
 from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, config_for
 from harness.stream.prepare import prepare, setup_frames
-from harness.stream.resume import split_flight
+from harness.stream.chunked_run import stream_chunks
 from harness.stream.streamer import OUTCOME_RESULT, RESULTS_DTYPE, Pacing, Streamer
 from protocol import encode_frame
 from protocol import messages as m
@@ -41,7 +45,7 @@ from protocol import messages as m
 pytestmark = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_FIRMWARE} not built (make firmware)")
 
 DURATION_S = float(os.environ.get("UWB_LONGFLIGHT_S", "150"))
-CHUNK_S = 30.0            # streamed in pieces: bounded memory, seq numbers never collide within a window
+CHUNK_S = 30.0            # built and streamed in slices: bounded memory (harness/flight/chunked.py)
 CONVERGED_M = 0.35        # "re-converged": error below this for 1 s
 FW = REPO_ROOT / "firmware_sim"
 
@@ -49,13 +53,15 @@ FW = REPO_ROOT / "firmware_sim"
 @dataclass
 class LongRun:
     gates: str
-    flight: Flight
+    flight: Flight           # compact: the (faulted) measurements and the truth at their times, no IMU
+    n_imu: int
     cfg: EstimatorConfig
     results: np.ndarray
     errors: list[m.Error]
     injected: InjectedFaults
     err: np.ndarray          # position error per measurement [m]
     wall_s: float
+    peak_rss_mb: float
 
 
 #: chi2: the chi-square gate alone; outlier: kinematic + chi-square gates (the paper's configuration)
@@ -67,47 +73,41 @@ def _faults(duration: float) -> FlightFaults:
                         diverge_at_s=0.7 * duration, seed=17)
 
 
+@dataclass
+class LongFlight:
+    """The faulted flight, never whole in memory: built and faulted slice by slice, as often as needed."""
+
+    plan: SimPlan
+    injected: InjectedFaults
+
+    def chunks(self) -> Iterator[Flight]:
+        return inject_chunks(self.plan, _faults(DURATION_S), CHUNK_S)[0]
+
+
 @pytest.fixture(scope="module")
-def faulted_flight() -> tuple[Flight, InjectedFaults]:
-    base = scenario_flight("random", mode="twr", duration_s=DURATION_S, seed=31, noise="gaussian", noise_std=0.1)
-    return inject(base, _faults(DURATION_S))
-
-
-def _chunks(flight: Flight) -> list[Flight]:
-    out = []
-    rest: Flight | None = flight
-    while rest is not None:
-        u = rest.uwb
-        k = int(np.searchsorted(u.t_us, int(u.t_us[0]) + int(CHUNK_S * 1e6)))
-        if k >= len(u):
-            out.append(rest)
-            break
-        head, rest = split_flight(rest, k)
-        assert head is not None
-        out.append(head)
-    return out
+def long_flight() -> LongFlight:
+    plan = plan_scenario("random", mode="twr", duration_s=DURATION_S, seed=31, noise="gaussian", noise_std=0.1)
+    return LongFlight(plan, inject_chunks(plan, _faults(DURATION_S), CHUNK_S)[1])
 
 
 @pytest.fixture(scope="module", params=list(GATES))
-def long_run(request: pytest.FixtureRequest, faulted_flight: tuple[Flight, InjectedFaults],
+def long_run(request: pytest.FixtureRequest, long_flight: LongFlight,
              tmp_path_factory: pytest.TempPathFactory) -> LongRun:
-    flight, injected = faulted_flight
-    cfg = config_for(flight, EstimatorConfig(), stages=GATES[request.param])
     log_dir = tmp_path_factory.mktemp("longflight")
     t0 = time.perf_counter()
     with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=log_dir) as dev:
         dev.hello(timeout=10.0)
         streamer = Streamer(dev, timeout_s=10.0, seq0=dev.channel.next_seq)
-        parts, errors = [], []
-        for i, piece in enumerate(_chunks(flight)):
-            run = streamer.run(piece, cfg, Pacing("windowed", 64), reset=(i == 0))
-            parts.append(run.results)
-            errors += run.errors
+        out = stream_chunks(streamer, long_flight.chunks(),
+                            lambda first: config_for(first, EstimatorConfig(), stages=GATES[request.param]),
+                            Pacing("windowed", 64))
     wall = time.perf_counter() - t0
-    results = np.concatenate(parts) if parts else np.zeros(0, RESULTS_DTYPE)
+    flight, results = out.flight, out.run.results
     truth = flight.truth.position_at(flight.uwb.t_us.astype(np.int64))
     est = np.stack([results["px"], results["py"], results["pz"]], axis=1).astype(np.float64)
-    return LongRun(request.param, flight, cfg, results, errors, injected, np.linalg.norm(est - truth, axis=1), wall)
+    return LongRun(request.param, flight, long_flight.plan.n_imu, out.run.config, results, out.run.errors,
+                   long_flight.injected, np.linalg.norm(est - truth, axis=1), wall,
+                   resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
 
 
 def test_every_measurement_answered_and_finite(long_run: LongRun) -> None:
@@ -156,9 +156,10 @@ def test_reconverges_after_outage_and_divergence(long_run: LongRun) -> None:
     a, b = inj.outage_us
     assert not np.any((t >= a) & (t < b)) and inj.outage_removed > 0       # the outage happened
     f = _figures(long_run)
-    print(f"\nlong flight {DURATION_S:.0f} s, gates {long_run.gates}: {len(t)} UWB, {len(long_run.flight.imu)} IMU, "
+    print(f"\nlong flight {DURATION_S:.0f} s, gates {long_run.gates}: {len(t)} UWB, {long_run.n_imu} IMU, "
           f"{len(inj.nlos_idx)} NLOS outliers, {len(inj.imu_glitch_idx)} IMU glitches, outage removed "
-          f"{inj.outage_removed}; wall {long_run.wall_s:.1f} s ({DURATION_S / long_run.wall_s:.0f}x real time)\n  "
+          f"{inj.outage_removed}; wall {long_run.wall_s:.1f} s ({DURATION_S / long_run.wall_s:.0f}x real time), "
+          f"peak RSS of this process {long_run.peak_rss_mb:.0f} MB\n  "
           + ", ".join(f"{k} {v:.3f}" for k, v in f.items()))
     assert f["lockouts"] == 0
     assert f["rmse_quiet"] < 0.3
@@ -177,12 +178,13 @@ def cov_health_exe(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return exe
 
 
-def test_full_covariance_stays_symmetric_positive_definite(long_run: LongRun, cov_health_exe: Path) -> None:
+def test_full_covariance_stays_symmetric_positive_definite(long_run: LongRun, long_flight: LongFlight,
+                                                           cov_health_exe: Path) -> None:
     flight = long_run.flight
     proc = subprocess.Popen([str(cov_health_exe)], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
     assert proc.stdin is not None
     seq = 0
-    for i, piece in enumerate(_chunks(flight)):
+    for i, piece in enumerate(long_flight.chunks()):
         setup, seq = setup_frames(long_run.cfg, piece, seq, reset=(i == 0))
         prep = prepare(piece, seq)
         seq = prep.next_seq
