@@ -7,6 +7,8 @@
 3. Bias-network training on ~700k simulated TDoA samples (goal: under 60 s) with `uwb-hil train`'s
    defaults (Adam with the fused update, batch 1024, one intra-op thread), against PyTorch's defaults
    (batch 64, all cores) on the same data.
+4. Peak host memory (RSS) of 600 s and 3600 s simulated flights streamed in slices, against the same
+   flights built whole (harness/bench_memory.py; goal: 1 hour under 500 MB).
 """
 
 from __future__ import annotations
@@ -127,6 +129,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--train-samples", type=int, default=700_000)
     ap.add_argument("--baseline-epochs", type=int, default=2)
     ap.add_argument("--no-train", action="store_true", help="skip the training benchmark")
+    ap.add_argument("--memory-duration", type=float, action="append",
+                    help="flight lengths of the memory benchmark [s] (default 600 and 3600)")
+    ap.add_argument("--no-memory", action="store_true", help="skip the memory benchmark")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     out: dict[str, Any] = {}
@@ -135,6 +140,10 @@ def main(argv: list[str] | None = None) -> int:
         out["replay"] = bench_replay(device, args.replay_duration, args.seed, args.window)
     if not args.no_train:
         out["training"] = bench_training(args.train_samples, args.baseline_epochs)
+    if not args.no_memory:
+        from harness.bench_memory import bench_memory
+        durations = args.memory_duration or [600.0, 3600.0]
+        out["memory"] = bench_memory(durations, durations, firmware=args.firmware)
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
@@ -161,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
               f"bias RMSE {t['val_rmse_before_m']:.4f} -> {t['val_rmse_after_m']:.4f} m")
         print(f"per epoch: uwb-hil train defaults {t['epoch_s_default']:.2f} s vs PyTorch defaults (batch 64, all cores) "
               f"{t['epoch_s_torch_defaults']:.2f} s: {t['speedup']:.1f}x")
+    if "memory" in out:
+        from harness.bench_memory import print_rows
+        print_rows(out["memory"])
     return 0
 
 

@@ -108,3 +108,15 @@ def test_cli_streams_a_long_simulation_in_slices(tmp_path: Path) -> None:
     assert summary["accuracy"]["rmse"] < 0.2
     rows = sum(1 for line in (tmp_path / "long.jsonl").read_text().splitlines() if '"type": "result"' in line)
     assert rows == n
+
+
+@needs_fw
+def test_sliced_flight_needs_a_fraction_of_the_memory() -> None:
+    """Peak RSS (own subprocess each, harness/bench_memory.py) of a 240 s flight: sliced vs built whole."""
+    from harness.bench_memory import measure
+    sliced, whole = measure(240.0, "sliced"), measure(240.0, "whole")
+    print(f"\n240 s TWR flight: peak RSS sliced {sliced['peak_rss_mb']:.0f} MB, whole {whole['peak_rss_mb']:.0f} MB")
+    assert sliced["measurements"] == whole["measurements"] == sliced["results"]
+    assert sliced["rmse_m"] == whole["rmse_m"]
+    assert sliced["peak_rss_mb"] < 0.6 * whole["peak_rss_mb"]
+    assert sliced["peak_rss_mb"] < 200.0

@@ -55,26 +55,36 @@ class _SliceWriter:
 
 
 class _Compact:
-    """Accumulates the measurements and the truth at their times, slice by slice."""
+    """Accumulates the measurements and the truth at their times, slice by slice (into preallocated
+    arrays when the flight's total is known: no concatenation copy at the end)."""
 
-    def __init__(self) -> None:
-        self.parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t_us", "a", "b", "value", "truth")}
+    _COLS = (("t_us", np.int64, ()), ("a", np.int64, ()), ("b", np.int64, ()), ("value", np.float64, ()),
+             ("truth", np.float64, (3,)))
+
+    def __init__(self, n: int | None) -> None:
+        self.n = 0
         self.kind = 0
+        self.cols = {name: np.zeros((n or 0, *shape), dtype) for name, dtype, shape in self._COLS}
 
     def add(self, piece: Flight) -> None:
         u = piece.uwb
         self.kind = u.kind
-        self.parts["t_us"].append(u.t_us)
-        self.parts["a"].append(u.anchor_a)
-        self.parts["b"].append(u.anchor_b)
-        self.parts["value"].append(u.value)
-        self.parts["truth"].append(piece.truth.position_at(u.t_us))
+        new = {"t_us": u.t_us, "a": u.anchor_a, "b": u.anchor_b, "value": u.value,
+               "truth": piece.truth.position_at(u.t_us)}
+        k = len(u)
+        for name, arr in new.items():
+            col = self.cols[name]
+            if self.n + k > len(col):       # total unknown (or exceeded): grow
+                col = self.cols[name] = np.concatenate([col[:self.n], np.zeros((max(k, self.n),) + col.shape[1:],
+                                                                               col.dtype)])
+            col[self.n:self.n + k] = arr
+        self.n += k
 
     def flight(self, first: Flight) -> Flight:
-        cat = {k: np.concatenate(v) for k, v in self.parts.items()}
-        uwb = UwbStream(kind=self.kind, t_us=cat["t_us"], anchor_a=cat["a"], anchor_b=cat["b"], value=cat["value"])
+        c = {name: col[:self.n] for name, col in self.cols.items()}
+        uwb = UwbStream(kind=self.kind, t_us=c["t_us"], anchor_a=c["a"], anchor_b=c["b"], value=c["value"])
         # truth sampled exactly at the measurement times: interpolating it there gives these values back
-        truth = Truth(t_us=cat["t_us"].astype(np.int64), pos=cat["truth"])
+        truth = Truth(t_us=c["t_us"], pos=c["truth"])
         return replace(first, uwb=uwb, truth=truth, imu=None, meta={**first.meta, "compact": True})
 
 
@@ -89,7 +99,7 @@ def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
     rows: list[np.ndarray] = []       # per slice, or one preallocated array when the total is known
     filled = np.zeros(n_measurements, RESULTS_DTYPE) if n_measurements else None
     errors: list[Any] = []
-    compact = _Compact()
+    compact = _Compact(n_measurements)
     writer: _SliceWriter | None = None
     first: Flight | None = None
     cfg: EstimatorConfig | None = None
