@@ -2,8 +2,10 @@
 
 Each measurement runs in a fresh subprocess (`python -m harness.bench_memory --child ...`) that builds
 the flight, streams it through the host firmware on a pty and computes the run summary, then reports its
-own peak RSS (`resource.getrusage(RUSAGE_SELF).ru_maxrss`; the firmware is another process and is not
-counted). Two paths: "sliced" (harness/flight/chunked.py + harness/stream/chunked_run.py, what
+own peak RSS: the high-water mark of its own address space (`VmHWM` in /proc/self/status), which starts
+afresh at exec; `resource.getrusage(RUSAGE_SELF).ru_maxrss` where there is no /proc (on Linux ru_maxrss
+also counts the parent's RSS at fork, so a large parent would set a floor under every figure). The
+firmware is another process and is not counted. Two paths: "sliced" (harness/flight/chunked.py + harness/stream/chunked_run.py, what
 `uwb-hil run` does above 120 s) and "whole" (the flight built in one piece and streamed in one run, the
 baseline measured in the same run). The goal: a 1-hour flight under 500 MB.
 """
@@ -22,6 +24,17 @@ from typing import Any
 GOAL_MB = 500.0
 
 
+def peak_rss_mb() -> float:
+    """Peak RSS of this process [MB] (module doc)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def _child(duration_s: float, path: str, mode: str, firmware: str) -> dict[str, Any]:
     from harness.config import PRESETS, EstimatorConfig
     from harness.flight.scenarios import plan_scenario
@@ -33,7 +46,7 @@ def _child(duration_s: float, path: str, mode: str, firmware: str) -> dict[str, 
     def cfg(flight: Any) -> EstimatorConfig:
         return config_for(flight, EstimatorConfig(), stages=PRESETS["outlier+nn"])
 
-    base_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    base_mb = peak_rss_mb()
     t0 = time.perf_counter()
     with open_device(DeviceSpec(firmware=Path(firmware), timeout_s=30.0)) as device:
         streamer = Streamer(device, timeout_s=30.0)
@@ -48,7 +61,7 @@ def _child(duration_s: float, path: str, mode: str, firmware: str) -> dict[str, 
     return {"duration_s": duration_s, "path": path, "mode": mode, "measurements": summary["measurements"],
             "results": summary["results"], "rmse_m": summary["accuracy"]["rmse"],
             "wall_s": time.perf_counter() - t0, "imports_mb": base_mb,
-            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+            "peak_rss_mb": peak_rss_mb()}
 
 
 def measure(duration_s: float, path: str, mode: str = "twr", firmware: str | None = None) -> dict[str, Any]:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 
 import os
-import resource
 import subprocess
 import time
 from collections.abc import Iterator
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from harness.bench_memory import peak_rss_mb
 from harness.config import PRESETS, EstimatorConfig
 from harness.device.emulator import EmulatorDevice
 from harness.flight.chunked import SimPlan
@@ -107,7 +107,7 @@ def long_run(request: pytest.FixtureRequest, long_flight: LongFlight,
     est = np.stack([results["px"], results["py"], results["pz"]], axis=1).astype(np.float64)
     return LongRun(request.param, flight, long_flight.plan.n_imu, out.run.config, results, out.run.errors,
                    long_flight.injected, np.linalg.norm(est - truth, axis=1), wall,
-                   resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+                   peak_rss_mb())
 
 
 def test_every_measurement_answered_and_finite(long_run: LongRun) -> None:

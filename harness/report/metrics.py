@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -64,10 +65,23 @@ def position_errors(run: RunResult, flight: Flight) -> tuple[np.ndarray, np.ndar
     """(t_us, error vectors) for every measurement that produced a RESULT."""
     res = run.results
     ok = res["outcome"] == OUTCOME_RESULT
-    # column by column: a copy of the selected rows would double the memory of a 1-hour run's results
-    est = np.stack([res[k][ok] for k in ("px", "py", "pz")], axis=1).astype(np.float64)
     t_us = res["t_us"][ok].astype(np.int64)
-    return t_us, est - flight.truth.position_at(t_us)
+    # column by column (same values as estimate - truth.position_at): copies of the selected rows or of
+    # whole (N, 3) temporaries would multiply the memory of a 1-hour run's summary
+    t, tt = t_us.astype(np.float64), flight.truth.t_us.astype(np.float64)
+    err = np.empty((len(t_us), 3))
+    for k, name in enumerate(("px", "py", "pz")):
+        err[:, k] = res[name][ok]
+        err[:, k] -= np.interp(t, tt, flight.truth.pos[:, k])
+    return t_us, err
+
+
+def _rows(fn: Callable[[np.ndarray], np.ndarray], err: np.ndarray, block: int = 1 << 16) -> np.ndarray:
+    """fn applied to blocks of rows (same values as on the whole array, without (N, 3) temporaries)."""
+    out = np.empty(len(err))
+    for i in range(0, len(err), block):
+        out[i:i + block] = fn(err[i:i + block])
+    return out
 
 
 def accuracy_summary(run: RunResult, flight: Flight) -> AccuracySummary:
@@ -76,11 +90,11 @@ def accuracy_summary(run: RunResult, flight: Flight) -> AccuracySummary:
     if len(err) == 0:
         nan = float("nan")
         return AccuracySummary(0, nan, nan, nan, nan, 0, 0, 0, 0)
-    norm = np.linalg.norm(err, axis=1)
+    norm = _rows(lambda e: np.linalg.norm(e, axis=1), err)
     return AccuracySummary(
         n=len(err),
         rmse=float(np.sqrt(np.mean(norm ** 2))),
-        rmse_xy=float(np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1)))),
+        rmse_xy=float(np.sqrt(np.mean(_rows(lambda e: np.sum(e[:, :2] ** 2, axis=1), err)))),
         rmse_z=float(np.sqrt(np.mean(err[:, 2] ** 2))),
         max_error=float(norm.max()),
         accepted=int(np.count_nonzero(status == 0)),

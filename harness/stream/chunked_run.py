@@ -61,10 +61,13 @@ class _Compact:
     _COLS = (("t_us", np.int64, ()), ("a", np.int64, ()), ("b", np.int64, ()), ("value", np.float64, ()),
              ("truth", np.float64, (3,)))
 
-    def __init__(self, n: int | None) -> None:
+    def __init__(self, n: int | None, schedule: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         self.n = 0
         self.kind = 0
-        self.cols = {name: np.zeros((n or 0, *shape), dtype) for name, dtype, shape in self._COLS}
+        self.cols = {name: np.zeros((n or 0, *shape), dtype) for name, dtype, shape in self._COLS
+                     if schedule is None or name not in ("t_us", "a", "b")}
+        # the slices' times and anchors are those of a known schedule (a SimPlan's): kept once, not copied
+        self.shared = dict(zip(("t_us", "a", "b"), schedule)) if schedule is not None else {}
 
     def add(self, piece: Flight) -> None:
         u = piece.uwb
@@ -73,6 +76,10 @@ class _Compact:
                "truth": piece.truth.position_at(u.t_us)}
         k = len(u)
         for name, arr in new.items():
+            if name in self.shared:
+                if not np.array_equal(self.shared[name][self.n:self.n + k], arr):
+                    raise ValueError(f"stream_chunks: slice {name} differs from the schedule")
+                continue
             col = self.cols[name]
             if self.n + k > len(col):       # total unknown (or exceeded): grow
                 col = self.cols[name] = np.concatenate([col[:self.n], np.zeros((max(k, self.n),) + col.shape[1:],
@@ -81,7 +88,7 @@ class _Compact:
         self.n += k
 
     def flight(self, first: Flight) -> Flight:
-        c = {name: col[:self.n] for name, col in self.cols.items()}
+        c = {name: col[:self.n] for name, col in {**self.cols, **self.shared}.items()}
         uwb = UwbStream(kind=self.kind, t_us=c["t_us"], anchor_a=c["a"], anchor_b=c["b"], value=c["value"])
         # truth sampled exactly at the measurement times: interpolating it there gives these values back
         truth = Truth(t_us=c["t_us"], pos=c["truth"])
@@ -92,14 +99,16 @@ def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
                   config: EstimatorConfig | Callable[[Flight], EstimatorConfig], pacing: Pacing = Pacing(),
                   n_measurements: int | None = None, results_path: Path | None = None,
                   header_extra: dict[str, Any] | None = None,
-                  progress: Callable[[int, int], None] | None = None, overwrite: bool = True) -> ChunkedRun:
+                  progress: Callable[[int, int], None] | None = None, overwrite: bool = True,
+                  schedule: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> ChunkedRun:
     """Stream `pieces` (consecutive slices of one flight) as one run. `config` may be a function of the
     first slice (e.g. session.config_for); `n_measurements` (the whole flight's) goes into the header
-    and the progress total."""
+    and the progress total; `schedule` (times, anchor a, anchor b of every measurement, when known) is
+    referenced by the summary flight instead of copied."""
     rows: list[np.ndarray] = []       # per slice, or one preallocated array when the total is known
     filled = np.zeros(n_measurements, RESULTS_DTYPE) if n_measurements else None
     errors: list[Any] = []
-    compact = _Compact(n_measurements)
+    compact = _Compact(n_measurements, schedule)
     writer: _SliceWriter | None = None
     first: Flight | None = None
     cfg: EstimatorConfig | None = None
@@ -163,7 +172,8 @@ def stream_plan(streamer: Streamer, plan: SimPlan, config: Callable[[Flight], Es
             digest.update(piece, last=(i + 1 == len(bounds)))
         header["flight_digest"] = digest.hexdigest()
     return stream_chunks(streamer, plan.chunks(chunk_s), config, pacing, n_measurements=plan.n_uwb,
-                         results_path=results_path, header_extra=header, progress=progress, overwrite=overwrite)
+                         results_path=results_path, header_extra=header, progress=progress, overwrite=overwrite,
+                         schedule=(plan.sched_t, plan.sched_a, plan.sched_b))
 
 
 __all__ = ["CHUNK_S", "STREAM_ABOVE_S", "ChunkedRun", "stream_chunks", "stream_plan"]
