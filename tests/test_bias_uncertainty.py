@@ -87,3 +87,21 @@ def test_head_bounds_apply() -> None:
     assert std.min() >= 0.05 - 1e-9 and std.max() <= 0.08 + 1e-9
     with pytest.raises(ValueError, match="std_min"):
         fit_std_head(net, s, StdHeadConfig(std_min=0.1, std_max=0.05))
+
+
+def test_fit_std_cli_adds_a_head_and_keeps_the_bias(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from harness.biasnet.export import DEFAULT_NPZ
+    from harness.cli import main
+    out = tmp_path / "with_std.npz"
+    rc = main(["fit-std", "--mode", "twr", "--flights", "2", "--duration", "20", "--out", str(out)])
+    assert rc == 0 and "mean (r/std)^2" in capsys.readouterr().out
+    base, fitted = BiasModel.load(DEFAULT_NPZ), BiasModel.load(out)
+    assert fitted.twr is not None and fitted.twr.has_std and base.twr is not None
+    assert np.array_equal(fitted.twr.w3, base.twr.w3) and np.array_equal(fitted.twr.w1, base.twr.w1)
+    assert BiasModel(tdoa=fitted.tdoa).hash == BiasModel(tdoa=base.tdoa).hash and fitted.hash != base.hash
+    info = fitted.meta["twr_std_head"]
+    assert info["fitted_on"] and 0.8 < info["calibration"]["mean_z2"] < 1.2  # type: ignore[index]
+    # the same flights give the same head
+    again = tmp_path / "again.npz"
+    assert main(["fit-std", "--mode", "twr", "--flights", "2", "--duration", "20", "--out", str(again)]) == 0
+    assert BiasModel.load(again).hash == fitted.hash

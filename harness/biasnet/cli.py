@@ -16,7 +16,7 @@ from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
 from harness.biasnet.model import BiasModel
 from harness.biasnet.recipes import SimRecipe, load_recordings
 from harness.biasnet.train import TrainConfig, TrainReport, train_network
-from harness.biasnet.uncertainty import calibration
+from harness.biasnet.uncertainty import StdHeadConfig, calibration, with_std_head
 from harness.flight.model import KIND_TWR, Flight
 from harness.session import shared_data_dir
 from harness.optional import require_torch
@@ -246,6 +246,33 @@ def _check_attitude(model: BiasModel, kind: str, test: list[Flight], model_path:
                          f"network instead: {position_only_hint(test[0].uwb.kind)}")
 
 
+# ------------------------------------------------------------------------------------------------ std head
+def cmd_fit_std(args: argparse.Namespace) -> int:
+    """Fit (or refit) the std head of one network of a model on flights its body never saw."""
+    model = BiasModel.load(Path(args.model))
+    if args.recording:
+        flights = load_recordings([Path(p) for p in args.recording], Path(args.anchors) if args.anchors else None)
+        kinds = {f.uwb.kind for f in flights}
+        if len(kinds) != 1:
+            raise ValueError("all recordings must have the same measurement kind")
+        kind = "twr" if kinds.pop() == KIND_TWR else "tdoa"
+    else:
+        kind = args.mode
+        flights = SimRecipe(mode=kind, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
+                            spins=1).build(_flights_progress(f"simulating {kind}"))
+    net = model.network(kind)
+    if net is None:
+        raise ValueError(f"{args.model} has no {kind} network")
+    out = with_std_head(model, kind, build_samples(flights, net.layout, args.xi),
+                        StdHeadConfig(std_min=args.std_min, std_max=args.std_max))
+    out.save(Path(args.out))
+    cal = out.meta[f"{kind}_std_head"]["calibration"]  # type: ignore[index]
+    print(f"{kind} std head on {cal['n']} samples of {len(flights)} flights: predicted std RMS {cal['std_rms']:.4f} m, "
+          f"residual {cal['residual_rms']:.4f} m, mean (r/std)^2 {cal['mean_z2']:.2f}")
+    print(f"wrote {args.out} (hash {out.hash_hex})")
+    return 0
+
+
 # ------------------------------------------------------------------------------------------ shipped models
 def cmd_models(args: argparse.Namespace) -> int:
     require_torch("uwb-hil models (training the shipped networks)")
@@ -319,6 +346,22 @@ def add_commands(sub: Any) -> None:
     ev.add_argument("--plot", help="save measured error and predicted bias vs azimuth (paper Fig. 5) here")
     ev.add_argument("--json", action="store_true", help="print the comparison as JSON")
     ev.set_defaults(func=cmd_eval)
+
+    fs = sub.add_parser("fit-std", help="fit the std head of a model's network on flights its body never saw")
+    fs.add_argument("--model", default=str(DEFAULT_NPZ), help="model .npz (its bias networks are kept)")
+    fs.add_argument("--out", required=True, help="model file to write (.npz)")
+    fs.add_argument("--recording", nargs="+", help="recorded flights (else simulated ones)")
+    fs.add_argument("--anchors", help="anchor file for the recordings")
+    fs.add_argument("--mode", choices=("twr", "tdoa"), default="tdoa", help="simulated: which network")
+    fs.add_argument("--flights", type=int, default=4, help="simulated flights")
+    fs.add_argument("--duration", type=float, default=120.0, help="simulated: seconds per flight")
+    fs.add_argument("--seed0", type=int, default=500,
+                    help="simulated: first seed (default 500: neither the shipped training seeds 0-23 nor the "
+                         "evaluation seeds >= 1000)")
+    fs.add_argument("--std-min", type=float, default=StdHeadConfig.std_min, help="lower bound of the std [m]")
+    fs.add_argument("--std-max", type=float, default=StdHeadConfig.std_max, help="upper bound of the std [m]")
+    fs.add_argument("--xi", type=float, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")
+    fs.set_defaults(func=cmd_fit_std)
 
     mo = sub.add_parser("models", help="train the shipped default networks (what `make models` runs)")
     mo.add_argument("--data", default=str(Path(__file__).resolve().parents[2].parent / "shared" / "data"),

@@ -15,11 +15,15 @@ stored with the head; the firmware uses the bounded std as the measurement's sta
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from harness.biasnet.dataset import Samples
 from harness.biasnet.model import BiasNetwork
+
+if TYPE_CHECKING:
+    from harness.biasnet.model import BiasModel
 
 
 @dataclass(frozen=True)
@@ -87,3 +91,21 @@ def calibration(net: BiasNetwork, samples: Samples) -> dict[str, float]:
     return {"n": int(len(samples)), "mean_z2": float(np.mean(z ** 2)), "inside_95": float(np.mean(np.abs(z) < 1.96)),
             "std_rms": float(np.sqrt(np.mean(std ** 2))),
             "residual_rms": float(np.sqrt(np.mean((samples.bias - bias) ** 2)))}
+
+
+def with_std_head(model: "BiasModel", kind: str, samples: Samples,
+                  cfg: StdHeadConfig = StdHeadConfig()) -> "BiasModel":
+    """``model`` with a std head fitted on ``samples`` for its ``kind`` network (the bias part unchanged);
+    the meta records the head's calibration on those samples."""
+    from harness.biasnet.model import BiasModel
+    net = model.network(kind)
+    if net is None:
+        raise ValueError(f"the model has no {kind} network")
+    if samples.layout != net.layout:
+        raise ValueError(f"samples of layout {samples.layout} for a network of layout {net.layout}")
+    fitted = fit_std_head(net, samples, cfg)
+    meta = dict(model.meta)
+    meta[f"{kind}_std_head"] = {"fitted_on": list(samples.names), "std_min": cfg.std_min, "std_max": cfg.std_max,
+                                "calibration": calibration(fitted, samples)}
+    return BiasModel(twr=fitted if kind == "twr" else model.twr, tdoa=fitted if kind == "tdoa" else model.tdoa,
+                     name=model.name, meta=meta)
