@@ -51,8 +51,8 @@ def _twin_cost_us(flight: Any, cfg: EstimatorConfig, model: Any) -> np.ndarray:
 def bench_compute(device: Any, duration_s: float, seed: int) -> list[dict[str, Any]]:
     from harness.biasnet.model import BiasModel
     from harness.flight.scenarios import scenario_flight
-    model = BiasModel.load(Path(__file__).resolve().parent.parent / "firmware_sim" / "models"
-                           / "bias_model_default.npz")
+    from harness.paths import MODELS_DIR
+    model = BiasModel.load(MODELS_DIR / "bias_model_default.npz")
     rows = []
     for mode in ("twr", "tdoa"):
         flight = scenario_flight("circle", mode=mode, duration_s=duration_s, seed=seed)

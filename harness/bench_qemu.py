@@ -32,7 +32,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
+from harness.paths import REPO_ROOT
+
 STM32_DIR = REPO_ROOT / "firmware_sim" / "stm32"
 BUILD_M4 = REPO_ROOT / "firmware_sim" / "build" / "stm32"
 BUILD_PORTABLE = REPO_ROOT / "firmware_sim" / "build" / "stm32-portable"

@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING, Any, Iterator, Optional, Set, Tuple
 
 import pytest
 
+from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
+
 if TYPE_CHECKING:
     from harness.device.base import Device
 
@@ -39,9 +41,6 @@ SCOPES = ("session", "module", "function")
 DEFAULT_BAUD = 115200
 DEFAULT_TIMEOUT_S = 5.0
 DEFAULT_FLASH_TIMEOUT_S = 600.0
-_REPO_ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_FIRMWARE = _REPO_ROOT / "firmware_sim" / "build" / "uwb-fw"
-DEFAULT_STM32_ELF = _REPO_ROOT / "firmware_sim" / "build" / "stm32" / "uwb-fw.elf"
 _PORT_KEY = pytest.StashKey[Optional[str]]()
 _SUITE_PROPS_KEY = pytest.StashKey[Set[Tuple[str, str]]]()
 

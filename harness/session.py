@@ -11,10 +11,8 @@ from contextlib import contextmanager
 from harness.config import MODE_IMU, MODE_UWB_ONLY, EstimatorConfig
 from harness.flight.model import KIND_TDOA, KIND_TWR, Flight
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_FIRMWARE = REPO_ROOT / "firmware_sim" / "build" / "uwb-fw"
-DEFAULT_STM32_ELF = REPO_ROOT / "firmware_sim" / "build" / "stm32" / "uwb-fw.elf"
-SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, REPO_ROOT, SHARED_DATA  # noqa: F401 (re-exported)
+
 TARGETS = ("emulator", "serial", "qemu")
 
 

@@ -25,12 +25,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from harness.errors import UwbHilError
+from harness.paths import FIRMWARE_DIR, REPO_ROOT
 
 if TYPE_CHECKING:
     from harness.biasnet.model import BiasModel
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-FW_DIR = REPO_ROOT / "firmware_sim"
+FW_DIR = FIRMWARE_DIR
 STM32_DIR = FW_DIR / "stm32"
 ENSURE_SCRIPT = REPO_ROOT / "scripts" / "ensure_arm_tools.sh"
 ARM_TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "arm-none-eabi-nm", "qemu-system-arm")

@@ -13,8 +13,9 @@ from pathlib import Path
 
 from harness.biasnet.export import export_c
 from harness.biasnet.model import BiasModel
+from harness.paths import FIRMWARE_DIR
 
-FW_DIR = Path(__file__).resolve().parents[2] / "firmware_sim"
+FW_DIR = FIRMWARE_DIR
 CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-Wshadow", "-Wpointer-arith", "-Wstrict-prototypes",
           "-Wmissing-prototypes", "-O2"]
 

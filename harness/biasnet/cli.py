@@ -20,6 +20,7 @@ from harness.biasnet.uncertainty import StdHeadConfig, calibration, with_std_hea
 from harness.flight.model import KIND_TWR, Flight
 from harness.session import shared_data_dir
 from harness.optional import require_torch
+from harness.paths import SHARED_DATA
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
 LAYOUTS = {("twr", "pose"): LAYOUT_TWR_POSE, ("twr", "pos"): LAYOUT_TWR_POS,
@@ -364,7 +365,7 @@ def add_commands(sub: Any) -> None:
     fs.set_defaults(func=cmd_fit_std)
 
     mo = sub.add_parser("models", help="train the shipped default networks (what `make models` runs)")
-    mo.add_argument("--data", default=str(Path(__file__).resolve().parents[2].parent / "shared" / "data"),
+    mo.add_argument("--data", default=str(SHARED_DATA),
                     help="the shared recordings (util/, rcv_twr/) to train on (default ../shared/data)")
     mo.add_argument("--quick", action="store_true", help="small data sets (smoke test)")
     mo.add_argument("--only", choices=("sim", "util", "rcv"), help="build only one of the models")

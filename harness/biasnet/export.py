@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from harness.biasnet.model import BiasModel, BiasNetwork
+from harness.paths import MODELS_DIR
 
-DEFAULT_HEADER = Path(__file__).resolve().parents[2] / "firmware_sim" / "models" / "bias_model_default.h"
+DEFAULT_HEADER = MODELS_DIR / "bias_model_default.h"
 DEFAULT_NPZ = DEFAULT_HEADER.with_suffix(".npz")
 
 

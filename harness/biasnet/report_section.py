@@ -13,7 +13,7 @@ from harness.biasnet.model import BiasModel
 
 if TYPE_CHECKING:
     from harness.report.html import Section
-    from harness.report.sections import ReportContext
+    from harness.report.context import ReportContext
 
 SPIN_SEED = 1100  # an evaluation seed (>= 1000): a flight the network never saw
 

@@ -82,8 +82,7 @@ def build_sim(quick: bool) -> dict[str, Any]:
 
 def _repo_path(path: Path) -> str:
     """Path as recorded in models.json: relative to the repository, not this machine's checkout."""
-    root = MODELS_DIR.parents[1]
-    return str(path.relative_to(root)) if path.is_relative_to(root) else str(path)
+    return str(path.relative_to(REPO_ROOT)) if path.is_relative_to(REPO_ROOT) else str(path)
 
 
 def _short(m: dict[str, Any]) -> dict[str, Any]:

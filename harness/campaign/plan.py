@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from harness.config import PAPER_PRESETS, PRESETS
-from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, shared_data_dir
+from harness.paths import MODELS_DIR
+from harness.session import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
 MODES = ("twr", "tdoa")
@@ -38,7 +39,6 @@ UTIL_HELD_OUT = (
 )
 UTIL_ANCHORS = "util/anchors.csv"
 RCV_TWR_HELD_OUT = ("rcv_twr/sequence5",)     # the rcv_twr network is trained on sequences 1-4
-MODELS_DIR = REPO_ROOT / "firmware_sim" / "models"
 #: Real-data networks per recorded family (key in models.json, file).
 RECORDED_MODELS = {"util": ("util_tdoa_pos", MODELS_DIR / "util_tdoa_pos.npz"),
                    "rcv_twr": ("rcv_twr", MODELS_DIR / "rcv_twr.npz")}

@@ -25,7 +25,7 @@ from harness.campaign.models import snapshot_models
 from harness.campaign.plan import MODELS_DIR, CampaignOptions, RunSpec, group_by_flight, plan_digest, shard_runs
 from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, read_json, write_json_atomic
 from harness.campaign.worker import WorkerJob
-from harness.session import REPO_ROOT
+from harness.paths import REPO_ROOT
 
 
 @dataclass(frozen=True)

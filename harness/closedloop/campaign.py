@@ -187,7 +187,7 @@ def add_fly_parser(sub: Any, add_device_options: Callable[[argparse.ArgumentPars
 
 
 def cmd_fly(args: argparse.Namespace) -> int:
-    from harness.cli import _hello_dict, _model_device_spec
+    from harness.device_args import hello_dict, model_device_spec
     from harness.session import open_device
     if args.seeds < 1:
         raise ValueError("--seeds must be >= 1")
@@ -197,9 +197,9 @@ def cmd_fly(args: argparse.Namespace) -> int:
                         hover_s=args.hover_s, radius=args.radius, height=args.height, profile=args.profile,
                         noise=args.noise, mass=args.mass, loop=loop)
     progress = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    device_spec, want_hash = _model_device_spec(args)
+    device_spec, want_hash = model_device_spec(args)
     with open_device(device_spec, expected_model_hash=want_hash) as device:
-        hello = _hello_dict(device.last_hello or device.hello(timeout=args.timeout))
+        hello = hello_dict(device.last_hello or device.hello(timeout=args.timeout))
         result = run_campaign(device, spec, progress)
     result["device"] = hello
     result["command"] = "uwb-hil " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("uwb-hil") else None

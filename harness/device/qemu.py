@@ -36,7 +36,7 @@ from harness.device.qemu_link import QemuPtyLink
 from harness.errors import DeviceDied, DeviceError
 from harness.link.base import Link
 from harness.link.pty_link import make_raw
-from harness.session import DEFAULT_STM32_ELF
+from harness.paths import DEFAULT_STM32_ELF
 
 DEFAULT_ELF = DEFAULT_STM32_ELF
 

@@ -7,26 +7,20 @@ twin over them to derive the measurement-level equivalent (same pairs, times and
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from harness.flight.errors_model import DW1000_TICK_M, SPEED_OF_LIGHT, SimConfig, hardware_params
 from harness.flight.model import KIND_TDOA, Flight, RadioStream, UwbStream
 from harness.flight.radio_clock import TS_FREQ, DeviceClock
+from harness.flight.radio_config import RadioConfig, RadioSimError
 from harness.flight.radio_packets import ANCHOR_ADDR_BASE, PAYLOAD_MAX, RemoteInfo, tdoa2_payload, tdoa3_payload
 from harness.twin import lps_packets as lp
 from harness.twin.tdoa_engine import MEASUREMENT, TdoaEngine
 
-if TYPE_CHECKING:
-    from harness.flight.radio_sim import RadioConfig
-
 MASK32 = 0xFFFFFFFF
 MASK40 = 0xFFFFFFFFFF
-
-
-class RadioSimError(ValueError):
-    """A radio simulation was asked for something it cannot produce (ids, options)."""
 
 
 def _in(t: float, window: tuple[float, float] | None, extra: float = 0.0) -> bool:

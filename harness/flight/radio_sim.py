@@ -19,8 +19,6 @@ link errors), so a flight can be flown either way and the two compared.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from harness.flight.arena import NLOS_BOXES, Arena
@@ -28,44 +26,11 @@ from harness.flight.errors_model import (DW1000_TICK_M, SPEED_OF_LIGHT, SimConfi
                                          link_directions, range_bias)
 from harness.flight.model import Flight
 from harness.flight.radio_clock import TS_FREQ, DeviceClock
-from harness.flight.radio_assemble import RadioSimError, assemble
+from harness.flight.radio_assemble import assemble
+from harness.flight.radio_config import PROTOCOLS, RadioConfig, RadioSimError  # noqa: F401 (re-exported)
 
-PROTOCOLS = ("tdoa2", "tdoa3")
 SLOT_TICKS = 2**27
 TX_GUARD_S = 1e-6 + 128 * 1017.63e-9      # guard + preamble before the scheduled TX
-
-
-@dataclass(frozen=True)
-class RadioConfig:
-    protocol: str = "tdoa2"
-    seed: int = 1
-    max_ppm: float = 10.0            # clock skews drawn uniformly within +-max_ppm (and kept there)
-    walk_ppm: float = 0.02           # random walk of each skew [ppm / sqrt(s)]
-    rx_noise_m: float = 0.0          # extra white noise on every RX timestamp [m]
-    tx_noise_m: float = 0.0          # jitter of the actual emission around the scheduled TX stamp [m]
-    tof_noise_m: float = 0.0         # noise of the anchors' ToF estimates [m]
-    antenna_delay_ticks: float = 32951.0
-    loss: float = 0.0                # probability that the tag misses a packet
-    anchor_loss: float = 0.0         # probability that an anchor misses another's packet
-    reboots: tuple[tuple[int, float], ...] = ()   # (anchor id, time since flight start [s])
-    reboot_gap_s: float = 0.2        # silence of a rebooting anchor
-    reboot_tof_s: float = 0.5        # after it, ToFs of the rebooted anchor unknown this long
-    tdoa3_system_hz: float = 400.0
-    tdoa3_delay_s: float = 0.005     # +- random TX delay (TDoA3)
-    tdoa3_validity_s: float = 0.05   # an anchor reports others heard this recently (TDoA3)
-    airtime_s: float = 0.3e-3        # transmissions closer than this collide: nobody receives either
-    lpp: bool = True                 # append the LPP position to every packet
-
-    def validate(self) -> None:
-        if self.protocol not in PROTOCOLS:
-            raise RadioSimError(f"radio protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
-        for name in ("max_ppm", "walk_ppm", "rx_noise_m", "tx_noise_m", "tof_noise_m", "antenna_delay_ticks"):
-            if not (getattr(self, name) >= 0 and np.isfinite(getattr(self, name))):
-                raise RadioSimError(f"{name} must be finite and >= 0")
-        if self.max_ppm > 20.0:
-            raise RadioSimError("max_ppm beyond 20 ppm: outside the DW1000 crystal specification the engine accepts")
-        if not (0 <= self.loss < 1 and 0 <= self.anchor_loss < 1):
-            raise RadioSimError("loss probabilities must be in [0, 1)")
 
 
 def _tx_schedule(cfg: RadioConfig, ids: np.ndarray, clocks: dict[int, DeviceClock], t0: float, t1: float,

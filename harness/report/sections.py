@@ -7,32 +7,13 @@ from __future__ import annotations
 
 import math
 import platform
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Callable
-
-from matplotlib.figure import Figure
+from typing import Any
 
 from harness.report import plots
-from harness.report.data import TIME_BIN_S, CampaignData
+from harness.report.context import ReportContext, SectionFn
+from harness.report.data import TIME_BIN_S
 from harness.report.html import FigureRef, Section, Table
 from harness.report.summary import CONFIG_KEYS, DIVERGED_RMSE_M, PAPER
-
-
-@dataclass
-class ReportContext:
-    data: CampaignData
-    summary: dict[str, Any]           # harness.report.summary.campaign_summary(data)
-    fig_dir: Path
-
-    def figure(self, fig: Figure | None, name: str, caption: str) -> list[FigureRef]:
-        """Save a figure as <fig_dir>/<name>.png (nothing if fig is None)."""
-        if fig is None:
-            return []
-        return [FigureRef(plots.save(fig, self.fig_dir / f"{name}.png"), caption)]
-
-
-SectionFn = Callable[[ReportContext], "Section | None"]
 
 
 def _f(x: Any, digits: int = 3) -> str:

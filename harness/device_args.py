@@ -1,0 +1,87 @@
+"""The device options every command shares (--target, --port, --firmware, ...): their parser group, the
+DeviceSpec they describe, and the device identity as printed. Used by the CLI modules of `run`, `demo` and
+`fly`; it lives outside them so that no module imports from a CLI module."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from harness import options
+from harness.session import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, TARGETS, DeviceSpec
+
+
+def add_device_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("device")
+    g.add_argument("--target", choices=TARGETS, default=None,
+                   help="emulator (host firmware on a pty; the default without a port), serial (a board on --port; "
+                        "the default with one), qemu")
+    g.add_argument("--port", help="pyserial URL or device of a real board: /dev/ttyACM0, rfc2217://host:port "
+                                  "(default: $UWB_HIL_PORT; `uwb-hil ports` lists this machine's ports)")
+    g.add_argument("--port-serial", metavar="SERIAL",
+                   help="the board whose USB serial number is SERIAL (see `uwb-hil ports`), whatever its path")
+    g.add_argument("--baud", type=options.baud, default=115200, help="serial line speed of a board on --port")
+    g.add_argument("--firmware", default=None,
+                   help=f"firmware to run: the host binary for the emulator (default {DEFAULT_FIRMWARE}), "
+                        f"the STM32F405 ELF for qemu (default {DEFAULT_STM32_ELF})")
+    g.add_argument("--timeout", type=options.timeout_s, default=5.0,
+                   help="seconds of device silence before giving up (> 0)")
+    g.add_argument("--log-dir", help="where device logs go")
+    g.add_argument("--flash-cmd", metavar="CMD",
+                   help="shell command run before the device starts (e.g. flash the board: "
+                        "\"st-flash write build/uwb-fw.bin 0x8000000\"); a failure stops the run")
+
+
+def device_spec(args: argparse.Namespace) -> DeviceSpec:
+    from harness.link.ports import default_port, port_for_serial
+    if getattr(args, "flash_cmd", None):
+        log_to_stderr("uwb_hil.flash")     # the flash command's output belongs in the run's log
+    port = args.port
+    if getattr(args, "port_serial", None):
+        if port:
+            raise ValueError("give --port or --port-serial, not both")
+        port = port_for_serial(args.port_serial)
+    if port is None and args.target in (None, "serial"):
+        port = default_port()           # $UWB_HIL_PORT; an explicit --target emulator/qemu ignores it
+    target = args.target or ("serial" if port else "emulator")
+    return DeviceSpec(target=target, port=port, baud=args.baud,
+                      firmware=Path(args.firmware) if args.firmware else None,
+                      timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None,
+                      flash_cmd=getattr(args, "flash_cmd", None) or None)
+
+
+def log_to_stderr(name: str) -> None:
+    logger = logging.getLogger(name)
+    if not logger.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("uwb-hil: %(message)s"))
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+
+
+def model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None]:
+    """The device spec, and the model hash the device must report when --model is given. On the emulator
+    the firmware is (re)built with that model; a board or QEMU image must already carry it."""
+    spec = device_spec(args)
+    if not getattr(args, "model", None):
+        return spec, None
+    from harness.biasnet.model import BiasModel
+    model = BiasModel.load(Path(args.model))
+    if spec.resolved_target() == "emulator" and spec.firmware_path() == DEFAULT_FIRMWARE:
+        from harness.biasnet.cbuild import firmware_for
+        spec = replace(spec, firmware=firmware_for(model))
+    return spec, model.hash
+
+
+def hello_dict(hello: Any) -> dict[str, Any]:
+    """The device identity of a HELLO_REPLY, as the summaries and results files record it."""
+    return {"proto_version": hello.proto_version,
+            "firmware": f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}",
+            "build_id": hello.build_id.rstrip(b"\x00").decode(errors="replace"),
+            "target": hello.target.rstrip(b"\x00").decode(errors="replace"),
+            "model_hash": f"{hello.model_hash:016x}", "layout_twr": hello.layout_twr,
+            "layout_tdoa": hello.layout_tdoa, "cost_unit": hello.cost_unit}
