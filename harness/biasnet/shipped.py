@@ -26,6 +26,7 @@ from harness.biasnet.recipes import (FIRST_EVAL_SEED, SimRecipe, load_recordings
                                      util_heldout_files, util_train_files)
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.workflow import compare, train_kind
+from harness.paths import REPO_ROOT
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TWR_POSE
 
 MODELS_DIR = DEFAULT_NPZ.parent

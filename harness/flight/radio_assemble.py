@@ -14,7 +14,7 @@ import numpy as np
 from harness.flight.errors_model import DW1000_TICK_M, SPEED_OF_LIGHT, SimConfig, hardware_params
 from harness.flight.model import KIND_TDOA, Flight, RadioStream, UwbStream
 from harness.flight.radio_clock import TS_FREQ, DeviceClock
-from harness.flight.radio_config import RadioConfig, RadioSimError
+from harness.flight.radio_config import RadioConfig
 from harness.flight.radio_packets import ANCHOR_ADDR_BASE, PAYLOAD_MAX, RemoteInfo, tdoa2_payload, tdoa3_payload
 from harness.twin import lps_packets as lp
 from harness.twin.tdoa_engine import MEASUREMENT, TdoaEngine
