@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import select
 import shutil
 import signal
@@ -224,7 +225,7 @@ def test_frame_channel_timeout_holds_while_peer_floods(payload: bytes) -> None:
         finally:
             child.kill()
             child.wait()
-        assert 1.0 <= took < 1.5, took
+        assert 1.0 <= took < 2.0, took          # the flood would go on for 15 s
         if payload is UNRELATED:
             assert channel.skipped > 1000
 
@@ -305,6 +306,7 @@ def test_cli_timeout_holds_while_board_floods(payload: bytes) -> None:
                               "--duration", "3"], capture_output=True, text=True, timeout=60, cwd=REPO_ROOT)
         took = time.monotonic() - t0
     assert out.returncode != 0
-    assert "uwb-hil: error:" in out.stderr and "HELLO" in out.stderr, out.stderr
+    # the HELLO wait itself ends at the 2 s bound (the flood would go on for 20 s)
+    assert re.search(r"uwb-hil: error: device did not answer HELLO within 2\.[0-4]\d s", out.stderr), out.stderr
     assert "Traceback" not in out.stderr
-    assert took < 2.0 + 4.0, took          # 2 s HELLO bound + interpreter start-up and flight build
+    assert took < 15.0, took               # + interpreter start-up and flight build, on a loaded machine
