@@ -63,7 +63,7 @@ class EstimatorConfig:
     # Supervisor (as the Crazyflie's): a position outside the anchors' bounding box widened by sup_margin
     # [m], a speed above sup_max_speed [m/s] or a position variance above sup_max_var [m^2] (never below
     # the initial variance) re-initialises the filter and reports DIVERGED (docs/ARCHITECTURE.md).
-    sup_margin: float = 5.0
+    sup_margin: float = 10.0
     sup_max_speed: float = 10.0
     sup_max_var: float = 50.0
 

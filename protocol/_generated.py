@@ -164,7 +164,7 @@ class Config:
     init_std_xy: float  # > 0
     init_std_z: float  # > 0
     nn_min_z: float  # bias correction only when the estimated z is above this [m]
-    sup_margin: float  # supervisor: the position must stay inside the anchors' bounding box widened by this [m], >= 0 (default 5)
+    sup_margin: float  # supervisor: the position must stay inside the anchors' bounding box widened by this [m], >= 0 (default 10)
     sup_max_speed: float  # supervisor: speed bound [m/s], > 0 (default 10, as the Crazyflie's maxVel)
     sup_max_var: float  # supervisor: bound on each position variance [m^2], > 0 (default 50; the covariance clamp is 100)
 
@@ -296,7 +296,7 @@ class Height:
 
     t_us: int  # measurement time; must not go backwards against the previous HEIGHT
     z: float  # height of the tag, world [m]
-    std: float  # its standard deviation [m], > 0
+    std: float  # its standard deviation [m], in (0, 1000]
 
 
 @dataclass(frozen=True)

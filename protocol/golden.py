@@ -50,7 +50,7 @@ def _vectors() -> list[tuple[str, int, Any]]:
                                         a_max_twr=5000.0, a_max_tdoa=5000.0, gate_dt_min=0.01, chi2_twr=3.841,
                                         chi2_tdoa=3.841, proc_acc_xy=0.5, proc_acc_z=1.0, proc_cv_acc=2.0,
                                         init_x=1.5, init_y=0.0, init_z=0.0, init_std_xy=1.0, init_std_z=1.0,
-                                        nn_min_z=0.5, sup_margin=5.0, sup_max_speed=10.0, sup_max_var=50.0)),
+                                        nn_min_z=0.5, sup_margin=10.0, sup_max_speed=10.0, sup_max_var=50.0)),
         ("config_uwb_only", 3, m.Config(mode=1, stages=0, reset=0, reserved=0, std_twr=0.1, std_tdoa=0.3,
                                         a_max_twr=1.0, a_max_tdoa=2.0, gate_dt_min=0.005, chi2_twr=2.25,
                                         chi2_tdoa=3.24, proc_acc_xy=0.0, proc_acc_z=0.0, proc_cv_acc=1.0,

@@ -18,8 +18,8 @@ import pytest
 from harness.config import (MODE_IMU, MODE_UWB_ONLY, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, STAGES_OUTLIER,
                             EstimatorConfig)
 from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStream, ImuStream, Truth, UwbStream
-from harness.twin.estimator import (ACCEPTED, FLAG_DIVERGED, FLAG_HEIGHT_FUSED, FLAG_OUT_OF_BOX, REJECTED_CHI2,
-                                    REJECTED_KINEMATIC, TwinResult, run_flight)
+from harness.twin.estimator import (ACCEPTED, FLAG_DIVERGED, FLAG_HEIGHT_FUSED, FLAG_OUT_OF_BOX, FLAG_SPEED,
+                                    REJECTED_CHI2, REJECTED_KINEMATIC, TwinResult, run_flight)
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware_sim"
@@ -239,7 +239,9 @@ def test_supervisor_matches_twin(replay_core: Path, mode: int) -> None:
     t_flags = np.array([r.flags for r in twin])
     np.testing.assert_array_equal(c.flags, t_flags)
     assert c.divergences >= 1 and c.divergences == int(np.count_nonzero(t_flags & FLAG_DIVERGED))
-    assert np.all(t_flags[t_flags != 0] & FLAG_OUT_OF_BOX)
+    events = t_flags[t_flags != 0]
+    assert np.all(events & FLAG_DIVERGED) and np.any(events & FLAG_OUT_OF_BOX)
+    assert np.all(events & (FLAG_OUT_OF_BOX | FLAG_SPEED))      # the 40 m jump: outside the box, or too fast
     assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-3
     assert rmse(c.pos[450:], replace(flight, truth=replace(flight.truth, pos=flight.truth.pos[450:]))) < 0.15
 

@@ -32,7 +32,7 @@ void estimator_default_config(estimator_config_t *cfg)
     cfg->init_std_xy = 1.0f;
     cfg->init_std_z = 1.0f;
     cfg->nn_min_z = 0.5f;
-    cfg->sup_margin = 5.0f;
+    cfg->sup_margin = 10.0f;
     cfg->sup_max_speed = 10.0f;
     cfg->sup_max_var = 50.0f;
 }
@@ -409,12 +409,15 @@ int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t
     return EST_OK;
 }
 
+/* Beyond this std [m] a height carries no information, and its square (R) could overflow. */
+#define EST_MAX_HEIGHT_STD 1000.0f
+
 int estimator_on_height(estimator_t *est, uint64_t t_us, float z, float std)
 {
     static const float h[3] = {0.0f, 0.0f, 1.0f};
     ekf_t *ekf = &est->ekf;
     ekf_scalar_t m;
-    if (!(std > 0.0f)) {
+    if (!(std > 0.0f && std <= EST_MAX_HEIGHT_STD)) {
         return EST_ERR_BAD_VALUE;
     }
     if (est->has_height_time && t_us < est->t_height_us) {

@@ -130,7 +130,7 @@ int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float rang
 int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t anchor_b, float diff,
                       estimator_result_t *out);
 
-/* A height pseudo-measurement z [m] with standard deviation std (> 0, else EST_ERR_BAD_VALUE):
+/* A height pseudo-measurement z [m] with standard deviation std (in (0, 1000] m, else EST_ERR_BAD_VALUE):
  * UWB-only mode predicts to t_us first; fused as a scalar update of z without gates. Does not count
  * as a fused UWB measurement for the kinematic gate. EST_ERR_TIME_BACKWARDS if t_us is before the
  * previous HEIGHT. */

@@ -587,7 +587,7 @@ static void test_firmware_setpoint_control(void)
     m.u.config.chi2_twr = m.u.config.chi2_tdoa = 4.0f;
     m.u.config.proc_cv_acc = 1.0f;
     m.u.config.init_std_xy = m.u.config.init_std_z = 1.0f;
-    m.u.config.sup_margin = 5.0f;
+    m.u.config.sup_margin = 10.0f;
     m.u.config.sup_max_speed = 10.0f;
     m.u.config.sup_max_var = 50.0f;
     send_msg(UWB_MSG_CONFIG, 49, &m);

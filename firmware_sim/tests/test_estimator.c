@@ -569,7 +569,7 @@ static void test_supervisor_bounds(void)
     const float p0[3] = {0.5f, 0.5f, 1.0f};
     uint64_t t = 0;
     uint8_t k;
-    /* out of the box: a range that (no gates) pulls the tag 20 m beyond the anchors (x 3.5 + 5) */
+    /* out of the box: a range that (no gates) pulls the tag ~30 m beyond the anchors (x 3.5 + 10) */
     setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], p0[2]);
     est.cfg.std_twr = 1e-3f; /* the update follows the measurement */
     for (k = 0; k < 8; k++, t += 5000) {
@@ -626,6 +626,7 @@ static void test_height_pseudo_measurement(void)
     setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], 0.0f);
     CHECK(estimator_on_height(&est, 1000, 1.0f, 0.0f) == EST_ERR_BAD_VALUE);
     CHECK(estimator_on_height(&est, 1000, 1.0f, -1.0f) == EST_ERR_BAD_VALUE);
+    CHECK(estimator_on_height(&est, 1000, 1.0f, 1e30f) == EST_ERR_BAD_VALUE); /* std^2 would overflow */
     CHECK(est.heights == 0);
     CHECK(estimator_on_height(&est, 1000, 1.0f, 0.01f) == EST_OK);
     estimator_state(&est, pos, NULL, NULL, var);

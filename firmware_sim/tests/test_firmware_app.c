@@ -172,7 +172,7 @@ static void test_bad_config_refused_and_state_kept(void)
     m.u.config.proc_cv_acc = 1.0f;
     m.u.config.init_std_xy = 1.0f;
     m.u.config.init_std_z = 1.0f;
-    m.u.config.sup_margin = 5.0f;
+    m.u.config.sup_margin = 10.0f;
     m.u.config.sup_max_speed = 10.0f;
     m.u.config.sup_max_var = 50.0f;
     send(&m);

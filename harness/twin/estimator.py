@@ -25,6 +25,9 @@ MAX_ANCHORS = 16
 #: Supervisor: beyond this |position| [m] the state counts as diverged even without anchors (estimator.c).
 MAX_ABS_POSITION = 1e5
 
+#: HEIGHT std bound [m] (estimator.c EST_MAX_HEIGHT_STD): beyond it no information, and R could overflow
+MAX_HEIGHT_STD = 1000.0
+
 # protocol enum result_flag (supervisor events since the previous result)
 FLAG_DIVERGED = 1
 FLAG_NON_FINITE = 2
@@ -259,8 +262,8 @@ class TwinEstimator:
     def on_height(self, t_us: int, z: float, std: float) -> None:
         """A height pseudo-measurement: scalar update of z without gates (estimator_on_height)."""
         t_us = int(t_us)
-        if not std > 0.0:
-            raise TwinError(ERR_BAD_VALUE, f"height std must be > 0, got {std}")
+        if not 0.0 < std <= MAX_HEIGHT_STD:
+            raise TwinError(ERR_BAD_VALUE, f"height std must be in (0, {MAX_HEIGHT_STD:g}] m, got {std}")
         if self.t_height_us is not None and t_us < self.t_height_us:
             raise TwinError(ERR_TIME_BACKWARDS, f"HEIGHT time {t_us} < {self.t_height_us}")
         self.t_height_us = t_us
