@@ -105,6 +105,12 @@ firmware_sim/models/util_tdoa_pos.npz: | $(STAMP)
 firmware_sim/models/rcv_twr.npz: | $(STAMP)
 	$(VENV)/bin/uwb-hil models --only rcv --keep-summary
 
+# Every shared recording (rcv_twr 1-5, UTIL const1-3) in every configuration through `uwb-hil run
+# --max-rmse 2`: each must pass or exit non-zero naming why (docs/verdicts.md; ~5 min on 2 cores).
+.PHONY: replay-all
+replay-all: $(STAMP) firmware $(RECORDED_MODELS)
+	$(PY) -m harness.report.replay_all
+
 .PHONY: campaign
 campaign: $(STAMP) firmware $(RECORDED_MODELS)
 	mkdir -p $(CAMPAIGN_DIR)

@@ -19,7 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from harness import options
+from harness import cli_verdict, options
 from harness.config import PRESETS, EstimatorConfig
 from harness.errors import ResultsFileError, UsageError, UwbHilError
 from harness.flight.model import Flight
@@ -37,10 +37,12 @@ def make_flight(args: argparse.Namespace) -> Flight:
     if args.recording:
         from harness.flight.loaders import load_recording
         anchors = Path(args.anchors) if args.anchors else None
-        return load_recording(Path(args.recording), anchors=anchors, constellation=getattr(args, "constellation", None),
-                              check=not getattr(args, "force", False))
+        return cli_verdict.apply_planar(args, load_recording(
+            Path(args.recording), anchors=anchors, constellation=getattr(args, "constellation", None),
+            check=not getattr(args, "force", False)))
     from harness.flight.scenarios import scenario_flight
-    return scenario_flight(args.scenario, mode=args.mode, duration_s=args.duration, seed=args.seed)
+    return cli_verdict.apply_planar(args, scenario_flight(args.scenario, mode=args.mode, duration_s=args.duration,
+                                                          seed=args.seed))
 
 
 def make_run_flight(args: argparse.Namespace) -> Flight:
@@ -92,14 +94,15 @@ def print_run(summary: dict[str, Any]) -> None:
     unit = summary["compute_unit"]
     print(f"flight {summary['flight']}: {summary['measurements']} measurements, {summary['results']} results, "
           f"{summary['refused']} refused, {summary['lost']} lost; {summary['pacing']} replay at "
-          f"{summary['realtime_factor']:.1f}x real time")
+          f"{_fmt(summary['realtime_factor'], 1)}x real time")
     print(f"  position RMSE {_fmt(acc['rmse'])} m (xy {_fmt(acc['rmse_xy'])}, z {_fmt(acc['rmse_z'])}, "
           f"max {_fmt(acc['max_error'])}); accepted {acc['accepted']}, rejected kinematic "
           f"{acc['rejected_kinematic']}, chi2 {acc['rejected_chi2']}")
     print(f"  device compute [{unit}]: n {comp['n']}  p50 {_fmt(comp['p50'], 2)}  p90 {_fmt(comp['p90'], 2)}  "
           f"p99 {_fmt(comp['p99'], 2)}  max {_fmt(comp['max'], 2)}  over budget {comp['deadline_misses']}")
     print(f"  round trip [us]: n {rtt['n']}  p50 {_fmt(rtt['p50'], 1)}  p90 {_fmt(rtt['p90'], 1)}  "
-          f"p99 {_fmt(rtt['p99'], 1)}  max {_fmt(rtt['max'], 1)}  deadline misses (5 ms) {rtt['deadline_misses']}")
+          f"p99 {_fmt(rtt['p99'], 1)}  max {_fmt(rtt['max'], 1)}  " + cli_verdict.rtt_misses_text(rtt))
+    cli_verdict.print_health(summary)
     if summary.get("radio"):
         from harness.report.radio import format_radio
         print(format_radio(summary["radio"]))
@@ -107,7 +110,7 @@ def print_run(summary: dict[str, Any]) -> None:
 
 # ------------------------------------------------------------------------------------------ commands
 _SOURCE_KEYS = ("scenario", "mode", "duration", "seed", "recording", "anchors", "constellation", "force", "stages",
-                "uwb_only", "model", "set", "radio", "radio_loss")
+                "uwb_only", "model", "set", "radio", "radio_loss", "height", "height_std")
 
 
 def _run_source(args: argparse.Namespace) -> dict[str, Any]:
@@ -174,13 +177,12 @@ def cmd_resume(args: argparse.Namespace) -> int:
     summary["config"] = src.get("stages")
     summary["device"] = _hello_dict(hello)
     summary["resume"] = info
-    if args.json:
-        print(json.dumps(summary, indent=2, default=float))
-    else:
+
+    def text() -> None:
         print(f"resumed {rec.path} at measurement {info['resumed_at']}: replayed {info['replayed']} "
               f"(identical to the record), appended {info['appended']}")
         print_run(summary)
-    return 0
+    return cli_verdict.finish(args, summary, [summary], cli_verdict.criteria_from(args), text)
 
 
 def _results_path(args: argparse.Namespace) -> Path | None:
@@ -201,8 +203,10 @@ def _results_path(args: argparse.Namespace) -> Path | None:
 def cmd_run(args: argparse.Namespace) -> int:
     if getattr(args, "resume", None):
         return cmd_resume(args)
-    # long simulated flights are built and streamed in slices (not at radio level: that needs the whole flight)
-    plan = None if getattr(args, "radio", None) else _long_simulation(args)
+    criteria = cli_verdict.criteria_from(args)
+    # long simulated flights are built and streamed in slices (not at radio level, nor with heights: those
+    # need the whole flight)
+    plan = None if (getattr(args, "radio", None) or getattr(args, "height", None)) else _long_simulation(args)
     flight = make_run_flight(args) if plan is None else None
     pacing = Pacing(mode=args.pacing, window=args.window, speed=args.speed)
     results_path = _results_path(args)
@@ -241,11 +245,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     summary["device"] = _hello_dict(hello)
     if radio is not None:
         summary["radio"] = radio
-    if args.json:
-        print(json.dumps(summary, indent=2, default=float))
-    else:
-        print_run(summary)
-    return 0
+    return cli_verdict.finish(args, summary, [summary], criteria, lambda: print_run(summary))
 
 
 def _radio_section(streamer: Streamer, run: Any, flight: Flight) -> dict[str, Any]:
@@ -288,6 +288,7 @@ def cmd_ports(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from harness.flight.scenarios import scenario_flight
+    criteria = cli_verdict.criteria_from(args)
     rows = []
     spec = _device_spec(args)
     with open_device(spec) as device:
@@ -314,11 +315,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 s["mode"], s["config"] = f"{protocol} radio", preset
                 s["radio"] = _radio_section(streamer, run, flight)
                 rows.append(s)
-    if args.json:
-        print(json.dumps({"device": _hello_dict(hello), "runs": rows}, indent=2, default=float))
-        return 0
-    _print_demo_table(rows, _hello_dict(hello))
-    return 0
+    payload = {"device": _hello_dict(hello), "runs": rows}
+    return cli_verdict.finish(args, payload, rows, criteria, lambda: _print_demo_table(rows, _hello_dict(hello)))
 
 
 def _print_demo_table(rows: list[dict[str, Any]], device: dict[str, Any]) -> None:
@@ -334,7 +332,7 @@ def _print_demo_table(rows: list[dict[str, Any]], device: dict[str, Any]) -> Non
         a, c, r = s["accuracy"], s["compute"], s["round_trip_us"]
         table.add_row(s["mode"], s["config"], _fmt(a["rmse"]), str(a["accepted"]), str(a["rejected_kinematic"]),
                       str(a["rejected_chi2"]), _fmt(c["p50"], 2), _fmt(c["p99"], 2), _fmt(r["p50"], 0),
-                      _fmt(r["p99"], 0), str(s["lost"]), f"{s['realtime_factor']:.0f}x")
+                      _fmt(r["p99"], 0), str(s["lost"]), f"{_fmt(s['realtime_factor'], 0)}x")
     Console(width=160).print(table)
 
 
@@ -397,13 +395,16 @@ def build_parser() -> argparse.ArgumentParser:
                           "firmware's TDoA engine form the measurements; the summary gains a radio section")
     run.add_argument("--radio-loss", type=float, default=0.0, metavar="P",
                      help="with --radio on a simulated flight: probability that the tag misses a packet [0, 1)")
-    run.add_argument("--json", action="store_true", help="print the summary as JSON")
+    run.add_argument("--json", action="store_true", help="print the summary (with its verdict) as JSON")
+    cli_verdict.add_planar_options(run)
+    cli_verdict.add_verdict_options(run)
     run.set_defaults(func=cmd_run)
     demo = sub.add_parser("demo", help="TWR and TDoA flights in three configurations, one table")
     _add_flight_options(demo, recorded=False)
     _add_pacing_options(demo)
     _add_device_options(demo)
     demo.add_argument("--json", action="store_true", help="print every run's summary as JSON")
+    cli_verdict.add_verdict_options(demo)
     demo.set_defaults(func=cmd_demo, duration=20.0)
     ports = sub.add_parser("ports", help="serial ports of this machine: device, description, USB serial number")
     ports.add_argument("--json", action="store_true", help="print the ports as JSON")
@@ -429,7 +430,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
     except (UwbHilError, FileNotFoundError, ValueError, NotImplementedError) as exc:
         print(f"uwb-hil: error: {exc}", file=sys.stderr)
-        return 2
+        return cli_verdict.exit_code(exc)   # 3: device or link failure, 2: usage or input
     except KeyboardInterrupt:
         print("uwb-hil: interrupted", file=sys.stderr)
         return 130

@@ -18,7 +18,8 @@ before the first device starts, output in the log, --uwb-flash-timeout).
 `uwb_device` yields a started, HELLO-checked device and always stops it. The device identity (firmware
 version, build id, model hash, ...) goes to the JUnit report as test-suite properties (xunit2 allows no
 properties on a testcase). Marker `hardware`: the test needs a real board and is skipped unless a port
-(or --uwb-target serial) is given.
+(or --uwb-target serial) is given. `uwb_verdict(summary, max_rmse=..., ...)` judges a run summary with the
+checks and thresholds of `uwb-hil run` (harness/report/verdict.py).
 
 This module is imported by every pytest run in the environment: it imports nothing heavy at the top.
 """
@@ -295,3 +296,13 @@ def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | 
         yield device
     finally:
         device.stop()
+
+
+# ------------------------------------------------------------------------------------- verdicts
+@pytest.fixture
+def uwb_verdict() -> Any:
+    """`uwb_verdict(summary, max_rmse=0.1, ...)`: the verdict `uwb-hil run` gives a run summary
+    (harness.report.metrics.run_summary), with the same health checks and thresholds
+    (harness/report/verdict.py); fails the test naming every failed check, returns the Verdict."""
+    from harness.report.verdict import assert_verdict
+    return assert_verdict

@@ -8,13 +8,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
-
-import numpy as np
 
 from harness.closedloop.cosim import PACINGS, ClosedLoop, FlightLog, LoopConfig
 from harness.closedloop.metrics import aggregate, flight_metrics
@@ -135,14 +132,6 @@ def print_table(result: dict[str, Any], device: dict[str, Any]) -> None:
             print(f"  {c['mode']} {c['mission']} {c['config']}: take-off failed: {why}")
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
-
-
 # ------------------------------------------------------------------------------------------- CLI
 def _csv(choices: Sequence[str], what: str) -> Callable[[str], tuple[str, ...]]:
     def parse(text: str) -> tuple[str, ...]:
@@ -178,6 +167,9 @@ def add_fly_parser(sub: Any, add_device_options: Callable[[argparse.ArgumentPars
     p.add_argument("--imu-every", type=int, default=1, help="physics steps (2 ms) per IMU frame (averaged)")
     p.add_argument("--model", help="bias model (.npz) for outlier+nn: the emulator firmware is built with it; "
                                    "any other device must report its hash (default: the compiled-in model)")
+    p.add_argument("--max-rmse", type=float, default=None, metavar="X",
+                   help="verdict: worst seed's tracking RMSE per cell [m] (take-off and completion always checked; "
+                        "exit 1 if a check fails)")
     p.add_argument("--json", action="store_true", help="print everything (incl. per-flight figures) as JSON")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--markdown", action="store_true", help="print the table as Markdown (for docs)")
@@ -203,12 +195,20 @@ def cmd_fly(args: argparse.Namespace) -> int:
         result = run_campaign(device, spec, progress)
     result["device"] = hello
     result["command"] = "uwb-hil " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("uwb-hil") else None
+    from harness.report import jsonsafe
+    from harness.report.verdict import Criteria, fly_verdict
+    verdict = fly_verdict(result, Criteria(max_rmse=args.max_rmse))
+    result["verdict"] = verdict.as_dict()
     if args.out:
-        Path(args.out).write_text(json.dumps(result, indent=1, default=_json_default))
+        Path(args.out).write_text(jsonsafe.dumps(result, indent=1))
     if args.json:
-        print(json.dumps(result, indent=1, default=_json_default))
+        print(jsonsafe.dumps(result, indent=1))
     elif args.markdown:
         print(markdown_table(result))
     else:
         print_table(result, hello)
+        print(f"verdict: {'PASS' if verdict.passed else 'FAIL'} ({len(verdict.checks)} checks)")
+    if not verdict.passed:
+        print(f"uwb-hil: verdict failed: {verdict.reason()}", file=sys.stderr)
+        return 1
     return 0

@@ -104,9 +104,37 @@ def accuracy_summary(run: RunResult, flight: Flight) -> AccuracySummary:
     )
 
 
+def health_summary(run: RunResult) -> dict[str, object]:
+    """The filter's own health from its answers: supervisor resets (RESULT.flags, ERROR DIVERGED, STATS),
+    non-finite estimates, and signs that P is not positive definite (a variance <= 0, or S below R: the
+    wire carries only P's diagonal, and S = H P H^T + R < R means H P H^T < 0)."""
+    res = run.results[run.results["outcome"] == OUTCOME_RESULT]
+    flags = res["flags"].astype(np.int64)
+    var = np.stack([res[f"var_{k}"] for k in ("x", "y", "z", "vx", "vy", "vz", "d0", "d1", "d2")], axis=1)
+    est = np.stack([res[k] for k in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")], axis=1)
+    finite = np.all(np.isfinite(est), axis=1) & np.all(np.isfinite(var), axis=1)
+    r_var = np.where(res["kind"] == 1, run.config.std_twr ** 2, run.config.std_tdoa ** 2)
+    if run.config.stages & 8:       # NN_STD: R is the network's std, unknown here; S > 0 is still required
+        r_var = np.zeros(len(res))
+    answered = res["status"] != 3   # geometry rejections carry S = 0
+    s_low = (res["innovation_var"] < r_var * (1 - 1e-3)) | (res["innovation_var"] <= 0)
+    not_pd = (np.any(var <= 0, axis=1) | (answered & s_low)) & finite
+    from_errors = sum(1 for e in run.errors if e.code == 10)   # error_code DIVERGED
+    from_stats = int(getattr(run.stats, "divergences", 0)) if run.stats is not None else 0
+    reasons = {name: int(np.count_nonzero(flags & bit))
+               for name, bit in (("non_finite", 2), ("out_of_box", 4), ("speed", 8), ("covariance", 16)) if np.any(flags & bit)}
+    return {"divergences": max(from_errors, from_stats, int(np.count_nonzero(flags & 1))),
+            "divergence_reasons": ", ".join(f"{k} {v}" for k, v in reasons.items()),
+            "non_finite": int(np.count_nonzero(~finite)), "not_pd": int(np.count_nonzero(not_pd)),
+            "height_fused": int(np.count_nonzero(flags & 32))}
+
+
 def run_summary(run: RunResult, flight: Flight, budget_s: float = DEFAULT_BUDGET_S,
-                cost_unit: int = 0) -> dict[str, object]:
-    """Everything a report or `--json` needs about one run."""
+                cost_unit: int = 0, vdop_threshold: float = 5.0) -> dict[str, object]:
+    """Everything a report or `--json` needs about one run. In windowed pacing the round trip includes
+    the time a measurement waited behind the others in flight: its "deadline misses" are queueing, so
+    they are reported as `over_budget_queued` and only lockstep/realtime pacing counts RTT misses."""
+    from harness.report.geometry import geometry_summary
     res = run.results
     ok = res["outcome"] == OUTCOME_RESULT
     rtt_us = (res["t_recv_ns"][ok] - res["t_send_ns"][ok]) / 1e3
@@ -116,6 +144,12 @@ def run_summary(run: RunResult, flight: Flight, budget_s: float = DEFAULT_BUDGET
     else:
         compute_summary = latency_summary(compute, budget_s * 168e6 / 2.0)  # instructions, ~2 CPI at 168 MHz
     stats = run.stats
+    rtt_summary = latency_summary(rtt_us, budget_s * 1e6).as_dict()
+    queued = run.pacing.mode == "windowed"
+    rtt_misses = rtt_summary["deadline_misses"]
+    if queued:
+        rtt_summary["over_budget_queued"] = rtt_misses
+        rtt_summary["deadline_misses"] = None
     return {
         "flight": run.flight,
         "pacing": run.pacing.mode,
@@ -127,7 +161,10 @@ def run_summary(run: RunResult, flight: Flight, budget_s: float = DEFAULT_BUDGET
         "accuracy": accuracy_summary(run, flight).as_dict(),
         "compute": compute_summary.as_dict(),
         "compute_unit": "us" if cost_unit == 0 else "instructions",
-        "round_trip_us": latency_summary(rtt_us, budget_s * 1e6).as_dict(),
+        "round_trip_us": rtt_summary,
+        "deadline_misses": int(compute_summary.deadline_misses) + (0 if queued else int(rtt_misses)),
+        "health": health_summary(run),
+        "geometry": geometry_summary(flight, vdop_threshold).as_dict(),
         "wall_s": run.wall_s,
         "sim_s": run.sim_s,
         "realtime_factor": run.realtime_factor,

@@ -97,7 +97,8 @@ class RunResult:
 
     @property
     def realtime_factor(self) -> float:
-        return self.sim_s / self.wall_s if self.wall_s > 0 else float("inf")
+        """Simulated over wall time; NaN when the wall time is unknown (a resumed run): not infinite."""
+        return self.sim_s / self.wall_s if self.wall_s > 0 else float("nan")
 
 
 class ReplyReader:

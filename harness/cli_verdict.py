@@ -1,0 +1,117 @@
+"""Command-line side of verdicts and the planar mode (options, printing, exit codes) for `uwb-hil run`
+and `uwb-hil demo`. The logic lives in harness/report/verdict.py, harness/report/geometry.py and
+harness/flight/planar.py; this module only parses and prints.
+
+Exit codes (README "Verdicts and exit codes"): 0 pass, 1 verdict failed, 2 usage or input error,
+3 device or link failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+from harness.errors import DeviceError, LinkError
+from harness.flight.model import Flight
+from harness.report import jsonsafe
+from harness.report.verdict import Criteria, Verdict, evaluate, evaluate_all
+
+EXIT_PASS, EXIT_VERDICT, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
+
+_CRITERIA_OPTIONS = (
+    ("max_rmse", "position RMSE [m] (3-D; over the observable axes when z is not observable)"),
+    ("max_rmse_xy", "horizontal position RMSE [m]"),
+    ("max_p99_compute_us", "p99 of the device's compute time per measurement [us; instructions on QEMU]"),
+    ("max_p99_rtt_us", "p99 of the round trip [us] (windowed pacing includes queueing)"),
+    ("max_lost", "measurements that got no answer"),
+    ("max_deadline_misses", "compute over the 5 ms budget, plus round trips over it in lockstep/realtime pacing"),
+)
+
+
+def add_verdict_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("verdict", "pass criteria (exit 1 if one fails; the filter's health is always checked)")
+    for name, text in _CRITERIA_OPTIONS:
+        g.add_argument("--" + name.replace("_", "-"), type=float, default=None, metavar="X", help=text)
+    g.add_argument("--vdop-threshold", type=float, default=None, metavar="X",
+                   help="z counts as not observable when VDOP is above this for most of the flight (default 5)")
+    g.add_argument("--criteria", metavar="FILE.toml",
+                   help="criteria from a TOML file (same names with underscores, e.g. max_rmse = 0.3); "
+                        "options given on the command line win")
+
+
+def add_planar_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("planar mode")
+    g.add_argument("--height", metavar="Z|truth",
+                   help="the tag's height is known: fuse a height pseudo-measurement before every UWB measurement, "
+                        "Z metres, or 'truth' = the recording's ground-truth height at each measurement")
+    g.add_argument("--height-std", type=float, default=0.05, metavar="M",
+                   help="standard deviation of the height pseudo-measurement [m] (default 0.05)")
+
+
+def criteria_from(args: argparse.Namespace) -> Criteria:
+    """The criteria of a command: the --criteria file, overridden by the options (ValueError if invalid)."""
+    base = Criteria.from_toml(Path(args.criteria)) if getattr(args, "criteria", None) else Criteria()
+    given = {name: getattr(args, name, None) for name, _ in _CRITERIA_OPTIONS}
+    given["vdop_threshold"] = getattr(args, "vdop_threshold", None)
+    return base.overridden_by(given)
+
+
+def apply_planar(args: argparse.Namespace, flight: Flight) -> Flight:
+    """The flight with HEIGHT pseudo-measurements when --height is given."""
+    if not getattr(args, "height", None):
+        return flight
+    from harness.flight.planar import parse_height, with_height
+    return with_height(flight, parse_height(str(args.height)), float(args.height_std))
+
+
+def finish(args: argparse.Namespace, payload: dict[str, Any], summaries: list[dict[str, Any]], criteria: Criteria,
+           print_text: Callable[[], None]) -> int:
+    """Judge the runs, put the verdict into the payload, print (JSON or text) and return the exit code."""
+    verdict = evaluate(summaries[0], criteria) if len(summaries) == 1 else evaluate_all(summaries, criteria)
+    payload["verdict"] = verdict.as_dict()
+    if getattr(args, "json", False):
+        print(jsonsafe.dumps(payload))
+    else:
+        print_text()
+        print_verdict(verdict)
+    if not verdict.passed:
+        print(f"uwb-hil: verdict failed: {verdict.reason()}", file=sys.stderr)
+        return EXIT_VERDICT
+    return EXIT_PASS
+
+
+def print_verdict(verdict: Verdict) -> None:
+    print(f"verdict: {'PASS' if verdict.passed else 'FAIL'} ({len(verdict.checks)} checks"
+          + (f"; failed: {verdict.reason()}" if not verdict.passed else "") + ")")
+
+
+def print_health(summary: dict[str, Any]) -> None:
+    """Geometry and filter-health lines under print_run's."""
+    geo, h = summary.get("geometry") or {}, summary.get("health") or {}
+    axes = [a for a, ok in (("xy", geo.get("xy_observable", True)), ("z", geo.get("z_observable", True))) if not ok]
+    print(f"  geometry: HDOP p50 {_g(geo.get('hdop_p50'))}, VDOP p50 {_g(geo.get('vdop_p50'))}"
+          + (" (height pseudo-measurements fused)" if geo.get("height_fused") else "")
+          + (f"; NOT OBSERVABLE: {', '.join(axes)} (DOP above {_g(geo.get('vdop_threshold'))} for most of the flight)"
+             if axes else ""))
+    print(f"  filter health: {h.get('divergences', 0)} supervisor resets"
+          + (f" ({h['divergence_reasons']})" if h.get("divergence_reasons") else "")
+          + f", {h.get('non_finite', 0)} non-finite, {h.get('not_pd', 0)} not positive definite")
+
+
+def rtt_misses_text(rtt: dict[str, Any]) -> str:
+    """Round trips over the budget: deadline misses in lockstep/realtime pacing, queueing in windowed."""
+    if rtt.get("deadline_misses") is not None:
+        return f"deadline misses (5 ms) {rtt['deadline_misses']}"
+    return (f"over 5 ms incl. queueing {rtt.get('over_budget_queued')} (windowed pacing: not deadline misses; "
+            "--pacing lockstep or realtime measures them)")
+
+
+def _g(x: Any) -> str:
+    return "-" if x is None else (f"{x:.2f}" if isinstance(x, float) else str(x))
+
+
+def exit_code(exc: BaseException) -> int:
+    """3 for a device or link failure, 2 for anything else the harness refuses (usage, input)."""
+    return EXIT_DEVICE if isinstance(exc, (DeviceError, LinkError)) else EXIT_INPUT

@@ -1,0 +1,125 @@
+"""Replay every shared recording in every configuration through the real command line and check the
+issue-13 contract: each run either meets `--max-rmse 2` (exit 0) or exits non-zero naming why; none exits
+0 with an RMSE above 2 m.
+
+    python -m harness.report.replay_all [--only rcv|util] [--jobs N]    # make replay-all (Markdown table)
+
+Configurations: none, outlier, outlier+nn (UTIL: the position-only network util_tdoa_pos.npz when built;
+rcv_twr has no network usable without attitude, see below), and for rcv_twr the planar mode
+(`--height truth`). Exit status 1 if any run broke the contract.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+from harness.session import REPO_ROOT, shared_data_dir
+
+MAX_RMSE = 2.0
+UTIL_MODEL = REPO_ROOT / "firmware_sim" / "models" / "util_tdoa_pos.npz"
+
+
+@dataclass(frozen=True)
+class Job:
+    recording: str
+    config: str
+    args: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Row:
+    job: Job
+    exit_code: int
+    rmse: float | None
+    rmse_xy: float | None
+    rmse_z: float | None
+    z_observable: bool | None
+    judged: float | None        # the value the rmse check judged (xy when z is not observable)
+    reason: str                 # the stderr line of a non-zero exit
+
+    @property
+    def broke_contract(self) -> bool:
+        if self.exit_code == 0:
+            return self.judged is None or self.judged > MAX_RMSE
+        return not self.reason.startswith("uwb-hil:")
+
+
+def plan(data: Path, only: str | None = None) -> list[Job]:
+    jobs: list[Job] = []
+    if only in (None, "rcv"):
+        for seq in sorted((data / "rcv_twr").glob("sequence*")):
+            rec = str(seq)
+            jobs += [Job(seq.name, "none", (rec, "--stages", "none")),
+                     Job(seq.name, "outlier", (rec, "--stages", "outlier")),
+                     Job(seq.name, "outlier, planar", (rec, "--stages", "outlier", "--height", "truth"))]
+    if only in (None, "util"):
+        anchors = str(data / "util" / "anchors.csv")
+        for csv in sorted((data / "util").glob("const*/*.csv")):
+            base = (str(csv), "--anchors", anchors)
+            jobs += [Job(csv.stem, "none", (*base, "--stages", "none")),
+                     Job(csv.stem, "outlier", (*base, "--stages", "outlier"))]
+            if UTIL_MODEL.is_file():
+                jobs.append(Job(csv.stem, "outlier+nn", (*base, "--stages", "outlier+nn", "--model", str(UTIL_MODEL))))
+    return jobs
+
+
+def run_job(job: Job, timeout_s: float = 600.0) -> Row:
+    cmd = [sys.executable, "-m", "harness.cli", "run", "--recording", *job.args, "--json", "--max-rmse", str(MAX_RMSE)]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
+    reason = next((line for line in p.stderr.splitlines() if line.startswith("uwb-hil:")), p.stderr.strip()[-300:])
+    try:
+        out = json.loads(p.stdout)
+    except ValueError:
+        return Row(job, p.returncode, None, None, None, None, None, reason)
+    acc, geo = out["accuracy"], out.get("geometry") or {}
+    judged = next((c["value"] for c in out["verdict"]["checks"] if c["name"] == "rmse"), None)
+    return Row(job, p.returncode, acc["rmse"], acc["rmse_xy"], acc["rmse_z"], geo.get("z_observable"), judged,
+               reason if p.returncode else "")
+
+
+def replay_all(data: Path, only: str | None = None, jobs: int = 2) -> list[Row]:
+    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        return list(pool.map(run_job, plan(data, only)))
+
+
+def _f(x: float | None) -> str:
+    return "-" if x is None else f"{x:.3f}"
+
+
+def markdown(rows: list[Row]) -> str:
+    lines = ["| recording | config | exit | RMSE 3-D | xy | z | z observable | outcome |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        outcome = ("CONTRACT BROKEN: " if r.broke_contract else "") + (
+            f"pass (judged {_f(r.judged)} m)" if r.exit_code == 0 else r.reason.replace("|", "/"))
+        lines.append(f"| {r.job.recording} | {r.job.config} | {r.exit_code} | {_f(r.rmse)} | {_f(r.rmse_xy)} | "
+                     f"{_f(r.rmse_z)} | {'-' if r.z_observable is None else ('yes' if r.z_observable else 'no')} | "
+                     f"{outcome} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data-dir", type=Path, default=None, help="shared recordings (default ../shared/data)")
+    ap.add_argument("--only", choices=("rcv", "util"), help="only the rcv_twr sequences or the UTIL flights")
+    ap.add_argument("--jobs", type=int, default=2, help="runs in parallel")
+    args = ap.parse_args(argv)
+    data = args.data_dir or shared_data_dir()
+    if not data.is_dir():
+        print(f"replay_all: error: data folder {data} not found", file=sys.stderr)
+        return 2
+    rows = replay_all(data, args.only, args.jobs)
+    print(markdown(rows))
+    broken = [r for r in rows if r.broke_contract]
+    print(f"\n{len(rows)} runs, {sum(r.exit_code == 0 for r in rows)} passed, "
+          f"{sum(r.exit_code != 0 for r in rows)} exited non-zero with a reason, {len(broken)} broke the contract")
+    return 1 if broken else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,211 @@
+"""Pass criteria and the verdict of a run: every run ends in pass or fail, with each check named.
+
+Criteria (all optional; from options `--max-rmse ...` or a TOML file with the same keys, underscores):
+  max_rmse             position RMSE [m]; 3-D, or over the observable axes when z is not observable
+  max_rmse_xy          horizontal RMSE [m]
+  max_p99_compute_us   p99 of the device's compute time per measurement [us, or instructions]
+  max_p99_rtt_us       p99 of the round trip [us] (in windowed pacing it includes queueing)
+  max_lost             measurements without an answer
+  max_deadline_misses  compute over the budget, plus (lockstep/realtime pacing) round trips over it
+  vdop_threshold       z counts as unobservable when VDOP is above this for most of the flight (5)
+
+The filter's health is always checked, criteria or not: no supervisor reset (DIVERGED), no non-finite
+estimate, no sign that P is not positive definite (a variance <= 0, or S = H P H^T + R below R), and at
+least one measurement fused.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any, Mapping
+
+DEFAULT_VDOP_THRESHOLD = 5.0
+
+
+class CriteriaError(ValueError):
+    """A criterion is malformed (bad value, unknown key, unreadable file)."""
+
+
+@dataclass(frozen=True)
+class Criteria:
+    """Thresholds of a verdict; None = not checked."""
+
+    max_rmse: float | None = None
+    max_rmse_xy: float | None = None
+    max_p99_compute_us: float | None = None
+    max_p99_rtt_us: float | None = None
+    max_lost: float | None = None
+    max_deadline_misses: float | None = None
+    vdop_threshold: float = DEFAULT_VDOP_THRESHOLD
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise CriteriaError(f"{f.name} must be a finite number >= 0, got {v!r}")
+
+    @classmethod
+    def from_toml(cls, path: Path) -> "Criteria":
+        """Read criteria from a TOML file (top level or a [criteria] table)."""
+        try:
+            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise CriteriaError(f"{path}: criteria file not found") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise CriteriaError(f"{path}: cannot read the criteria file ({exc})") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise CriteriaError(f"{path}: not valid TOML ({exc})") from None
+        table = data.get("criteria", data)
+        if not isinstance(table, dict):
+            raise CriteriaError(f"{path}: [criteria] must be a table")
+        return cls.from_mapping(table, where=str(path))
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any], where: str = "criteria") -> "Criteria":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise CriteriaError(f"{where}: unknown criterion {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+        try:
+            return cls(**dict(values))
+        except CriteriaError as exc:
+            raise CriteriaError(f"{where}: {exc}") from None
+
+    def overridden_by(self, other: Mapping[str, Any]) -> "Criteria":
+        """These criteria with the non-None values of `other` (command-line options win over a file)."""
+        return replace(self, **{k: v for k, v in other.items() if v is not None})
+
+
+@dataclass(frozen=True)
+class Check:
+    name: str
+    threshold: float | None
+    value: float | None
+    passed: bool
+    detail: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "threshold": _num(self.threshold), "value": _num(self.value),
+                "passed": self.passed, "detail": self.detail}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    passed: bool
+    checks: tuple[Check, ...]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"passed": self.passed, "checks": [c.as_dict() for c in self.checks]}
+
+    def failures(self) -> list[Check]:
+        return [c for c in self.checks if not c.passed]
+
+    def reason(self) -> str:
+        """One line naming every failed check."""
+        return "; ".join(f"{c.name} {_fmt(c.value)}" + (f" > {_fmt(c.threshold)}" if c.threshold is not None else "")
+                         + (f" ({c.detail})" if c.detail else "") for c in self.failures())
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _fmt(x: float | None) -> str:
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "n/a"
+    return f"{x:g}" if isinstance(x, float) else str(x)
+
+
+def _at_most(name: str, value: float | None, threshold: float, detail: str = "") -> Check:
+    ok = value is not None and math.isfinite(value) and value <= threshold
+    if value is None or not math.isfinite(value):
+        detail = detail or "no value (no measurement answered?)"
+    return Check(name, threshold, value, ok, detail)
+
+
+def health_checks(summary: Mapping[str, Any]) -> list[Check]:
+    """The checks every run must pass (from run_summary's "health" and "accuracy")."""
+    h = summary.get("health") or {}
+    acc = summary.get("accuracy") or {}
+    out = [
+        _at_most("diverged", h.get("divergences", 0), 0,
+                 h.get("divergence_reasons", "") and f"supervisor resets: {h.get('divergence_reasons')}"),
+        _at_most("non_finite_estimates", h.get("non_finite", 0), 0),
+        _at_most("covariance_not_pd", h.get("not_pd", 0), 0,
+                 "results with a variance <= 0 or S = H P H^T + R below R"),
+    ]
+    accepted = acc.get("accepted", 0)
+    out.append(Check("measurements_fused", 1, accepted, bool(accepted and accepted >= 1),
+                     "" if accepted else "the filter fused no measurement"))
+    return out
+
+
+def evaluate(summary: Mapping[str, Any], criteria: Criteria = Criteria()) -> Verdict:
+    """The verdict of one run summary (harness.report.metrics.run_summary) under `criteria`."""
+    checks = health_checks(summary)
+    acc = summary.get("accuracy") or {}
+    geo = summary.get("geometry") or {}
+    comp = summary.get("compute") or {}
+    rtt = summary.get("round_trip_us") or {}
+    if criteria.max_rmse is not None:
+        if not geo.get("xy_observable", True):
+            # no axis to judge the RMSE on: the anchors cannot localise this flight (e.g. on a line)
+            checks.append(Check("rmse", criteria.max_rmse, acc.get("rmse"), False,
+                                f"position not observable (HDOP p50 {_fmt(geo.get('hdop_p50'))}, VDOP p50 "
+                                f"{_fmt(geo.get('vdop_p50'))}): the anchors cannot localise this flight"))
+        elif geo.get("z_observable", True):
+            checks.append(_at_most("rmse", acc.get("rmse"), criteria.max_rmse))
+        else:
+            checks.append(_at_most("rmse", acc.get("rmse_xy"), criteria.max_rmse,
+                                   f"z not observable (VDOP p50 {_fmt(geo.get('vdop_p50'))}): horizontal RMSE; "
+                                   f"z RMSE {_fmt(acc.get('rmse_z'))} reported, not judged"))
+    if criteria.max_rmse_xy is not None:
+        checks.append(_at_most("rmse_xy", acc.get("rmse_xy"), criteria.max_rmse_xy))
+    if criteria.max_p99_compute_us is not None:
+        checks.append(_at_most("p99_compute", comp.get("p99"), criteria.max_p99_compute_us,
+                               str(summary.get("compute_unit", ""))))
+    if criteria.max_p99_rtt_us is not None:
+        checks.append(_at_most("p99_rtt_us", rtt.get("p99"), criteria.max_p99_rtt_us,
+                               "includes queueing (windowed pacing)" if summary.get("pacing") == "windowed" else ""))
+    if criteria.max_lost is not None:
+        checks.append(_at_most("lost", summary.get("lost"), criteria.max_lost))
+    if criteria.max_deadline_misses is not None:
+        checks.append(_at_most("deadline_misses", summary.get("deadline_misses"), criteria.max_deadline_misses))
+    return Verdict(passed=all(c.passed for c in checks), checks=tuple(checks))
+
+
+def evaluate_all(summaries: list[Mapping[str, Any]], criteria: Criteria = Criteria()) -> Verdict:
+    """One verdict over several runs (demo, campaign): each check named after its run."""
+    checks: list[Check] = []
+    for s in summaries:
+        label = "/".join(str(s[k]) for k in ("mode", "config") if s.get(k) is not None) or str(s.get("flight", "run"))
+        checks += [replace(c, name=f"{label}:{c.name}") for c in evaluate(s, criteria).checks]
+    return Verdict(passed=all(c.passed for c in checks), checks=tuple(checks))
+
+
+def assert_verdict(summary: Mapping[str, Any], criteria: Criteria | None = None, **thresholds: float) -> Verdict:
+    """The verdict of `summary` under `criteria` overridden by `thresholds` (e.g. max_rmse=0.1); raises
+    AssertionError naming every failed check (the pytest plugin's `uwb_verdict` fixture)."""
+    verdict = evaluate(summary, (criteria or Criteria()).overridden_by(thresholds))
+    if not verdict.passed:
+        raise AssertionError(f"verdict failed: {verdict.reason()}")
+    return verdict
+
+
+def fly_verdict(result: Mapping[str, Any], criteria: Criteria = Criteria()) -> Verdict:
+    """The verdict of `uwb-hil fly` (harness.closedloop.campaign.run_campaign): per cell, every flight
+    took off and completed its mission; with max_rmse, the worst seed's tracking RMSE |p_true - p_cmd|."""
+    checks: list[Check] = []
+    for c in result.get("cells", []):
+        label = f"{c['mode']}/{c['mission']}/{c['config']}"
+        n = int(c["flights"])
+        checks.append(_at_most(f"{label}:takeoff_failures", n - int(c["takeoff_success"]), 0))
+        checks.append(_at_most(f"{label}:incomplete_flights", n - int(c["completed"]), 0))
+        if criteria.max_rmse is not None:
+            checks.append(_at_most(f"{label}:tracking_rmse_max", c.get("tracking_rmse_max"), criteria.max_rmse))
+    return Verdict(passed=all(ch.passed for ch in checks), checks=tuple(checks))
