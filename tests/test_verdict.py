@@ -218,13 +218,12 @@ def test_fly_verdict_checks_takeoff_completion_and_tracking() -> None:
 
 
 def test_fly_cli_verdict() -> None:
-    args = ("fly", "--mode", "tdoa", "--mission", "hover", "--hover-s", "1", "--config", "outlier", "--seeds", "1",
-            "--quiet", "--json")
-    ok = uwb_hil(*args, "--max-rmse", "1")
-    assert ok.returncode == 0, ok.stderr
-    assert strict_json(ok.stdout)["verdict"]["passed"] is True
-    bad = uwb_hil(*args, "--max-rmse", "1e-6")
-    assert bad.returncode == 1 and "tracking_rmse_max" in bad.stderr
+    r = uwb_hil("fly", "--mode", "tdoa", "--mission", "hover", "--hover-s", "1", "--config", "outlier", "--seeds", "1",
+                "--quiet", "--json", "--max-rmse", "1e-6")
+    assert r.returncode == 1 and "tracking_rmse_max" in r.stderr
+    checks = {c["name"].split(":")[1]: c for c in strict_json(r.stdout)["verdict"]["checks"]}
+    assert checks["takeoff_failures"]["passed"] and checks["incomplete_flights"]["passed"]
+    assert not checks["tracking_rmse_max"]["passed"] and checks["tracking_rmse_max"]["value"] > 0
 
 
 def test_uwb_verdict_fixture_judges_a_device_run(uwb_device: Any, uwb_verdict: Any) -> None:
