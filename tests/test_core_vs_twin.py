@@ -281,14 +281,26 @@ def std_head_model() -> "BiasModel":
     return BiasModel(twr=nets["twr"], tdoa=nets["tdoa"], name="std-head-test")
 
 
-@pytest.fixture(scope="module")
-def replay_core_std(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, "BiasModel"]:
+def narrowed(model: "BiasModel") -> "BiasModel":
+    """The same networks trained (so to speak) on dp_x in [-3.6, 3.6] m only: the flight (|dp_x| from 2.5 to
+    4.5 m) leaves that range part of the time."""
+    from harness.biasnet.model import BiasModel
+    nets = {}
+    for kind in ("twr", "tdoa"):
+        net = model.network(kind)
+        assert net is not None
+        lo, hi = net.in_min.copy(), net.in_max.copy()
+        lo[0], hi[0] = -3.6, 3.6
+        nets[kind] = replace(net, in_min=lo, in_max=hi)
+    return BiasModel(twr=nets["twr"], tdoa=nets["tdoa"], name="narrow")
+
+
+def build_replay_core(tmp_path_factory: pytest.TempPathFactory, model: "BiasModel") -> Path:
     from harness.biasnet.export import export_c
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
         pytest.skip("no C compiler")
-    model = std_head_model()
-    root = tmp_path_factory.mktemp("replay_std")
+    root = tmp_path_factory.mktemp("replay_model")
     header = export_c(model, root / "model.h")
     exe = root / "replay_core"
     sources = sorted(str(p) for p in (FW / "core").glob("*.c"))
@@ -296,7 +308,13 @@ def replay_core_std(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, "Bi
            f"-DBIAS_MODEL_HEADER=\"{header}\"", "-D_POSIX_C_SOURCE=200809L", "-o", str(exe), *sources,
            "host/platform_host.c", "tools/replay_core.c", "-lm"]
     subprocess.run(cmd, cwd=FW, check=True, capture_output=True, text=True)
-    return exe, model
+    return exe
+
+
+@pytest.fixture(scope="module")
+def replay_core_std(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, "BiasModel"]:
+    model = std_head_model()
+    return build_replay_core(tmp_path_factory, model), model
 
 
 @pytest.mark.parametrize("kind", [KIND_TWR, KIND_TDOA], ids=["twr", "tdoa"])
@@ -347,3 +365,29 @@ def test_robust_update_matches_twin_and_resists_outliers(replay_core: Path, mode
     assert np.max(np.abs(c_alone.pos - t_alone)) < 1e-4
     no_rejection = rmse(np.array([r.pos for r in run_flight(flight, replace(cfg, stages=0))]), flight)
     assert rmse(c_alone.pos, flight) < 0.7 * no_rejection
+
+
+@pytest.mark.parametrize("kind", [KIND_TWR, KIND_TDOA], ids=["twr", "tdoa"])
+def test_correction_fades_outside_the_training_range_as_in_the_twin(tmp_path_factory: pytest.TempPathFactory,
+                                                                     kind: int) -> None:
+    from harness.config import PRESETS
+    from harness.twin.features import OOD_MARGIN
+    model = narrowed(std_head_model())
+    exe = build_replay_core(tmp_path_factory, model)
+    flight = synthetic_flight(kind, noise=0.05, outliers=True, seed=11 + kind)
+    cfg = base_config(flight, MODE_IMU, stages=PRESETS["outlier+nn+std"])
+    twin = run_flight(flight, cfg, model)
+    c = run_c(exe, flight, cfg, with_model=True)
+    np.testing.assert_array_equal(c.status, np.array([r.status for r in twin]))
+    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
+    t_s = np.array([r.innovation_var for r in twin])
+    assert np.max(np.abs(c.S - t_s) / t_s) < 1e-3
+    # Where the estimate's dp_x leaves [-3.6, 3.6] m by more than 10 % of the width the bias is exactly 0
+    # and the std the configured one; inside it the network runs. Both happen on this flight.
+    bias = np.array([r.bias for r in twin])
+    airborne = np.array([r.pos[2] for r in twin]) > cfg.nn_min_z
+    std_cfg = cfg.std_tdoa if kind == KIND_TDOA else cfg.std_twr
+    zero = airborne & (bias == 0.0)
+    assert 0.05 < np.mean(zero[airborne]) < 0.95
+    assert np.all(t_s[zero] >= std_cfg ** 2 * 0.999)   # faded out: the configured std, not the head's
+    assert OOD_MARGIN == pytest.approx(0.1)

@@ -91,6 +91,37 @@ static void dense_relu(const float *x, uint8_t n_in, const float *restrict w, co
     }
 }
 
+float bias_nn_ood_excess(const bias_nn_t *net, const float *features)
+{
+    float worst = 0.0f;
+    int i;
+    const int n_in = net->n_in <= BIAS_NN_MAX_IN ? (int)net->n_in : BIAS_NN_MAX_IN;
+    for (i = 0; i < n_in; i++) {
+        const float width = net->in_max[i] - net->in_min[i];
+        const float below = (net->in_min[i] - features[i]) / width;
+        const float above = (features[i] - net->in_max[i]) / width;
+        if (below > worst) {
+            worst = below;
+        }
+        if (above > worst) {
+            worst = above;
+        }
+        if (features[i] != features[i]) { /* NaN: as far out as it gets */
+            worst = 1e30f;
+        }
+    }
+    return worst;
+}
+
+float bias_nn_ood_fade(float excess)
+{
+    const float f = 1.0f - excess / BIAS_NN_OOD_MARGIN;
+    if (!(f > 0.0f)) {
+        return 0.0f;
+    }
+    return f < 1.0f ? f : 1.0f;
+}
+
 float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN])
 {
     float s = net->b3s, std;

@@ -60,6 +60,16 @@ uint8_t bias_nn_features(uint8_t layout, const float tag[3], const float rpy[3],
  * or 0 when the network has no std head. */
 float bias_nn_predict(const bias_nn_t *net, const float *features, float *std_out);
 
+/* Out of the training range: a network is only trusted inside the box [in_min, in_max] it was trained
+ * on. bias_nn_ood_excess() is the largest distance of any input beyond its range, in units of that
+ * range's width (0 inside); the estimator fades the correction linearly to zero over
+ * BIAS_NN_OOD_MARGIN of excess (and moves the std back to the configured one). */
+#define BIAS_NN_OOD_MARGIN 0.1f
+float bias_nn_ood_excess(const bias_nn_t *net, const float *features);
+
+/* 1 inside the training range, falling linearly to 0 at BIAS_NN_OOD_MARGIN of excess (0 for NaN). */
+float bias_nn_ood_fade(float excess);
+
 /* The std head on a computed second hidden layer h2 (shared by bias_nn.c and the M4 kernel). */
 float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN]);
 

@@ -214,12 +214,13 @@ static int64_t diff_us(uint64_t t1, uint64_t t0)
 
 /* Bias (measured - true) from the network of this kind, or 0 when the stage is off, there is no
  * network, or the estimate is below nn_min_z (take-off: the paper does not correct there).
- * *std_out: the network's predicted std of the corrected error [m] (bounded by the network's
- * std_min/std_max), or 0 when it has none or did not run: the caller then uses the configured std. */
+ * Outside the network's training range the correction fades to 0 (bias_nn_ood_fade) and *std_out, the
+ * predicted std, moves to cfg_std by the same factor. *std_out is 0 when the network has no std head or
+ * did not run: the caller then uses the configured std. */
 static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *anchor_a,
-                     const float *anchor_b, float *std_out)
+                     const float *anchor_b, float cfg_std, float *std_out)
 {
-    float rpy[3], feat[BIAS_NN_MAX_IN];
+    float rpy[3], feat[BIAS_NN_MAX_IN], fade, bias;
     *std_out = 0.0f;
     if (!(est->cfg.stages & EST_STAGE_BIAS_NN) || net == NULL || !(est->ekf.S[EKF_Z] > est->cfg.nn_min_z)) {
         return 0.0f;
@@ -228,7 +229,15 @@ static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *
     if (bias_nn_features(net->layout, &est->ekf.S[EKF_X], rpy, anchor_a, anchor_b, feat) == 0) {
         return 0.0f;
     }
-    return bias_nn_predict(net, feat, std_out);
+    fade = bias_nn_ood_fade(bias_nn_ood_excess(net, feat));
+    if (fade <= 0.0f) {
+        return 0.0f; /* far outside: not even evaluated */
+    }
+    bias = bias_nn_predict(net, feat, std_out);
+    if (*std_out > 0.0f) {
+        *std_out = fade * *std_out + (1.0f - fade) * cfg_std;
+    }
+    return fade * bias;
 }
 
 /* How long the links of anchor id had been rejected up to its previous measurement (0 if that one
@@ -340,10 +349,13 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     if (est->model != NULL) {
         net = tdoa ? est->model->tdoa : est->model->twr;
     }
-    bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a, &std_nn);
+    std = tdoa ? cfg->std_tdoa : cfg->std_twr;
+    bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a, std, &std_nn);
     y = (z - bias) - h;
     /* NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std */
-    std = ((cfg->stages & EST_STAGE_NN_STD) && std_nn > 0.0f) ? std_nn : (tdoa ? cfg->std_tdoa : cfg->std_twr);
+    if ((cfg->stages & EST_STAGE_NN_STD) && std_nn > 0.0f) {
+        std = std_nn;
+    }
     c2 = platform_cost_now();
 
     /* 3./4. gates (S is needed by the chi-square gate and reported in every case) */

@@ -460,6 +460,38 @@ static void test_bias_network_wiring(void)
         estimator_configure(&est, &cfg, 1);
     }
 
+    /* out of the training range: the correction fades to 0 over 10 % of the range width */
+    {
+        static const float narrow_min[3] = {-10.0f, -10.0f, -10.0f};
+        float narrow_max[3];
+        estimator_result_t r_out;
+        const float in_bias = r.bias;
+        CHECK(bias_nn_ood_excess(&net, dp) == 0.0f);
+        for (i = 0; i < 3; i++) {
+            narrow_max[i] = 10.0f;
+        }
+        /* dp[0] beyond in_max by 5 % of the range width: (dp - max) / (max - min) = 0.05, fade 0.5 */
+        narrow_max[0] = (dp[0] + 0.05f * narrow_min[0]) / 1.05f;
+        net.in_min = narrow_min;
+        net.in_max = narrow_max;
+        CHECK_NEAR(bias_nn_ood_excess(&net, dp), 0.05f, 1e-5);
+        CHECK_NEAR(bias_nn_ood_fade(0.05f), 0.5f, 1e-6);
+        estimator_configure(&est, &cfg, 1);
+        CHECK(estimator_on_twr(&est, 1000, 7, h, &r_out) == EST_OK);
+        CHECK_NEAR(r_out.bias, 0.5f * bias_nn_predict(&net, dp, NULL), 1e-6);
+        narrow_max[0] = narrow_min[0] + 0.5f * (dp[0] - narrow_min[0]); /* excess 1: no correction */
+        CHECK(bias_nn_ood_excess(&net, dp) > BIAS_NN_OOD_MARGIN);
+        estimator_configure(&est, &cfg, 1);
+        CHECK(estimator_on_twr(&est, 1000, 7, h, &r_out) == EST_OK);
+        CHECK(r_out.bias == 0.0f);
+        CHECK(bias_nn_ood_fade(NAN) == 0.0f && bias_nn_ood_fade(0.0f) == 1.0f && bias_nn_ood_fade(1.0f) == 0.0f);
+        net.in_min = in_min;
+        net.in_max = in_max;
+        estimator_configure(&est, &cfg, 1);
+        CHECK(estimator_on_twr(&est, 1000, 7, h, &r_out) == EST_OK);
+        CHECK_NEAR(r_out.bias, in_bias, 1e-7);
+    }
+
     /* below nn_min_z: no correction */
     cfg.init_z = 0.4f;
     estimator_configure(&est, &cfg, 1);

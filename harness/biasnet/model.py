@@ -136,6 +136,17 @@ class BiasNetwork:
         std = self._std_from_hidden(h2) if self.w3s is not None else np.zeros(len(h2))
         return self._bias_from_hidden(h2), std
 
+    def ood_excess_batch(self, features: np.ndarray) -> np.ndarray:
+        """Per row: the largest distance of any input beyond [in_min, in_max], in units of that input's
+        range width (0 inside; inf for NaN), as bias_nn_ood_excess() in C."""
+        x = np.asarray(features, dtype=np.float64).reshape(-1, self.n_in)
+        lo, hi = self.in_min.astype(np.float64), self.in_max.astype(np.float64)
+        out = np.max(np.maximum(np.maximum((lo - x) / (hi - lo), (x - hi) / (hi - lo)), 0.0), axis=1)
+        return np.where(np.any(np.isnan(x), axis=1), np.inf, out)
+
+    def ood_excess(self, features: np.ndarray) -> float:
+        return float(self.ood_excess_batch(features)[0])
+
     def predict(self, features: np.ndarray) -> float:
         """Bias [m] for one feature vector (the twin's ``BiasNet`` protocol)."""
         return float(self.predict_batch(np.asarray(features).reshape(1, -1))[0])

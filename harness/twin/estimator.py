@@ -16,7 +16,7 @@ from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_CHI2_GATE, STAGE
                             STAGE_ROBUST_UPDATE, EstimatorConfig)
 from harness.twin import gates, measurements
 from harness.twin.ekf import POS, ErrorStateEkf
-from harness.twin.features import features
+from harness.twin.features import features, ood_fade
 
 if TYPE_CHECKING:
     from harness.flight.model import Flight
@@ -276,8 +276,10 @@ class TwinEstimator:
         self.flags |= FLAG_HEIGHT_FUSED
         self._supervise()
 
-    def _bias(self, net: BiasNet | None, anchor_a: np.ndarray, anchor_b: np.ndarray | None) -> tuple[float, float]:
-        """(bias, predicted std or 0), as nn_bias() in estimator.c."""
+    def _bias(self, net: BiasNet | None, anchor_a: np.ndarray, anchor_b: np.ndarray | None,
+              cfg_std: float) -> tuple[float, float]:
+        """(bias, predicted std or 0), as nn_bias() in estimator.c: faded to 0 outside the network's
+        training range (when the network tells it, ``ood_excess``), the std moved to cfg_std alike."""
         c = self.config
         if not (c.stages & STAGE_BIAS_NN) or net is None or not (self.ekf.x[2] > c.nn_min_z):
             return 0.0, 0.0
@@ -285,11 +287,15 @@ class TwinEstimator:
                      anchor_b if anchor_b is not None else anchor_a)
         if f.size == 0:
             return 0.0, 0.0
+        excess = getattr(net, "ood_excess", None)
+        fade = ood_fade(excess(f)) if excess is not None else 1.0
+        if fade <= 0.0:
+            return 0.0, 0.0
         with_std = getattr(net, "predict_with_std", None)
-        if with_std is not None:
-            bias, std = with_std(f)
-            return float(bias), float(std)
-        return float(net.predict(f)), 0.0
+        bias, std = with_std(f) if with_std is not None else (net.predict(f), 0.0)
+        if std > 0.0:
+            std = fade * std + (1.0 - fade) * cfg_std
+        return fade * float(bias), float(std)
 
     def _process(self, t_us: int, ids: tuple[int, int], anchor_a: np.ndarray, anchor_b: np.ndarray | None,
                  z: float) -> TwinResult:
@@ -320,7 +326,7 @@ class TwinEstimator:
         h, H3 = model
 
         net = getattr(self.model, "tdoa" if tdoa else "twr", None) if self.model is not None else None
-        bias, std_nn = self._bias(net, anchor_a, anchor_b)
+        bias, std_nn = self._bias(net, anchor_a, anchor_b, c.std_tdoa if tdoa else c.std_twr)
         y = (z - bias) - h
 
         # NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std

@@ -12,6 +12,17 @@ LAYOUT_TDOA_POS = 4   # [dp_A (3), dp_B (3)]
 
 _INPUTS = {LAYOUT_TWR_POSE: 6, LAYOUT_TDOA_POSE: 9, LAYOUT_TWR_POS: 3, LAYOUT_TDOA_POS: 6}
 
+#: bias_nn.h BIAS_NN_OOD_MARGIN: the correction fades to 0 over this excess beyond the training range
+OOD_MARGIN = 0.1
+
+
+def ood_fade(excess: float) -> float:
+    """1 inside the training range, linearly down to 0 at OOD_MARGIN of excess (bias_nn_ood_fade)."""
+    f = 1.0 - excess / OOD_MARGIN
+    if not f > 0.0:
+        return 0.0
+    return min(f, 1.0)
+
 
 def layout_inputs(layout: int) -> int:
     """Number of inputs of ``layout`` (0 if unknown), like ``bias_nn_layout_inputs``."""
