@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
+from harness.flight.model import KIND_TWR
 from harness.report.metrics import latency_summary
 from harness.session import DEFAULT_FIRMWARE, DeviceSpec, config_for, open_device
 from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
@@ -40,7 +41,7 @@ def _twin_cost_us(flight: Any, cfg: EstimatorConfig, model: Any) -> np.ndarray:
             twin.on_imu(t, flight.imu.acc[i], flight.imu.gyro[i])
             continue
         t0 = time.perf_counter_ns()
-        if u.kind == 1:
+        if u.kind == KIND_TWR:
             twin.on_twr(t, int(u.anchor_a[i]), float(u.value[i]))
         else:
             twin.on_tdoa(t, int(u.anchor_a[i]), int(u.anchor_b[i]), float(u.value[i]))

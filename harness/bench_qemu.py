@@ -33,6 +33,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from harness.paths import REPO_ROOT
+from protocol.messages import Status
 
 STM32_DIR = REPO_ROOT / "firmware_sim" / "stm32"
 BUILD_M4 = REPO_ROOT / "firmware_sim" / "build" / "stm32"
@@ -47,8 +48,6 @@ CYCLES_PER_INSTRUCTION = 2.0          # assumption, see the module docstring
 SLOT_S = 5e-3
 GOAL_TDOA_NN_INSTR = 20_000
 NN_TOLERANCE = 1e-5
-
-STATUS_ACCEPTED = 0
 
 
 class BenchError(RuntimeError):
@@ -184,7 +183,7 @@ def stage_costs(device: Any, build_name: str, duration_s: float, seed: int) -> l
             before = streamer.request_stats()        # device counters are cumulative
             run = streamer.run(flight, cfg, Pacing("windowed", 16))
             res = run.results
-            ok = (res["outcome"] == OUTCOME_RESULT) & (res["status"] == STATUS_ACCEPTED)
+            ok = (res["outcome"] == OUTCOME_RESULT) & (res["status"] == Status.ACCEPTED)
             if preset == "outlier+nn":
                 ok &= res["cost_nn"] > 0   # the network ran (it is skipped below nn_min_z)
             preds = int(run.stats.predictions) - int(before.predictions) if run.stats is not None else 0

@@ -13,8 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from protocol.messages import Status
+
 GOAL_RADIO_TDOA3_INSTR = 25_000
-STATUS_ACCEPTED = 0
 
 
 @dataclass
@@ -41,7 +42,7 @@ def radio_stage(device: Any, duration_s: float, seed: int, protocol: str = "tdoa
     cfg = config_for(flight, EstimatorConfig(), stages=PRESETS["outlier+nn"])
     run = Streamer(device, timeout_s=20.0).run(flight, cfg, Pacing("windowed", 16), radio=True)
     res = run.results
-    ok = (res["outcome"] == OUTCOME_RESULT) & (res["status"] == STATUS_ACCEPTED) & (res["cost_nn"] > 0)
+    ok = (res["outcome"] == OUTCOME_RESULT) & (res["status"] == Status.ACCEPTED) & (res["cost_nn"] > 0)
     return RadioRow(protocol=protocol, packets=len(res), n=int(ok.sum()),
                     compute=float(np.median(res["compute"][ok])) if ok.any() else float("nan"),
                     compute_max=int(res["compute"][ok].max()) if ok.any() else 0,

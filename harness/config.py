@@ -5,14 +5,16 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, replace
 
-# Mirrors protocol enums (kept literal here so this module has no protocol import).
-MODE_IMU = 0
-MODE_UWB_ONLY = 1
-STAGE_BIAS_NN = 1
-STAGE_KINEMATIC_GATE = 2
-STAGE_CHI2_GATE = 4
-STAGE_NN_STD = 8          # measurement std = the network's predicted std (when it runs)
-STAGE_ROBUST_UPDATE = 16  # M-estimation weights on the update (robust_update.c)
+from protocol.messages import EkfMode, Stage
+
+# Protocol enums ekf_mode and stage (protocol/messages.toml), as plain ints.
+MODE_IMU = int(EkfMode.IMU)
+MODE_UWB_ONLY = int(EkfMode.UWB_ONLY)
+STAGE_BIAS_NN = int(Stage.BIAS_NN)
+STAGE_KINEMATIC_GATE = int(Stage.KINEMATIC_GATE)
+STAGE_CHI2_GATE = int(Stage.CHI2_GATE)
+STAGE_NN_STD = int(Stage.NN_STD)                # measurement std = the network's predicted std (when it runs)
+STAGE_ROBUST_UPDATE = int(Stage.ROBUST_UPDATE)  # M-estimation weights on the update (robust_update.c)
 STAGES_ALL = STAGE_BIAS_NN | STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE  # the paper's outlier rejection + network
 STAGES_OUTLIER = STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
 STAGES_VALID = STAGES_ALL | STAGE_NN_STD | STAGE_ROBUST_UPDATE      # every bit CONFIG may set

@@ -4,38 +4,11 @@
 #include "cobs.h"
 #include "firmware.h"
 #include "platform.h"
+#include "proto_checks.h"
 
 #ifndef UWB_BUILD_ID
 #define UWB_BUILD_ID "dev"
 #endif
-
-/* The core's codes are defined to equal the protocol's; fail the build if they drift apart. */
-typedef char check_status_accepted[((int)EST_ACCEPTED == (int)UWB_STATUS_ACCEPTED) ? 1 : -1];
-typedef char check_status_kin[((int)EST_REJECTED_KINEMATIC == (int)UWB_STATUS_REJECTED_KINEMATIC) ? 1 : -1];
-typedef char check_status_chi2[((int)EST_REJECTED_CHI2 == (int)UWB_STATUS_REJECTED_CHI2) ? 1 : -1];
-typedef char check_status_geom[((int)EST_REJECTED_GEOMETRY == (int)UWB_STATUS_REJECTED_GEOMETRY) ? 1 : -1];
-typedef char check_err_anchor[((int)EST_ERR_UNKNOWN_ANCHOR == (int)UWB_ERROR_CODE_UNKNOWN_ANCHOR) ? 1 : -1];
-typedef char check_err_time[((int)EST_ERR_TIME_BACKWARDS == (int)UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
-typedef char check_err_value[((int)EST_ERR_BAD_VALUE == (int)UWB_ERROR_CODE_BAD_VALUE) ? 1 : -1];
-typedef char check_flag_div[((int)EST_FLAG_DIVERGED == (int)UWB_RESULT_FLAG_DIVERGED) ? 1 : -1];
-typedef char check_flag_nf[((int)EST_FLAG_NON_FINITE == (int)UWB_RESULT_FLAG_NON_FINITE) ? 1 : -1];
-typedef char check_flag_box[((int)EST_FLAG_OUT_OF_BOX == (int)UWB_RESULT_FLAG_OUT_OF_BOX) ? 1 : -1];
-typedef char check_flag_speed[((int)EST_FLAG_SPEED == (int)UWB_RESULT_FLAG_SPEED) ? 1 : -1];
-typedef char check_flag_cov[((int)EST_FLAG_COVARIANCE == (int)UWB_RESULT_FLAG_COVARIANCE) ? 1 : -1];
-typedef char check_flag_height[((int)EST_FLAG_HEIGHT_FUSED == (int)UWB_RESULT_FLAG_HEIGHT_FUSED) ? 1 : -1];
-typedef char check_err_id[((int)EST_ERR_BAD_ANCHOR_ID == (int)UWB_ERROR_CODE_BAD_ANCHOR_ID) ? 1 : -1];
-typedef char check_drop_ref[((int)TDOA_DROP_NO_REFERENCE == (int)UWB_DROP_REASON_NO_REFERENCE) ? 1 : -1];
-typedef char check_drop_clock[((int)TDOA_DROP_CLOCK == (int)UWB_DROP_REASON_CLOCK_UNRELIABLE) ? 1 : -1];
-typedef char check_drop_exp[((int)TDOA_DROP_EXPIRED == (int)UWB_DROP_REASON_EXPIRED) ? 1 : -1];
-typedef char check_drop_mal[((int)TDOA_DROP_MALFORMED == (int)UWB_DROP_REASON_MALFORMED) ? 1 : -1];
-typedef char check_drop_type[((int)TDOA_DROP_UNKNOWN_TYPE == (int)UWB_DROP_REASON_UNKNOWN_TYPE) ? 1 : -1];
-typedef char check_ctl_time[((int)CTL_ERR_TIME_BACKWARDS == (int)UWB_ERROR_CODE_TIME_BACKWARDS) ? 1 : -1];
-typedef char check_ctl_off[((int)CTL_MODE_OFF == (int)UWB_CONTROL_MODE_OFF) ? 1 : -1];
-typedef char check_ctl_pos[((int)CTL_MODE_POSITION == (int)UWB_CONTROL_MODE_POSITION) ? 1 : -1];
-typedef char check_ctl_sat[((int)CTL_FLAG_THRUST_SATURATED == (int)UWB_CONTROL_FLAG_THRUST_SATURATED) ? 1 : -1];
-typedef char check_ctl_tilt[((int)CTL_FLAG_TILT_LIMITED == (int)UWB_CONTROL_FLAG_TILT_LIMITED) ? 1 : -1];
-typedef char check_ctl_rate[((int)CTL_FLAG_RATE_LIMITED == (int)UWB_CONTROL_FLAG_RATE_LIMITED) ? 1 : -1];
-typedef char check_ctl_int[((int)CTL_FLAG_INTEGRATOR_LIMITED == (int)UWB_CONTROL_FLAG_INTEGRATOR_LIMITED) ? 1 : -1];
 
 static void send_msg(firmware_t *fw, uwb_msg_t *msg)
 {

@@ -8,7 +8,8 @@
  * Only differences are used, so wrap-around of the 32-bit value is harmless. */
 uint32_t platform_cost_now(void);
 
-/* Unit of platform_cost_now(): 0 = nanoseconds, 1 = instructions (protocol enum cost_unit). */
+/* Unit of platform_cost_now() (= protocol enum cost_unit). */
+enum { PLATFORM_COST_NANOSECONDS = 0, PLATFORM_COST_INSTRUCTIONS = 1 };
 uint8_t platform_cost_unit(void);
 
 #endif

@@ -7,6 +7,6 @@ static uint32_t fuzz_clock;
 
 uint32_t platform_cost_now(void) { return fuzz_clock += 7u; }
 
-uint8_t platform_cost_unit(void) { return 1; }
+uint8_t platform_cost_unit(void) { return (uint8_t)PLATFORM_COST_INSTRUCTIONS; }
 
 void fuzz_clock_reset(void) { fuzz_clock = 0; }

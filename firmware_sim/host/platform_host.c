@@ -10,4 +10,4 @@ uint32_t platform_cost_now(void)
     return (uint32_t)((uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec);
 }
 
-uint8_t platform_cost_unit(void) { return 0; }
+uint8_t platform_cost_unit(void) { return (uint8_t)PLATFORM_COST_NANOSECONDS; }

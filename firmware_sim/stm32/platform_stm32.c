@@ -168,7 +168,10 @@ uint32_t platform_cost_now(void)
     return main_thread_ticks();
 }
 
-uint8_t platform_cost_unit(void) { return use_dwt ? 0u : 1u; }
+uint8_t platform_cost_unit(void)
+{
+    return (uint8_t)(use_dwt ? PLATFORM_COST_NANOSECONDS : PLATFORM_COST_INSTRUCTIONS);
+}
 
 /* ------------------------------------------------------------------------------ C library hooks */
 /* newlib's libm wrappers (asinf, atan2f, ...) report domain errors through __errno(). Its libc

@@ -236,7 +236,7 @@ class ClosedLoop:
                         chunks.append(self._frame(_imu(t_sub, acc, gyr))[0])
                         f_sum = [0.0] * 6
             on = bool(plan.motors_on[k])
-            sp = m.Setpoint(t_us=t_us, mode=1 if on else 0, reserved=0,
+            sp = m.Setpoint(t_us=t_us, mode=int(m.ControlMode.POSITION if on else m.ControlMode.OFF), reserved=0,
                             x=float(plan.pos[k, 0]), y=float(plan.pos[k, 1]), z=float(plan.pos[k, 2]),
                             vx=float(plan.vel[k, 0]), vy=float(plan.vel[k, 1]), vz=float(plan.vel[k, 2]),
                             ax=float(plan.acc[k, 0]), ay=float(plan.acc[k, 1]), az=float(plan.acc[k, 2]),

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from harness.closedloop.cosim import FlightLog
+from protocol.messages import ControlFlag
 
 
 @dataclass(frozen=True)
@@ -96,9 +97,7 @@ def flight_metrics(log: FlightLog, rule: TakeoffRule = TakeoffRule()) -> dict[st
         "statuses": dict(log.statuses),
         "nlos_events": log.nlos_events,
         "device_errors": len(log.errors),
-        "control_flags": {name: int(np.count_nonzero(log.flags[air] & bit)) for name, bit in
-                          (("thrust_saturated", 1), ("tilt_limited", 2), ("rate_limited", 4),
-                           ("integrator_limited", 8))},
+        "control_flags": {flag.name.lower(): int(np.count_nonzero(log.flags[air] & flag)) for flag in ControlFlag},
         "duration_s": float(log.t[-1]) if log.n else 0.0,
         "wall_s": log.wall_s,
         "late_controls": log.late_controls,

@@ -23,7 +23,7 @@ from harness.flight.formats.common import RecordingError
 from harness.flight.formats.rcv_twr import (ANCHOR_COLUMNS, DEFAULT_ANCHOR_OFFSET, GT_COLUMNS, is_rcv_twr_dir,
                                             load_rcv_twr)
 from harness.flight.formats.util import constellation_from_name, load_util_csv, util_layout
-from harness.flight.model import Anchors, Flight, FlightError
+from harness.flight.model import KIND_TWR, Anchors, Flight, FlightError
 from harness.flight.native import is_native, load_flight, save_flight
 from harness.flight.plausibility import ImplausibleRecording, check_recording
 
@@ -176,12 +176,12 @@ def error_summary(flight: Flight, core_m: float = 1.0) -> dict[str, object]:
     if u.true_value is None:
         raise ValueError(f"{flight.name}: no true_value, no error statistics")
     e = u.value - u.true_value
-    keys = u.anchor_a if u.kind == 1 else u.anchor_a * 1000 + u.anchor_b
+    keys = u.anchor_a if u.kind == KIND_TWR else u.anchor_a * 1000 + u.anchor_b
     groups = []
     for k in np.unique(keys):
         m = keys == k
         c = e[m][np.abs(e[m]) < core_m]
-        name = str(int(k)) if u.kind == 1 else f"{int(k) // 1000}-{int(k) % 1000}"
+        name = str(int(k)) if u.kind == KIND_TWR else f"{int(k) // 1000}-{int(k) % 1000}"
         groups.append({"group": name, "n": int(m.sum()), "median": float(np.median(c)) if c.size else float("nan"),
                        "std": float(c.std()) if c.size else float("nan"),
                        "gross": int(np.count_nonzero(np.abs(e[m]) >= core_m))})
@@ -217,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     except (RecordingError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    kind = "TWR" if flight.uwb.kind == 1 else "TDoA"
+    kind = "TWR" if flight.uwb.kind == KIND_TWR else "TDoA"
     print(f"{flight.name}: {len(flight.uwb)} {kind} measurements over {flight.duration_s:.1f} s "
           f"({len(flight.uwb) / max(flight.duration_s, 1e-9):.0f} Hz), {len(flight.truth.t_us)} truth samples, "
           f"IMU {len(flight.imu) if flight.imu is not None else 0}; dropped {flight.meta.get('dropped', {})}")

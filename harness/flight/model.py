@@ -10,8 +10,10 @@ from typing import Iterator
 
 import numpy as np
 
-KIND_TWR = 1   # same values as protocol enum meas_kind
-KIND_TDOA = 2
+from protocol.messages import MeasKind
+
+KIND_TWR = int(MeasKind.TWR)     # protocol enum meas_kind, as plain ints
+KIND_TDOA = int(MeasKind.TDOA)
 
 
 class FlightError(ValueError):

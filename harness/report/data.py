@@ -17,6 +17,7 @@ from harness.campaign.store import (STATUS_OK, CampaignDataError, CampaignDir, S
                                     load_flight, load_run_results, read_json)
 from harness.report.consistency import nees_of
 from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT
+from protocol.messages import CostUnit
 
 TIME_BIN_S = 0.5          # error-over-time curves are averaged in bins of this width
 
@@ -142,9 +143,9 @@ def run_metrics(summary: dict[str, Any], res: StoredResults, flight: StoredFligh
         err_mean = err_t = np.zeros(0)
     var = np.stack([c["var_x"][ok], c["var_y"][ok], c["var_z"][ok]], axis=1).astype(np.float64)
     status = c["status"][ok]
-    cost_unit = int(summary.get("device", {}).get("cost_unit", 0))
+    cost_unit = int(summary.get("device", {}).get("cost_unit", CostUnit.NANOSECONDS))
     compute = c["compute"][ok]
-    compute_us = (compute / 1e3 if cost_unit == 0 else compute).astype(np.float32)
+    compute_us = (compute / 1e3 if cost_unit == CostUnit.NANOSECONDS else compute).astype(np.float32)
     rtt_us = ((c["t_recv_ns"][ok] - c["t_send_ns"][ok]) / 1e3).astype(np.float32)
     return RunMetrics(
         run_id=spec["run_id"], flight_id=spec["flight_id"], source=f["source"], mode=f["mode"],

@@ -9,8 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.stream.streamer import OUTCOME_RESULT
-
-STATUS_ACCEPTED = 0
+from protocol.messages import Status
 
 
 @dataclass(frozen=True)
@@ -28,7 +27,7 @@ def rejection_streaks(results: np.ndarray, min_s: float = 1.0) -> list[Streak]:
     """Runs of consecutive answered measurements none of which was accepted, lasting >= min_s."""
     answered = results["outcome"] == OUTCOME_RESULT
     t = results["t_us"][answered].astype(np.int64)
-    rejected = results["status"][answered] != STATUS_ACCEPTED
+    rejected = results["status"][answered] != Status.ACCEPTED
     out: list[Streak] = []
     if not len(t):
         return out

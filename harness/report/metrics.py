@@ -9,6 +9,7 @@ import numpy as np
 
 from harness.flight.model import Flight
 from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT, RunResult
+from protocol.messages import CostUnit, ErrorCode, MeasKind, ResultFlag, Stage, Status
 
 DEFAULT_BUDGET_S = 5e-3  # one UWB slot at 200 Hz, the paper's rate
 
@@ -97,10 +98,10 @@ def accuracy_summary(run: RunResult, flight: Flight) -> AccuracySummary:
         rmse_xy=float(np.sqrt(np.mean(_rows(lambda e: np.sum(e[:, :2] ** 2, axis=1), err)))),
         rmse_z=float(np.sqrt(np.mean(err[:, 2] ** 2))),
         max_error=float(norm.max()),
-        accepted=int(np.count_nonzero(status == 0)),
-        rejected_kinematic=int(np.count_nonzero(status == 1)),
-        rejected_chi2=int(np.count_nonzero(status == 2)),
-        rejected_geometry=int(np.count_nonzero(status == 3)),
+        accepted=int(np.count_nonzero(status == Status.ACCEPTED)),
+        rejected_kinematic=int(np.count_nonzero(status == Status.REJECTED_KINEMATIC)),
+        rejected_chi2=int(np.count_nonzero(status == Status.REJECTED_CHI2)),
+        rejected_geometry=int(np.count_nonzero(status == Status.REJECTED_GEOMETRY)),
     )
 
 
@@ -113,20 +114,22 @@ def health_summary(run: RunResult) -> dict[str, object]:
     var = np.stack([res[f"var_{k}"] for k in ("x", "y", "z", "vx", "vy", "vz", "d0", "d1", "d2")], axis=1)
     est = np.stack([res[k] for k in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")], axis=1)
     finite = np.all(np.isfinite(est), axis=1) & np.all(np.isfinite(var), axis=1)
-    r_var = np.where(res["kind"] == 1, run.config.std_twr ** 2, run.config.std_tdoa ** 2)
-    if run.config.stages & 8:       # NN_STD: R is the network's std, unknown here; S > 0 is still required
+    r_var = np.where(res["kind"] == MeasKind.TWR, run.config.std_twr ** 2, run.config.std_tdoa ** 2)
+    if run.config.stages & Stage.NN_STD:   # R is the network's std, unknown here; S > 0 is still required
         r_var = np.zeros(len(res))
-    answered = res["status"] != 3   # geometry rejections carry S = 0
+    answered = res["status"] != Status.REJECTED_GEOMETRY   # geometry rejections carry S = 0
     s_low = (res["innovation_var"] < r_var * (1 - 1e-3)) | (res["innovation_var"] <= 0)
     not_pd = (np.any(var <= 0, axis=1) | (answered & s_low)) & finite
-    from_errors = sum(1 for e in run.errors if e.code == 10)   # error_code DIVERGED
+    from_errors = sum(1 for e in run.errors if e.code == ErrorCode.DIVERGED)
     from_stats = int(getattr(run.stats, "divergences", 0)) if run.stats is not None else 0
     reasons = {name: int(np.count_nonzero(flags & bit))
-               for name, bit in (("non_finite", 2), ("out_of_box", 4), ("speed", 8), ("covariance", 16)) if np.any(flags & bit)}
-    return {"divergences": max(from_errors, from_stats, int(np.count_nonzero(flags & 1))),
+               for name, bit in (("non_finite", ResultFlag.NON_FINITE), ("out_of_box", ResultFlag.OUT_OF_BOX),
+                                 ("speed", ResultFlag.SPEED), ("covariance", ResultFlag.COVARIANCE))
+               if np.any(flags & bit)}
+    return {"divergences": max(from_errors, from_stats, int(np.count_nonzero(flags & ResultFlag.DIVERGED))),
             "divergence_reasons": ", ".join(f"{k} {v}" for k, v in reasons.items()),
             "non_finite": int(np.count_nonzero(~finite)), "not_pd": int(np.count_nonzero(not_pd)),
-            "height_fused": int(np.count_nonzero(flags & 32))}
+            "height_fused": int(np.count_nonzero(flags & ResultFlag.HEIGHT_FUSED))}
 
 
 def run_summary(run: RunResult, flight: Flight, budget_s: float = DEFAULT_BUDGET_S,
@@ -139,7 +142,7 @@ def run_summary(run: RunResult, flight: Flight, budget_s: float = DEFAULT_BUDGET
     ok = res["outcome"] == OUTCOME_RESULT
     rtt_us = (res["t_recv_ns"][ok] - res["t_send_ns"][ok]) / 1e3
     compute = res["compute"][ok].astype(np.float64)
-    if cost_unit == 0:
+    if cost_unit == CostUnit.NANOSECONDS:
         compute_summary = latency_summary(compute / 1e3, budget_s * 1e6)   # ns -> us
     else:
         compute_summary = latency_summary(compute, budget_s * 168e6 / 2.0)  # instructions, ~2 CPI at 168 MHz
@@ -160,7 +163,7 @@ def run_summary(run: RunResult, flight: Flight, budget_s: float = DEFAULT_BUDGET
         "lost": int(np.count_nonzero(res["outcome"] == OUTCOME_LOST)),
         "accuracy": accuracy_summary(run, flight).as_dict(),
         "compute": compute_summary.as_dict(),
-        "compute_unit": "us" if cost_unit == 0 else "instructions",
+        "compute_unit": "us" if cost_unit == CostUnit.NANOSECONDS else "instructions",
         "round_trip_us": rtt_summary,
         "deadline_misses": int(compute_summary.deadline_misses) + (0 if queued else int(rtt_misses)),
         "health": health_summary(run),

@@ -10,6 +10,7 @@ import numpy as np
 
 from harness.report.data import CampaignData, RunMetrics
 from harness.report.metrics import DEFAULT_BUDGET_S, latency_summary
+from protocol.messages import CostUnit, MeasKind
 
 #: Configuration -> JSON key suffix (rmse_raw, rmse_outlier, rmse_outlier_nn).
 CONFIG_KEYS = {"none": "raw", "outlier": "outlier", "outlier+nn": "outlier_nn"}
@@ -17,7 +18,7 @@ CONFIG_KEYS = {"none": "raw", "outlier": "outlier", "outlier+nn": "outlier_nn"}
 #: versus outlier rejection alone.
 PAPER = {"twr": {"rmse_outlier_nn": 0.19, "reduction_pct": 18.5},
          "tdoa": {"rmse_outlier_nn": 0.21, "reduction_pct": 48.0}}
-KIND_NAMES = {1: "twr", 2: "tdoa"}
+KIND_NAMES = {int(MeasKind.TWR): "twr", int(MeasKind.TDOA): "tdoa"}
 #: A run whose RMSE exceeds this left the arena (the filter diverged); counted apart, never hidden.
 DIVERGED_RMSE_M = 10.0
 
@@ -101,8 +102,8 @@ def latency_section(data: CampaignData, budget_s: float = DEFAULT_BUDGET_S) -> d
             "results": int(sum(r.results for r in runs)),
             "lost": int(sum(r.lost for r in runs)),
             "refused": int(sum(r.refused for r in runs)),
-            "compute_unit": "us" if units == {0} else "instructions",
-            "compute": latency_summary(compute, budget_s * 1e6).as_dict() if units == {0} else
+            "compute_unit": "us" if units == {CostUnit.NANOSECONDS} else "instructions",
+            "compute": latency_summary(compute, budget_s * 1e6).as_dict() if units == {CostUnit.NANOSECONDS} else
             latency_summary(compute, budget_s * 168e6 / 2.0).as_dict(),
             "end_to_end_us": latency_summary(rtt, budget_s * 1e6).as_dict(),
             "end_to_end_pacing": e2e_pacing,

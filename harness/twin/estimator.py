@@ -17,36 +17,38 @@ from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_CHI2_GATE, STAGE
 from harness.twin import gates, measurements
 from harness.twin.ekf import POS, ErrorStateEkf
 from harness.twin.features import features, ood_fade
+from protocol.messages import MAX_ANCHORS as PROTOCOL_MAX_ANCHORS
+from protocol.messages import ErrorCode, MeasKind, ResultFlag, Status
 
 if TYPE_CHECKING:
     from harness.flight.model import Flight
 
-MAX_ANCHORS = 16
+MAX_ANCHORS = PROTOCOL_MAX_ANCHORS     # what the estimator holds = what the protocol addresses
 #: Supervisor: beyond this |position| [m] the state counts as diverged even without anchors (estimator.c).
 MAX_ABS_POSITION = 1e5
 
 #: HEIGHT std bound [m] (estimator.c EST_MAX_HEIGHT_STD): beyond it no information, and R could overflow
 MAX_HEIGHT_STD = 1000.0
 
-# protocol enum result_flag (supervisor events since the previous result)
-FLAG_DIVERGED = 1
-FLAG_NON_FINITE = 2
-FLAG_OUT_OF_BOX = 4
-FLAG_SPEED = 8
-FLAG_COVARIANCE = 16
-FLAG_HEIGHT_FUSED = 32
+# protocol enum result_flag (supervisor events since the previous result), as plain ints
+FLAG_DIVERGED = int(ResultFlag.DIVERGED)
+FLAG_NON_FINITE = int(ResultFlag.NON_FINITE)
+FLAG_OUT_OF_BOX = int(ResultFlag.OUT_OF_BOX)
+FLAG_SPEED = int(ResultFlag.SPEED)
+FLAG_COVARIANCE = int(ResultFlag.COVARIANCE)
+FLAG_HEIGHT_FUSED = int(ResultFlag.HEIGHT_FUSED)
 
 # protocol enum status
-ACCEPTED = 0
-REJECTED_KINEMATIC = 1
-REJECTED_CHI2 = 2
-REJECTED_GEOMETRY = 3
+ACCEPTED = int(Status.ACCEPTED)
+REJECTED_KINEMATIC = int(Status.REJECTED_KINEMATIC)
+REJECTED_CHI2 = int(Status.REJECTED_CHI2)
+REJECTED_GEOMETRY = int(Status.REJECTED_GEOMETRY)
 
 # protocol enum error_code (what the firmware answers with ERROR)
-ERR_UNKNOWN_ANCHOR = 4
-ERR_TIME_BACKWARDS = 5
-ERR_BAD_ANCHOR_ID = 7
-ERR_BAD_VALUE = 11
+ERR_UNKNOWN_ANCHOR = int(ErrorCode.UNKNOWN_ANCHOR)
+ERR_TIME_BACKWARDS = int(ErrorCode.TIME_BACKWARDS)
+ERR_BAD_ANCHOR_ID = int(ErrorCode.BAD_ANCHOR_ID)
+ERR_BAD_VALUE = int(ErrorCode.BAD_VALUE)
 
 
 class TwinError(ValueError):
@@ -378,7 +380,7 @@ def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None =
         elif source == 2:
             assert hgt is not None
             twin.on_height(t_us, float(hgt.z[i]), float(hgt.std))
-        elif u.kind == 1:
+        elif u.kind == MeasKind.TWR:
             out.append(twin.on_twr(t_us, int(u.anchor_a[i]), float(u.value[i])))
         else:
             out.append(twin.on_tdoa(t_us, int(u.anchor_a[i]), int(u.anchor_b[i]), float(u.value[i])))

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-LAYOUT_NONE = 0
-LAYOUT_TWR_POSE = 1   # [dp (3), roll, pitch, yaw]
-LAYOUT_TDOA_POSE = 2  # [dp_A (3), dp_B (3), roll, pitch, yaw]
-LAYOUT_TWR_POS = 3    # [dp (3)]
-LAYOUT_TDOA_POS = 4   # [dp_A (3), dp_B (3)]
+from protocol.messages import Layout
+
+# protocol enum layout, as plain ints
+LAYOUT_NONE = int(Layout.NONE)
+LAYOUT_TWR_POSE = int(Layout.TWR_POSE)    # [dp (3), roll, pitch, yaw]
+LAYOUT_TDOA_POSE = int(Layout.TDOA_POSE)  # [dp_A (3), dp_B (3), roll, pitch, yaw]
+LAYOUT_TWR_POS = int(Layout.TWR_POS)      # [dp (3)]
+LAYOUT_TDOA_POS = int(Layout.TDOA_POS)    # [dp_A (3), dp_B (3)]
 
 _INPUTS = {LAYOUT_TWR_POSE: 6, LAYOUT_TDOA_POSE: 9, LAYOUT_TWR_POS: 3, LAYOUT_TDOA_POS: 6}
 
