@@ -18,10 +18,11 @@ import pytest
 
 from harness.config import EstimatorConfig
 from harness.flight.model import KIND_TWR, Anchors, Flight, Truth, UwbStream
+from harness.paths import REPO_ROOT
 from harness.report import jsonsafe
 from harness.report.geometry import geometry_summary
 from harness.report.verdict import Criteria, CriteriaError, assert_verdict, evaluate
-from harness.session import REPO_ROOT, shared_data_dir
+from harness.session import shared_data_dir
 from harness.stream.streamer import Pacing, RunResult
 from protocol.framing import DecoderErrors
 
