@@ -99,7 +99,7 @@ def test_kill_mid_run_is_reported_fast_and_resume_completes_the_flight(
     t_kill = time.monotonic()
     os.kill(pid, signal.SIGKILL)
     th.join(10)
-    assert not th.is_alive() and th.rc == 2
+    assert not th.is_alive() and th.rc == 3      # exit 3: device or link failure
     assert th.t_end - t_kill < 2.0, f"death noticed after {th.t_end - t_kill:.2f} s"
     noticed_s = th.t_end - t_kill
     assert "died" in capsys.readouterr().err
@@ -143,7 +143,7 @@ def test_hung_device_raises_a_timeout_and_keeps_results(tmp_path: Path, capsys: 
     os.kill(pid, signal.SIGSTOP)
     try:
         th.join(15)
-        assert not th.is_alive() and th.rc == 2
+        assert not th.is_alive() and th.rc == 3  # exit 3: device or link failure
         # windowed: 1 s of silence + a 1 s STATS probe (+ 1 s SIGTERM grace in stop); realtime: the 5 s write timeout
         limit = 6.0 if pacing == "windowed" else 10.0
         assert th.t_end - t_stop < limit, f"hang noticed after {th.t_end - t_stop:.2f} s"
