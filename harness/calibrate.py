@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
@@ -31,6 +30,7 @@ import numpy as np
 from harness.flight.arena import Arena, with_facing_orientations
 from harness.flight.errors_model import SimConfig, azimuth_elevation, link_directions, sim_config, uwb_errors
 from harness.flight.model import KIND_TWR, Anchors, FlightError
+from harness.report import jsonsafe
 from harness.session import shared_data_dir
 
 RCV_ANCHOR_OFFSET = np.array([0.0, -0.05, 0.045])   # data README: the source's antenna offset
@@ -426,7 +426,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         plots = write_plots(Path(args.out), links, res.get("twr", {}).get("dependence"), res["util"])
         res["plots"] = [str(p) for p in plots]
     if args.json:
-        print(json.dumps(res, indent=1, default=float))
+        print(jsonsafe.dumps(res, indent=1))
     else:
         print(format_report(res))
         for p in res.get("plots", []):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any, Callable
@@ -20,6 +19,7 @@ from harness.flight.model import KIND_TWR, Flight
 from harness.session import shared_data_dir
 from harness.optional import require_torch
 from harness.paths import SHARED_DATA
+from harness.report import jsonsafe
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
 LAYOUTS = {("twr", "pose"): LAYOUT_TWR_POSE, ("twr", "pos"): LAYOUT_TWR_POS,
@@ -78,7 +78,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         export_c(model, Path(args.header))
     out = {"model": str(args.out), "hash": model.hash_hex, "kind": kind, **meta[f"{kind}_training"]}
     if args.json:
-        print(json.dumps(out, indent=2))
+        print(jsonsafe.dumps(out))
     else:
         print(f"trained {kind} network (layout {samples.layout}) on {report.n_train} samples, validated on "
               f"{report.n_val} from other flights: {report.epochs} epochs ({report.stopped_by}, best {report.best_epoch}), "
@@ -149,7 +149,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         bias_vs_azimuth(model, test[0], Path(args.plot), note="in the training set" if seen else "held out")
         res["plot"] = args.plot
     if args.json:
-        print(json.dumps(res, indent=2, default=float))
+        print(jsonsafe.dumps(res))
     else:
         _print_compare(res)
         if not train:
@@ -222,7 +222,7 @@ def cmd_models(args: argparse.Namespace) -> int:
     summary = build_shipped_models(Path(args.data), quick=args.quick, only=args.only,
                                    write_summary=not args.keep_summary)
     if args.json:
-        print(json.dumps(summary, indent=2, default=float))
+        print(jsonsafe.dumps(summary))
     return 0
 
 

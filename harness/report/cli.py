@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
+
+from harness.report import jsonsafe
 
 
 def add_parser(sub: Any) -> None:
@@ -24,7 +25,7 @@ def write_report(root: Path, as_json: bool) -> dict[str, Any]:
     from harness.report.build import build_report
     files, summary = build_report(root)
     if as_json:
-        print(json.dumps(summary, indent=1))
+        print(jsonsafe.dumps(summary, indent=1))
     else:
         _print_headline(summary)
         print(f"report: {files.html} ({len(files.figures)} figures), {files.markdown}, {files.json}",
