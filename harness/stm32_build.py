@@ -3,9 +3,9 @@
 The shipped default model may be untrained (its output layer is zero, so every bias is exactly 0 m) or
 saturate its output clamp for many inputs; either would make "the MCU's network equals the host's" or
 "equals PyTorch" true without testing anything. The probe model is a random network whose outputs stay
-well inside its clamp range over the input box, compiled into both firmwares through
--DBIAS_MODEL_HEADER (the same route a trained model takes), so every bias the two firmwares compare is a
-real, non-zero network output.
+well inside its clamp range over the input box, compiled into both firmwares by
+harness/firmware_build.py (MODEL_HEADER, the same route a trained model takes), so every bias the two
+firmwares compare is a real, non-zero network output.
 
     python -m harness.stm32_build --tools                 # install the toolchain + QEMU when missing
     python -m harness.stm32_build --probe-header /tmp/p.h # the probe model as a C header
@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from harness.errors import UwbHilError
+from harness.firmware_build import BuildError, build_firmware
 from harness.paths import FIRMWARE_DIR, REPO_ROOT
 
 if TYPE_CHECKING:
@@ -35,9 +35,8 @@ STM32_DIR = FW_DIR / "stm32"
 ENSURE_SCRIPT = REPO_ROOT / "scripts" / "ensure_arm_tools.sh"
 ARM_TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "arm-none-eabi-nm", "qemu-system-arm")
 
-
-class BuildError(UwbHilError):
-    """A firmware build or the toolchain installation failed (carries the tool's output)."""
+__all__ = ["BuildError", "build_host", "build_host_with_model", "build_stm32", "build_stm32_with_model",
+           "ensure_tools", "probe_model", "tools_present"]
 
 
 def tools_present() -> bool:
@@ -62,48 +61,19 @@ def ensure_tools(install: bool = True, timeout_s: float = 900.0) -> None:
                          f"install them: {(proc.stderr or proc.stdout).strip()[-600:]}")
 
 
-def _run_make(args: list[str], timeout_s: float, env: dict[str, str] | None = None) -> None:
-    cmd = ["make", "-s", *args]
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, env=env)
-    except subprocess.TimeoutExpired as exc:
-        raise BuildError(f"{' '.join(cmd)} did not finish within {timeout_s:.0f} s") from exc
-    if proc.returncode != 0:
-        raise BuildError(f"{' '.join(cmd)} failed:\n{proc.stdout[-3000:]}{proc.stderr[-3000:]}")
-
-
-def _header_define(header: Path) -> str:
-    # make hands the recipe to the shell: the escaped quotes reach the compiler as a string literal.
-    return f'-DBIAS_MODEL_HEADER=\\"{Path(header).resolve()}\\"'
-
-
 def build_stm32(targets: tuple[str, ...] = ("fw",), build_dir: Path | None = None, model_header: Path | None = None,
                 nn_impl: str = "m4", make_vars: tuple[str, ...] = (), timeout_s: float = 600.0) -> Path:
     """`make -C firmware_sim/stm32 <targets>` (incremental); returns the build directory.
 
     With a model header or other make variables (UWB_USART=3, ...), build into a separate directory:
     the Makefile tracks neither."""
-    if (model_header is not None or make_vars) and build_dir is None:
-        raise ValueError("a build with another model header or make variables needs its own build_dir")
-    args = ["-C", str(STM32_DIR), *targets, f"NN_IMPL={nn_impl}", *make_vars]
-    if build_dir is not None:
-        args.append(f"BUILD={Path(build_dir).resolve()}")
-    if model_header is not None:
-        args.append(f"EXTRA_CFLAGS={_header_define(model_header)}")
-    _run_make(args, timeout_s)
-    return Path(build_dir).resolve() if build_dir is not None else FW_DIR / "build" / "stm32"
+    return build_firmware("stm32", None, build_dir, model_header=model_header, make_targets=targets,
+                          nn_impl=nn_impl, make_vars=make_vars, timeout_s=timeout_s)
 
 
 def build_host(build_dir: Path, model_header: Path | None = None, timeout_s: float = 600.0) -> Path:
     """The host firmware (no sanitizers) into build_dir; returns the binary's path."""
-    build_dir = Path(build_dir).resolve()
-    env = dict(os.environ)
-    if model_header is not None:
-        # firmware_sim/Makefile appends its flags to CFLAGS taken from the environment.
-        env["CFLAGS"] = (env.get("CFLAGS", "") + " " + _header_define(model_header)).strip()
-    fw = build_dir / "uwb-fw"
-    _run_make(["-C", str(FW_DIR), f"BUILD={build_dir}", str(fw)], timeout_s, env)
-    return fw
+    return build_firmware("host", None, build_dir, model_header=model_header, timeout_s=timeout_s)
 
 
 # ------------------------------------------------------------------------------------------ probe model
@@ -142,30 +112,15 @@ def probe_model(spec: ProbeSpec = ProbeSpec()) -> BiasModel:
     return BiasModel(twr=nets["twr"], tdoa=nets["tdoa"], name=f"qemu-probe-seed{spec.seed}")
 
 
-def _install_header(model: BiasModel, build_dir: Path) -> Path:
-    """Write the model's header under build_dir/model/. The Makefiles do not track a header given with
-    -DBIAS_MODEL_HEADER, so a changed model starts its build directory afresh."""
-    from harness.biasnet.export import header_text
-    header = build_dir / "model" / "bias_model.h"
-    text = header_text(model)
-    if not header.is_file() or header.read_text() != text:
-        shutil.rmtree(build_dir, ignore_errors=True)
-        header.parent.mkdir(parents=True)
-        header.write_text(text)
-    return header
-
-
 def build_stm32_with_model(model: BiasModel, targets: tuple[str, ...], build_dir: Path,
                            nn_impl: str = "m4") -> Path:
     """The STM32 build with another bias model compiled in, in its own directory."""
-    build_dir = Path(build_dir).resolve()
-    return build_stm32(targets, build_dir, _install_header(model, build_dir), nn_impl)
+    return build_firmware("stm32", model, build_dir, make_targets=targets, nn_impl=nn_impl)
 
 
 def build_host_with_model(model: BiasModel, build_dir: Path) -> Path:
     """The host firmware with another bias model compiled in, in its own directory; returns the binary."""
-    build_dir = Path(build_dir).resolve()
-    return build_host(build_dir, _install_header(model, build_dir))
+    return build_firmware("host", model, build_dir)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,17 +11,15 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from harness.biasnet.export import export_c
 from harness.biasnet.model import BiasModel
-from harness.paths import FIRMWARE_DIR
+from harness.firmware_build import BuildError, build_firmware
+from harness.paths import FIRMWARE_BUILD_DIR, FIRMWARE_DIR
+
+__all__ = ["BuildError", "build_nn_eval", "firmware_for"]
 
 FW_DIR = FIRMWARE_DIR
 CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-Wshadow", "-Wpointer-arith", "-Wstrict-prototypes",
           "-Wmissing-prototypes", "-O2"]
-
-
-class BuildError(RuntimeError):
-    """The C compiler or make failed; the message carries its output."""
 
 
 def _compiler() -> str:
@@ -33,15 +31,8 @@ def _compiler() -> str:
 
 def firmware_for(model: BiasModel, build_root: Path | None = None, timeout_s: float = 300.0) -> Path:
     """The host firmware binary carrying ``model`` (built on first use)."""
-    out = (build_root or FW_DIR / "build" / "models") / model.hash_hex
-    exe = out / "uwb-fw"
-    header = out / "bias_model.h"
-    export_c(model, header)
-    proc = subprocess.run(["make", "-s", "-C", str(FW_DIR), "fw", f"BUILD={out}", f"MODEL_HEADER={header}"],
-                          capture_output=True, text=True, timeout=timeout_s)
-    if proc.returncode != 0 or not exe.is_file():
-        raise BuildError(f"building the firmware for model {model.hash_hex} failed:\n{proc.stdout}{proc.stderr}")
-    return exe
+    out = (build_root or FIRMWARE_BUILD_DIR / "models") / model.hash_hex
+    return build_firmware("host", model, out, timeout_s=timeout_s)
 
 
 def build_nn_eval(header: Path, out: Path, timeout_s: float = 120.0) -> Path:
