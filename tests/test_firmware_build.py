@@ -23,7 +23,7 @@ def test_one_build_error_class_that_the_cli_reports() -> None:
 
 def test_only_firmware_build_passes_a_model_header_to_make() -> None:
     """The model header reaches make (MODEL_HEADER) or the compiler (-DBIAS_MODEL_HEADER) from one module;
-    cbuild.build_nn_eval compiles the nn_eval tool, not a firmware, and is the one other user."""
+    cbuild.build_nn_eval builds the nn_eval tool (not a firmware) by the Makefile's nn_eval target."""
     users = sorted(str(f.relative_to(ROOT)) for f in (ROOT / "harness").rglob("*.py")
                    if any(s in f.read_text() for s in ("MODEL_HEADER=", "EXTRA_CFLAGS", "[\"CFLAGS\"]")))
     assert users == ["harness/biasnet/cbuild.py", "harness/firmware_build.py"]
@@ -63,3 +63,9 @@ def test_stm32_build_carries_the_model(tmp_path: Path) -> None:
     out = build_firmware("stm32", model, tmp_path / "stm32")
     elf = (out / "uwb-fw.elf").read_bytes()
     assert model.hash.to_bytes(8, "little") in elf
+
+
+def test_compiler_flags_live_in_the_makefiles_only() -> None:
+    copies = sorted(str(f.relative_to(ROOT)) for f in (ROOT / "harness").rglob("*.py")
+                    if "-Werror" in f.read_text() or "-std=c99" in f.read_text())
+    assert not copies, f"compiler flags copied from the Makefiles into {copies}"
