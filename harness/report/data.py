@@ -17,7 +17,7 @@ from harness.campaign.store import (STATUS_OK, CampaignDataError, CampaignDir, S
                                     load_flight, load_run_results, read_json)
 from harness.report.consistency import nees_of
 from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT
-from protocol.messages import CostUnit
+from protocol.messages import CostUnit, Status
 
 TIME_BIN_S = 0.5          # error-over-time curves are averaged in bins of this width
 
@@ -105,7 +105,7 @@ class CampaignData:
         return (rt, "realtime") if rt else (runs, ",".join(sorted({r.pacing for r in runs})))
 
 
-_STATUS_NAMES = {0: "accepted", 1: "rejected_kinematic", 2: "rejected_chi2", 3: "rejected_geometry"}
+_STATUS_NAMES = {status: status.name.lower() for status in Status}   # accepted, rejected_kinematic, ...
 
 
 def position_error(res: StoredResults, flight: StoredFlight) -> tuple[np.ndarray, np.ndarray]:

@@ -11,6 +11,7 @@ from matplotlib.figure import Figure
 
 from harness.report.data import CampaignData, RunMetrics
 from harness.stream.streamer import OUTCOME_RESULT
+from protocol.messages import MeasKind, Status
 
 COLORS = {"none": "#8c8c8c", "outlier": "#ff7f0e", "outlier+nn": "#1f77b4"}
 LABELS = {"none": "no rejection", "outlier": "outlier rejection", "outlier+nn": "outlier rejection + NN"}
@@ -182,8 +183,9 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
     if has_nn:
         ax.scatter(t[ok], c["bias"][ok], s=2, color=COLORS["outlier+nn"], label="predicted bias (NN)",
                    rasterized=True)
-    for status, name, color in ((1, "rejected: kinematic gate", "#ff7f0e"), (2, "rejected: chi-square gate", "#d62728"),
-                                (3, "rejected: geometry", "#9467bd")):
+    for status, name, color in ((Status.REJECTED_KINEMATIC, "rejected: kinematic gate", "#ff7f0e"),
+                                (Status.REJECTED_CHI2, "rejected: chi-square gate", "#d62728"),
+                                (Status.REJECTED_GEOMETRY, "rejected: geometry", "#9467bd")):
         sel = ok & (c["status"] == status)
         if np.any(sel):
             ax.scatter(t[sel], err[sel], s=9, marker="x", color=color, label=f"{name} ({int(sel.sum())})")
@@ -225,7 +227,7 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
 
 def latency_histograms(data: CampaignData, budget_us: float) -> Figure | None:
     """Device compute time and end-to-end latency per message type, log-spaced bins, 5 ms budget marked."""
-    kinds = [(1, "TWR"), (2, "TDoA")]
+    kinds = [(MeasKind.TWR, "TWR"), (MeasKind.TDOA, "TDoA")]
     present = [(k, n) for k, n in kinds if any(r.kind == k for r in data.runs)]
     if not present:
         return None
