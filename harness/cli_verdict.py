@@ -16,7 +16,7 @@ from typing import Any, Callable
 from harness.errors import DeviceError, LinkError
 from harness.flight.model import Flight
 from harness.report import jsonsafe
-from harness.report.verdict import Criteria, Verdict, evaluate, evaluate_all
+from harness.report.verdict import Criteria, CriteriaError, Verdict, evaluate, evaluate_all
 
 EXIT_PASS, EXIT_VERDICT, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
 
@@ -55,7 +55,14 @@ def criteria_from(args: argparse.Namespace) -> Criteria:
     base = Criteria.from_toml(Path(args.criteria)) if getattr(args, "criteria", None) else Criteria()
     given = {name: getattr(args, name, None) for name, _ in _CRITERIA_OPTIONS}
     given["vdop_threshold"] = getattr(args, "vdop_threshold", None)
-    return base.overridden_by(given)
+    try:
+        return base.overridden_by(given)
+    except CriteriaError as exc:   # name the option the user typed
+        text = str(exc)
+        for name, value in given.items():
+            if value is not None:
+                text = text.replace(f"{name} must", f"--{name.replace('_', '-')} must")
+        raise CriteriaError(text) from None
 
 
 def apply_planar(args: argparse.Namespace, flight: Flight) -> Flight:

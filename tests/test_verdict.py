@@ -259,3 +259,8 @@ def test_replay_all_rcv_twr_keeps_the_contract() -> None:
     seq3 = {r.job.config: r for r in rows if r.job.recording == "sequence3"}
     assert seq3["outlier"].z_observable is False and seq3["outlier"].rmse_xy < 0.3
     assert seq3["outlier, planar"].rmse_z < 0.01
+
+
+def test_bad_criterion_option_is_named() -> None:
+    r = uwb_hil("run", "--duration", "2", "--max-rmse", "nan")
+    assert r.returncode == 2 and "uwb-hil: error: --max-rmse must be a finite number >= 0" in r.stderr
