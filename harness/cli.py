@@ -409,8 +409,8 @@ def build_parser() -> argparse.ArgumentParser:
     ports = sub.add_parser("ports", help="serial ports of this machine: device, description, USB serial number")
     ports.add_argument("--json", action="store_true", help="print the ports as JSON")
     ports.set_defaults(func=cmd_ports)
-    from harness.closedloop.campaign import add_fly_parser
-    add_fly_parser(sub, _add_device_options)
+    from harness.closedloop.cli import add_fly_parser
+    add_fly_parser(sub)
     from harness.calibrate import add_parser as add_calibrate_parser
     add_calibrate_parser(sub)
     from harness.campaign import cli as campaign_cli
