@@ -58,8 +58,11 @@ def test_radio_flight_through_the_firmware(uwb_device, protocol: str) -> None:  
 
 
 def test_radio_level_rmse_within_5_percent_of_measurement_level(uwb_device) -> None:  # noqa: ANN001
-    """The same simulated flight (same pairs, times, link errors) as differences and as packets."""
-    base = scenario_flight("circle", mode="tdoa", duration_s=15.0, seed=2)
+    """The same simulated flight (same pairs, times, link errors) as differences and as packets. 60 s as in
+    docs/radio.md (`python -m harness.radio_compare --seeds 6 --duration 60`: largest change 4.8 %): on a
+    15 s flight, mostly take-off and convergence, mm-level changes of single measurements (the DW1000 tick,
+    the tag's motion between the reference and the sender) moved the TDoA3 RMSE by 6.8 %."""
+    base = scenario_flight("circle", mode="tdoa", duration_s=60.0, seed=2)
     streamer = Streamer(uwb_device)
     for protocol in ("tdoa2", "tdoa3"):
         flight = radio_level(base, protocol, seed=2)

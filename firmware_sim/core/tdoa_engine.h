@@ -1,8 +1,9 @@
 /* The tag's TDoA engine: turns anchor packets (lps_packets.h) received with the tag's 40-bit DW1000
  * timestamps into TDoA measurements d(tag, An) - d(tag, Ar), An = the sender, Ar = a reference anchor.
  * Behaviour as documented in ../shared/reference/crazyflie-estimator-and-lps.md 4.6: per-anchor clock
- * correction with the bucket rule, reference matching by seq (TDoA2: youngest candidate, TDoA3:
- * rotating start), 32-bit truncated differences, 40-bit wrap. Bounded storage, no allocation.
+ * correction with the bucket rule, reference matching by seq (the youngest candidate, TDoA2 and TDoA3:
+ * the reference's TDoA3 tag rotates its start instead, see tdoa_engine.c), 32-bit truncated differences,
+ * 40-bit wrap. Bounded storage, no allocation.
  * harness/twin/tdoa_engine.py is the numpy twin. */
 #ifndef UWB_TDOA_ENGINE_H
 #define UWB_TDOA_ENGINE_H
@@ -55,7 +56,6 @@ typedef struct {
 
 typedef struct {
     tdoa_anchor_t anchors[TDOA_STORAGE_COUNT];
-    uint32_t match_counter;       /* rotating start of the TDoA3 candidate search */
 } tdoa_engine_t;
 
 typedef struct {

@@ -6,7 +6,7 @@ Times are integer microseconds (numpy int64) so replays are exact; everything el
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -95,6 +95,10 @@ class RadioStream:
     payload: np.ndarray   # (P, 128) uint8 over-the-air payload, zero padded
     true_skew_ppm: dict[int, float] = field(default_factory=dict)  # simulator truth of (cc - 1) 1e6 at the end
     true_skew_pkt: np.ndarray | None = None   # (P,) the same truth for the sender of each packet, at its time
+    # (P,) the same packets parsed, with unrounded float timestamps (RadioConfig.exact_stamps), and the tag's
+    # unrounded RX stamps: analysis of the engine without the DW1000 tick; never sent
+    exact: list[Any] | None = None
+    exact_rx: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t_us.shape[0])

@@ -7,6 +7,7 @@ twin over them to derive the measurement-level equivalent (same pairs, times and
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -29,25 +30,26 @@ def _in(t: float, window: tuple[float, float] | None, extra: float = 0.0) -> boo
 
 def _anchor_rx(cfg: RadioConfig, ids: np.ndarray, clocks: dict[int, DeviceClock], who: np.ndarray,
                t_tx: np.ndarray, apos: dict[int, np.ndarray], rng: np.random.Generator) -> dict[int, np.ndarray]:
-    """RX stamp (integer ticks, unwrapped) of every transmission at every anchor."""
+    """RX stamp (ticks, unwrapped, not yet rounded to whole ticks) of every transmission at every anchor."""
     out = {}
     delay_s = cfg.antenna_delay_ticks / TS_FREQ
     for b in ids:
         d = np.array([np.linalg.norm(apos[int(a)] - apos[int(b)]) for a in who])
         t = t_tx + delay_s + d / SPEED_OF_LIGHT
         noise = rng.normal(0.0, cfg.rx_noise_m / DW1000_TICK_M, size=len(who))
-        out[int(b)] = np.round(clocks[int(b)].local(t) + noise)
+        out[int(b)] = clocks[int(b)].local(t) + noise
     return out
 
 
 def _tof(cfg: RadioConfig, sim: SimConfig | None, hw: Any, clocks: dict[int, DeviceClock],
-         apos: dict[int, np.ndarray], a: int, b: int, t: float, rng: np.random.Generator) -> int:
-    """ToF b -> a as anchor a's ranging estimates it: a's ticks, antenna delay included (uint16)."""
+         apos: dict[int, np.ndarray], a: int, b: int, t: float, rng: np.random.Generator) -> tuple[int, float]:
+    """ToF b -> a as anchor a's ranging estimates it: a's ticks, antenna delay included (uint16), and unrounded."""
     tof_s = float(np.linalg.norm(apos[a] - apos[b])) / SPEED_OF_LIGHT + cfg.antenna_delay_ticks / TS_FREQ
     ticks = tof_s * TS_FREQ * (1.0 + float(clocks[a].skew_at(t))) + rng.normal(0.0, cfg.tof_noise_m / DW1000_TICK_M)
     if sim is not None:
         ticks -= hw.pair_offset(b, a, sim.antenna) / DW1000_TICK_M   # the pair offset o_BA of the model
-    return int(np.clip(np.round(ticks), 1, 0xFFFF))
+    exact = float(np.clip(ticks, 1, 0xFFFF))
+    return int(np.round(exact)), exact
 
 
 def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: dict[int, DeviceClock],
@@ -64,36 +66,46 @@ def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: di
     seq = {int(a): 0 for a in ids}
     restarted = {int(a): False for a in ids}
     rows: list[tuple[int, int, int, bytes, int]] = []   # (t_us, rx_ts, sender, payload, event)
+    exact: dict[int, lp.Packet] = {}                     # event -> the packet with unrounded stamps
     for e in range(len(who)):
         a, t = int(who[e]), float(t_tx[e])
         if a in silent and t >= silent[a][1] and not restarted[a]:
             restarted[a], seq[a], heard[a] = True, 0, {}
-        remotes = []
+        remotes: list[RemoteInfo] = []
+        remotes_x: list[lp.Remote] = []
         for b in ids:
             b = int(b)
             h = heard[a].get(b)
             if b == a or h is None or (cfg.protocol == "tdoa3" and t - h[2] > cfg.tdoa3_validity_s):
                 continue
             tof_unknown = _in(t, silent.get(a), cfg.reboot_tof_s) or _in(t, silent.get(b), cfg.reboot_tof_s)
-            tof = 0 if tof_unknown else _tof(cfg, sim, hw, clocks, apos, a, b, t, rng_noise)
-            remotes.append(RemoteInfo(id=b, seq=h[0], rx_ts=h[1], tof=tof))
+            tof, tof_x = (0, 0.0) if tof_unknown else _tof(cfg, sim, hw, clocks, apos, a, b, t, rng_noise)
+            remotes.append(RemoteInfo(id=b, seq=h[0], rx_ts=int(round(h[1])) & MASK32, tof=tof))
+            remotes_x.append(lp.Remote(id=b, seq=h[0], has_tof=tof != 0, tof=tof_x, rx_ts=h[1] % 2.0**32))
         pos = tuple(float(v) for v in apos[a]) if cfg.lpp else None
         tx32 = int(tx_ticks[e]) & MASK32
         if cfg.protocol == "tdoa2":
             payload = tdoa2_payload(a, seq[a], tx32, remotes, pos)  # type: ignore[arg-type]
         else:
-            remotes = remotes[:8]
+            remotes, remotes_x = remotes[:8], remotes_x[:8]
             full = [(seq[a] + r.id) % 2 == 0 for r in remotes]
             payload = tdoa3_payload(seq[a], tx32, remotes, pos, full)  # type: ignore[arg-type]
+            remotes_x = [replace(r, has_tof=r.has_tof and f) for r, f in zip(remotes_x, full)]
         for k, b in enumerate(ids):
             b = int(b)
             if b != a and not anchor_miss[e, k] and not collided[e] and not _in(t, silent.get(b)):
-                heard[b][a] = (seq[a], int(arx[b][e]) & MASK32, t)
+                heard[b][a] = (seq[a], float(arx[b][e]), t)
         if heard_by_tag[e]:
             rows.append((int(round(t_rx[e] * 1e6)), int(round(rx_ticks[e])) & MASK40, a, payload, e))
+            if cfg.exact_stamps:
+                exact[e] = lp.Packet(type=payload[0], seq=seq[a], tx_ts=tx32, remote=remotes_x)
         seq[a] = (seq[a] + 1) & 0x7F
     rows.sort(key=lambda r: (r[0], r[4]))
-    return _flight(flight, cfg, clocks, tag, rows, excess, sim, hw)
+    out = _flight(flight, cfg, clocks, tag, rows, excess, sim, hw)
+    if cfg.exact_stamps and out.radio is not None:
+        out = replace(out, radio=replace(out.radio, exact=[exact[r[4]] for r in rows],
+                                         exact_rx=np.array([float(rx_ticks[r[4]]) % 2.0**40 for r in rows])))
+    return out
 
 
 def _radio_stream(cfg: RadioConfig, rows: list[tuple[int, int, int, bytes, int]], truth: dict[int, float],

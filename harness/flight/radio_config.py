@@ -34,6 +34,10 @@ class RadioConfig:
     tdoa3_validity_s: float = 0.05   # an anchor reports others heard this recently (TDoA3)
     airtime_s: float = 0.3e-3        # transmissions closer than this collide: nobody receives either
     lpp: bool = True                 # append the LPP position to every packet
+    # Also keep every received packet with its timestamps unrounded (RadioStream.exact; analysis only: the
+    # wire carries whole DW1000 ticks). The engine twin run on them has no tick quantisation, so what is
+    # left of its error is the clock correction's (and the tag's motion).
+    exact_stamps: bool = False
 
     def validate(self) -> None:
         if self.protocol not in PROTOCOLS:

@@ -29,15 +29,15 @@ class Remote:
     id: int
     seq: int
     has_tof: bool
-    tof: int
-    rx_ts: int
+    tof: float      # integer ticks as parsed; float only in the simulator's unrounded analysis packets
+    rx_ts: float
 
 
 @dataclass
 class Packet:
     type: int
     seq: int = 0
-    tx_ts: int = 0
+    tx_ts: float = 0
     remote: list[Remote] = field(default_factory=list)
     pos: tuple[float, float, float] | None = None
 

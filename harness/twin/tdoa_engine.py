@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from harness.twin.lps_packets import TYPE_TDOA2, TYPE_TDOA3, Packet, Remote
+from harness.twin.lps_packets import Packet, Remote
 
 STORAGE_COUNT = 16
 TOF_PER_ANCHOR = 8
@@ -20,6 +20,10 @@ REMOTE_VALID_US = 60_000
 TOF_VALID_US = 2_000_000
 MASK32 = 0xFFFFFFFF
 MASK40 = 0xFFFFFFFFFF
+# Modulo rather than a mask: the same for integer ticks (the C), and it also takes the simulator's unrounded
+# timestamps (RadioConfig.exact_stamps), which separate the clock correction's error from the tick's.
+WRAP32 = 1 << 32
+WRAP40 = 1 << 40
 METRES_PER_TICK = SPEED_OF_LIGHT / TS_FREQ
 
 MEASUREMENT, DROP_NO_REFERENCE, DROP_CLOCK, DROP_EXPIRED, DROP_MALFORMED, DROP_UNKNOWN_TYPE = range(6)
@@ -28,7 +32,7 @@ MEASUREMENT, DROP_NO_REFERENCE, DROP_CLOCK, DROP_EXPIRED, DROP_MALFORMED, DROP_U
 @dataclass
 class TofEntry:
     id: int
-    tof: int
+    tof: float      # integer ticks; float only for unrounded analysis stamps (as rx_ts below)
     t_us: int
 
 
@@ -37,8 +41,8 @@ class AnchorCtx:
     id: int
     has_last: bool = False
     seq: int = 0
-    rx_ts: int = 0
-    tx_ts: int = 0
+    rx_ts: float = 0
+    tx_ts: float = 0
     rx_t_us: int = 0
     cc: float = 0.0
     bucket: int = 0
@@ -57,12 +61,12 @@ class AnchorCtx:
                 return k
         return min(range(TOF_PER_ANCHOR), key=lambda k: (self.tof[k].t_us, k))  # type: ignore[union-attr]
 
-    def clock_update(self, rx_ts: int, tx_ts: int) -> bool:
+    def clock_update(self, rx_ts: float, tx_ts: float) -> bool:
         """The bucket rule; True if this sample is reliable."""
         if not self.has_last:
             return False
-        drx = (rx_ts - self.rx_ts) & MASK32
-        dtx = (tx_ts - self.tx_ts) & MASK32
+        drx = (rx_ts - self.rx_ts) % WRAP32
+        dtx = (tx_ts - self.tx_ts) % WRAP32
         if dtx == 0:
             return False
         cand = drx / dtx
@@ -89,7 +93,6 @@ class Measurement:
 class TdoaEngine:
     def __init__(self) -> None:
         self.slots: list[AnchorCtx | None] = [None] * STORAGE_COUNT
-        self.match_counter = 0
 
     def anchor(self, anchor_id: int) -> AnchorCtx | None:
         return next((a for a in self.slots if a is not None and a.id == anchor_id), None)
@@ -118,35 +121,27 @@ class TdoaEngine:
 
     def _match(self, an: AnchorCtx, pkt: Packet, t_us: int) -> tuple[int, Remote | None, AnchorCtx | None,
                                                                        TofEntry | None]:
-        n = len(pkt.remote)
+        """The candidate the tag heard most recently (first in packet order on ties), TDoA2 and TDoA3."""
         reason = DROP_NO_REFERENCE
-        if n == 0:
-            return reason, None, None, None
-        start = 0
-        if pkt.type == TYPE_TDOA3:
-            start = self.match_counter % n
-            self.match_counter = (self.match_counter + 1) & MASK32
         best: tuple[Remote, AnchorCtx, TofEntry] | None = None
-        for k in range(n):
-            r = pkt.remote[(start + k) % n]
+        for r in pkt.remote:
             why, ar, tof = self._candidate(an, r, t_us)
             if why:
                 if why == DROP_EXPIRED:
                     reason = why
                 continue
             assert ar is not None and tof is not None
-            if best is None or (pkt.type == TYPE_TDOA2 and ar.rx_t_us > best[1].rx_t_us):
+            if best is None or ar.rx_t_us > best[1].rx_t_us:
                 best = (r, ar, tof)
-                if pkt.type != TYPE_TDOA2:
-                    break
         if best is None:
             return reason, None, None, None
         return MEASUREMENT, *best
 
-    def process(self, pkt: Packet, sender: int, rx_ts: int, t_us: int) -> tuple[int, Measurement | None]:
-        """One parsed packet: (MEASUREMENT, measurement) or (DROP_*, None); the state is updated either way."""
+    def process(self, pkt: Packet, sender: int, rx_ts: float, t_us: int) -> tuple[int, Measurement | None]:
+        """One parsed packet: (MEASUREMENT, measurement) or (DROP_*, None); the state is updated either way.
+        Timestamps are integer ticks as on the wire, or float ticks (analysis of unrounded stamps)."""
         an = self._get_or_create(sender)
-        rx_ts &= MASK40
+        rx_ts %= WRAP40
         an.packets = (an.packets + 1) & MASK32
         for r in pkt.remote:
             if r.has_tof:
@@ -156,8 +151,8 @@ class TdoaEngine:
             rc, rm, ar, tof = self._match(an, pkt, t_us)
             if rc == MEASUREMENT:
                 assert rm is not None and ar is not None and tof is not None
-                drx = (rx_ts - ar.rx_ts) & MASK32
-                dtx = (pkt.tx_ts - rm.rx_ts) & MASK32
+                drx = (rx_ts - ar.rx_ts) % WRAP32
+                dtx = (pkt.tx_ts - rm.rx_ts) % WRAP32
                 ticks = float(drx) - (float(tof.tof) + float(dtx)) * an.cc
                 meas = Measurement(ar.id, sender, ticks * METRES_PER_TICK)
         an.has_last, an.seq, an.rx_ts, an.tx_ts, an.rx_t_us = True, pkt.seq, rx_ts, pkt.tx_ts, t_us
