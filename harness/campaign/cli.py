@@ -46,6 +46,9 @@ def add_parser(sub: Any) -> None:
                    help="pacing of the accuracy runs (windowed: same estimates as lockstep, much faster)")
     p.add_argument("--latency-runs", action=argparse.BooleanOptionalAction, default=True,
                    help="per mode, one extra real-time run for end-to-end latency")
+    p.add_argument("--radio", type=_csv, default=(), metavar="tdoa2,tdoa3",
+                   help="also fly the TDoA flights (simulated, and held-out UTIL recordings of that protocol) at LPS "
+                        "radio level: their own rows, both levels of each flight, beside the measurement-level ones")
     p.add_argument("--timeout", type=float, default=10.0, help="device silence before a run fails [s]")
     p.add_argument("--report", action=argparse.BooleanOptionalAction, default=True,
                    help="write the report when the runs are done (a shard: its own partial report)")
@@ -65,7 +68,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                            firmware=Path(args.firmware).resolve(), pacing=args.pacing,
                            latency_runs=args.latency_runs,
                            sim_model=Path(args.sim_model).resolve() if args.sim_model else None,
-                           recorded_models=args.recorded_models)
+                           recorded_models=args.recorded_models, radio=tuple(args.radio))
     if args.jobs < 1:
         raise PlanError(f"--jobs must be >= 1, got {args.jobs}")
     if not (0 < args.timeout <= 3600):

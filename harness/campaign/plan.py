@@ -29,6 +29,7 @@ TRAJECTORIES = ("circle", "circle-z")
 CONFIGS = PAPER_PRESETS             # ("none", "outlier", "outlier+nn"); any key of PRESETS may be asked for
 FIRST_EVAL_SEED = 1000              # training seeds are below this
 MAX_DURATION_S = 3600.0             # of one simulated flight (memory: the flight is built whole)
+RADIO_PROTOCOLS = ("tdoa2", "tdoa3")
 # Held out from training (see the module docstring). Paths relative to the shared data directory.
 UTIL_HELD_OUT = (
     "util/const1/const1-trial5-tdoa2-extracted.csv",
@@ -62,16 +63,29 @@ class FlightSpec:
     uwb_only: bool = False
     takeoff: bool = True           # simulated: ground wait, take-off and landing inside duration_s
     profile: str = "los"           # simulated: error-model profile of harness/flight/scenarios.py
+    radio: str | None = None       # "tdoa2" | "tdoa3": the flight at LPS radio level (harness/flight/radio.py)
 
     @property
     def flight_id(self) -> str:
+        radio = f"-radio-{self.radio}" if self.radio else ""
         if self.source == "sim":
-            return f"sim-{self.mode}-{self.trajectory}-s{self.seed}"
-        return f"rec-{self.mode}-{self.trajectory}"
+            return f"sim-{self.mode}-{self.trajectory}-s{self.seed}{radio}"
+        return f"rec-{self.mode}-{self.trajectory}{radio}"
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        if d["radio"] is None:
+            del d["radio"]       # fingerprints of measurement-level runs stay what they were before radio level
+        return d
 
 
 ROLE_ACCURACY = "accuracy"
 ROLE_LATENCY = "latency"
+# Radio-level flight sets (kept out of the accuracy and latency figures): the flight streamed as anchor
+# packets through the tag's TDoA engine, and the same flight's differences (its measurement-level twin).
+ROLE_RADIO = "radio"
+ROLE_RADIO_MEAS = "radio-meas"
+RADIO_ROLES = (ROLE_RADIO, ROLE_RADIO_MEAS)
 
 
 @dataclass(frozen=True)
@@ -90,13 +104,13 @@ class RunSpec:
 
     @property
     def run_id(self) -> str:
-        suffix = "-latency" if self.role == ROLE_LATENCY else ""
+        suffix = {ROLE_LATENCY: "-latency", ROLE_RADIO_MEAS: "-meas"}.get(self.role, "")
         return f"{self.flight.flight_id}-{self.config.replace('+', '-')}{suffix}"
 
     def as_dict(self) -> dict[str, Any]:
         return {"run_id": self.run_id, "flight_id": self.flight.flight_id, "config": self.config,
                 "firmware": self.firmware, "pacing": self.pacing, "role": self.role, "model": self.model,
-                "model_hash": self.model_hash, "flight": asdict(self.flight)}
+                "model_hash": self.model_hash, "flight": self.flight.as_dict()}
 
     def fingerprint(self) -> str:
         """Changes whenever anything that decides the run's outcome changes (resume compares it)."""
@@ -126,6 +140,8 @@ class CampaignOptions:
     latency_runs: bool = True      # per mode, one extra real-time run (outlier+nn) of the first flight
     sim_model: Path | None = None  # None: the firmware's compiled-in default model
     recorded_models: bool = True   # recorded flights on a firmware with the real-data network (if present)
+    radio: tuple[str, ...] = ()    # LPS radio-level flight sets: the TDoA flights (simulated, and held-out
+    #                                UTIL recordings of that protocol) again at radio level, both levels flown
 
     def validate(self) -> None:
         """Everything that would make every worker fail is refused here, before any worker starts."""
@@ -156,6 +172,11 @@ class CampaignOptions:
             raise PlanError(f"unknown pacing {self.pacing!r}; choose from {PACING_MODES}")
         if not self.trajectories and self.seeds:
             raise PlanError("--trajectories is empty")
+        for protocol in self.radio:
+            if protocol not in RADIO_PROTOCOLS:
+                raise PlanError(f"unknown radio protocol {protocol!r} in --radio; choose from {RADIO_PROTOCOLS}")
+        if self.radio and "tdoa" not in self.modes:
+            raise PlanError("--radio flies TDoA flights at radio level: it needs tdoa in --modes")
 
 
 def held_out(family: str) -> tuple[tuple[str, ...], str]:
@@ -238,7 +259,28 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
                 cfg = "outlier+nn" if "outlier+nn" in opts.configs else opts.configs[-1]
                 runs.append(RunSpec(flight=first, config=cfg, firmware=str(opts.firmware), pacing="realtime",
                                     role=ROLE_LATENCY, model=models[first.flight_id]))
-    return runs, notes
+    return runs + radio_runs(opts, flights, models), notes
+
+
+def radio_runs(opts: CampaignOptions, flights: list[FlightSpec], models: dict[str, str | None]) -> list[RunSpec]:
+    """Per protocol of opts.radio: every simulated TDoA flight, and every recorded UTIL flight of that protocol,
+    at radio level, each configuration flown both as packets (ROLE_RADIO) and as the same flight's differences
+    (ROLE_RADIO_MEAS): the two levels of one flight side by side, without touching the measurement-level sets."""
+    runs = []
+    for protocol in opts.radio:
+        for f in flights:
+            if f.mode != "tdoa" or (f.source == "recorded" and _util_protocol(f) != protocol):
+                continue
+            rf = replace(f, radio=protocol)
+            for role in (ROLE_RADIO_MEAS, ROLE_RADIO):
+                runs += [RunSpec(flight=rf, config=c, firmware=str(opts.firmware), pacing=opts.pacing, role=role,
+                                 model=models[f.flight_id]) for c in opts.configs]
+    return runs
+
+
+def _util_protocol(f: FlightSpec) -> str:
+    """The LPS protocol a UTIL recording was made with (its file name says: ...-tdoa2- / ...-tdoa3-)."""
+    return "tdoa3" if "tdoa3" in Path(f.path or f.trajectory).name else "tdoa2"
 
 
 def parse_shard(text: str) -> tuple[int, int]:

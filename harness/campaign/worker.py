@@ -18,7 +18,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from harness.campaign.plan import FIRST_EVAL_SEED, FlightSpec, RunSpec
+from harness.campaign.plan import FIRST_EVAL_SEED, ROLE_RADIO, FlightSpec, RunSpec
 from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_array_atomic, save_flight,
                                     write_json_atomic)
 from harness.config import PRESETS, EstimatorConfig
@@ -55,6 +55,16 @@ class WorkerJob:
 
 
 def build_flight(spec: FlightSpec) -> Flight:
+    flight = _base_flight(spec)
+    if spec.radio:
+        from harness.flight.radio import radio_level
+        # simulated: the radio simulator (its own uwb stream = the same measurements as differences);
+        # recorded: packets synthesised from the recorded differences
+        return radio_level(flight, spec.radio, seed=int(spec.seed if spec.seed is not None else 1))
+    return flight
+
+
+def _base_flight(spec: FlightSpec) -> Flight:
     if spec.source == "sim":
         from harness.flight.scenarios import scenario_flight
         return scenario_flight(spec.trajectory, mode=spec.mode, duration_s=float(spec.duration_s or 70.0),
@@ -80,6 +90,8 @@ def flight_meta(spec: FlightSpec, flight: Flight) -> dict[str, Any]:
         meta["held_out_from_training"] = True
         meta["path"] = spec.path
     meta["flight_meta"] = {k: v for k, v in flight.meta.items() if isinstance(v, (str, int, float, bool))}
+    if flight.radio is not None:
+        meta["radio"] = {"protocol": flight.radio.protocol, "packets": len(flight.radio)}
     return meta
 
 
@@ -130,9 +142,13 @@ def run_group(job: WorkerJob) -> int:
                     device = device_cm.__enter__()
                     hello = device.last_hello or device.hello(timeout=job.timeout_s)  # type: ignore[attr-defined]
                 cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[run.config], uwb_only=run.flight.uwb_only)
-                result = Streamer(device, timeout_s=job.timeout_s).run(  # type: ignore[arg-type]
-                    flight, cfg, pacing, results_path=cdir.results_path(run.run_id))
+                streamer = Streamer(device, timeout_s=job.timeout_s)  # type: ignore[arg-type]
+                radio = run.role == ROLE_RADIO
+                result = streamer.run(flight, cfg, pacing, results_path=cdir.results_path(run.run_id), radio=radio)
                 summary = run_summary(result, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+                if radio:
+                    from harness.report.radio import query_clocks, radio_summary
+                    summary["radio"] = radio_summary(result, flight, query_clocks(streamer, flight))
                 save_array_atomic(cdir.array_path(run.run_id), result.results)
                 cdir.finish_results(run.run_id, keep_jsonl=job.keep_jsonl)
                 write_json_atomic(cdir.summary_path(run.run_id), {

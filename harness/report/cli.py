@@ -50,6 +50,11 @@ def _print_headline(summary: dict[str, Any]) -> None:
             print(f"recorded {mode.upper():5s}: none {f(m.get('rmse_raw'))}, outlier {f(m.get('rmse_outlier'))}, "
                   f"outlier+nn {f(m.get('rmse_outlier_nn'))}; NN vs outlier: "
                   f"{'-' if red is None else f'{-red:+.1f} %'}")
+    for g in (summary.get("radio_level") or {}).get("groups", []):
+        change = g.get("change_pct")
+        print(f"radio {g['protocol'].upper()} {g['source']} {g['config']}: RMSE measurement level "
+              f"{f(g.get('rmse_measurement'))}, radio level {f(g.get('rmse_radio'))} "
+              f"({'-' if change is None else f'{change:+.1f} %'}; {g['flights']} flights)")
     runs = summary.get("runs") or {}
     if runs.get("failed") or runs.get("missing"):
         print(f"runs: {runs.get('failed')} failed, {runs.get('missing')} not run (see the report)")

@@ -57,6 +57,12 @@ class RunMetrics:
     # is not positive) and its time [s] since the flight's first measurement: the consistency section
     nees: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float64))
     nees_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float64))
+    radio: dict[str, Any] | None = None   # the run summary's radio section (role "radio": packets, drops, skew)
+
+    @property
+    def radio_level(self) -> bool:
+        """A run of a radio-level flight set (either level): kept out of the measurement-level figures."""
+        return self.role in ("radio", "radio-meas")
 
 
 @dataclass
@@ -98,9 +104,14 @@ class CampaignData:
     def accuracy_runs(self) -> list[RunMetrics]:
         return [r for r in self.runs if r.role == "accuracy"]
 
+    @property
+    def measurement_runs(self) -> list[RunMetrics]:
+        """Every run but the radio-level flight sets (their latency covers the TDoA engine too)."""
+        return [r for r in self.runs if not r.radio_level]
+
     def e2e_runs(self, kind: int) -> tuple[list[RunMetrics], str]:
         """Runs whose end-to-end latency the report shows: the real-time ones if there are any."""
-        runs = [r for r in self.runs if r.kind == kind]
+        runs = [r for r in self.measurement_runs if r.kind == kind]
         rt = [r for r in runs if r.pacing == "realtime"]
         return (rt, "realtime") if rt else (runs, ",".join(sorted({r.pacing for r in runs})))
 
@@ -159,7 +170,8 @@ def run_metrics(summary: dict[str, Any], res: StoredResults, flight: StoredFligh
         divergences=int(summary.get("divergences", 0)),
         pacing=str(spec.get("pacing", "windowed")),
         role=str(spec.get("role", "accuracy")),
-        nees=nees_of(err, var), nees_t_s=(t - t0) * 1e-6)
+        nees=nees_of(err, var), nees_t_s=(t - t0) * 1e-6,
+        radio=(summary.get("summary") or {}).get("radio"))
 
 
 def load_campaign(root: Path) -> CampaignData:

@@ -228,13 +228,13 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
 def latency_histograms(data: CampaignData, budget_us: float) -> Figure | None:
     """Device compute time and end-to-end latency per message type, log-spaced bins, 5 ms budget marked."""
     kinds = [(MeasKind.TWR, "TWR"), (MeasKind.TDOA, "TDoA")]
-    present = [(k, n) for k, n in kinds if any(r.kind == k for r in data.runs)]
+    present = [(k, n) for k, n in kinds if any(r.kind == k for r in data.measurement_runs)]
     if not present:
         return None
     fig = Figure(figsize=(11, 3.4 * len(present)), layout="constrained")
     axes = fig.subplots(len(present), 2, squeeze=False)
     for i, (kind, name) in enumerate(present):
-        runs = [r for r in data.runs if r.kind == kind]
+        runs = [r for r in data.measurement_runs if r.kind == kind]
         e2e, e2e_pacing = data.e2e_runs(kind)
         for j, (label, arr) in enumerate((("device compute", np.concatenate([r.compute_us for r in runs])),
                                           (f"end to end, {e2e_pacing} pacing",

@@ -204,6 +204,42 @@ def bias_network(ctx: ReportContext) -> Section | None:
     return bias_section(ctx)
 
 
+def radio_level(ctx: ReportContext) -> Section | None:
+    """Radio-level flight sets (`campaign --radio`): both levels of each flight side by side."""
+    rl = ctx.summary.get("radio_level")
+    if not rl:
+        return None
+    sec = Section("radio_level", "LPS radio level: anchor packets through the tag's TDoA engine")
+    sec.paragraphs.append(
+        "The TDoA flights again at radio level (docs/radio.md): each flown as the anchor packets a Loco deck "
+        "receives, the firmware's TDoA engine forming the measurements, and as the same flight's differences "
+        "(same pairs, times and link errors), so the change is the engine's and the DW1000 tick's. These runs "
+        "are their own flight sets: the accuracy and latency figures above do not include them. Drops: packets "
+        "that formed no measurement, by reason; skew error: the engine's clock correction against the "
+        "simulator's truth (recorded flights replay with ideal clocks).")
+
+    def drops(d: dict[str, int]) -> str:
+        return ", ".join(f"{k} {v}" for k, v in sorted(d.items())) or "none"
+
+    sec.tables.append(Table(
+        ["source", "protocol", "config", "flights", "RMSE measurement level", "RMSE radio level", "change (means)",
+         "largest change", "packets", "measurements", "drops", "max skew error [ppm]"],
+        [[g["source"], g["protocol"].upper(), g["config"], str(g["flights"]), _f(g["rmse_measurement"], 4),
+          _f(g["rmse_radio"], 4), _pct(g["change_pct"]), f"{_f(g['max_abs_change_pct'], 1)} %", str(g["packets"]),
+          str(g["measurements"]), drops(g["drops"]), _f(g["max_skew_error_ppm"], 4)] for g in rl["groups"]],
+        "Per flight set (means over its flights)"))
+    sec.tables.append(Table(
+        ["flight", "config", "RMSE measurement level", "RMSE radio level", "change", "packets", "measurements",
+         "drops", "max skew error [ppm]"],
+        [[f["flight_id"], f["config"], _f(f["rmse_measurement"], 4), _f(f["rmse_radio"], 4), _pct(f["change_pct"]),
+          str(f["packets"]), str(f["measurements"]), drops(f["drops"]), _f(f["max_skew_error_ppm"], 4)]
+         for f in rl["flights"]], "Per flight"))
+    if rl.get("unpaired"):
+        sec.paragraphs.append("Without both levels (a run failed or is missing): " + "; ".join(rl["unpaired"]))
+    sec.data = rl
+    return sec
+
+
 NEES_SKIP_S = 2.0        # the first seconds of each flight (initial convergence) are left out of the NEES
 CONSISTENT_SHARE = 0.9   # "consistent": at least this share of epochs inside the 95 % bounds
 
@@ -256,6 +292,6 @@ def closed_loop(ctx: ReportContext) -> Section | None:
 
 
 DEFAULT_SECTIONS: tuple[SectionFn, ...] = (headline, rmse_boxes, error_time, paths, measurement_streams, bias_network, recorded,
-                                           consistency, closed_loop, latency, failures, provenance)
+                                           radio_level, consistency, closed_loop, latency, failures, provenance)
 
 __all__ = ["CONFIG_KEYS", "DEFAULT_SECTIONS", "ReportContext", "SectionFn"]

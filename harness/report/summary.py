@@ -10,6 +10,7 @@ import numpy as np
 
 from harness.report.data import CampaignData, RunMetrics
 from harness.report.metrics import DEFAULT_BUDGET_S, latency_summary
+from harness.report.radio_level import radio_level_summary
 from protocol.messages import CostUnit, MeasKind
 
 #: Configuration -> JSON key suffix (rmse_raw, rmse_outlier, rmse_outlier_nn).
@@ -89,7 +90,7 @@ def latency_section(data: CampaignData, budget_s: float = DEFAULT_BUDGET_S) -> d
     deadline misses against the budget; lost and refused measurements; device-side counters."""
     out: dict[str, Any] = {"budget_us": budget_s * 1e6}
     for kind, name in KIND_NAMES.items():
-        runs = [r for r in data.runs if r.kind == kind]
+        runs = [r for r in data.measurement_runs if r.kind == kind]
         if not runs:
             continue
         units = {r.cost_unit for r in runs}
@@ -144,6 +145,9 @@ def campaign_summary(data: CampaignData) -> dict[str, Any]:
                    "failed_runs": [{"run_id": f.run_id, "error_type": f.error_type, "error": f.error}
                                    for f in data.failures],
                    "missing_runs": data.missing}
+    radio = radio_level_summary(data)
+    if radio is not None:
+        out["radio_level"] = radio
     out["provenance"] = provenance_section(data)
     out["notes"] = list(data.manifest.get("notes") or [])
     return out
