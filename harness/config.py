@@ -15,9 +15,10 @@ STAGE_KINEMATIC_GATE = int(Stage.KINEMATIC_GATE)
 STAGE_CHI2_GATE = int(Stage.CHI2_GATE)
 STAGE_NN_STD = int(Stage.NN_STD)                # measurement std = the network's predicted std (when it runs)
 STAGE_ROBUST_UPDATE = int(Stage.ROBUST_UPDATE)  # M-estimation weights on the update (robust_update.c)
+STAGE_NN_MONITOR = int(Stage.NN_MONITOR)        # per-pair monitor switching a harmful correction off (nn_monitor.c)
 STAGES_ALL = STAGE_BIAS_NN | STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE  # the paper's outlier rejection + network
 STAGES_OUTLIER = STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
-STAGES_VALID = STAGES_ALL | STAGE_NN_STD | STAGE_ROBUST_UPDATE      # every bit CONFIG may set
+STAGES_VALID = STAGES_ALL | STAGE_NN_STD | STAGE_ROBUST_UPDATE | STAGE_NN_MONITOR  # every bit CONFIG may set
 FLOAT32_MAX = 3.4028234663852886e38   # largest finite IEEE-754 single (the CONFIG frame's field type)
 
 #: The three configurations of the paper's experiments, then the alternatives of issue 14: the network's
@@ -27,6 +28,7 @@ PRESETS: dict[str, int] = {
     "outlier": STAGES_OUTLIER,
     "outlier+nn": STAGES_ALL,
     "outlier+nn+std": STAGES_ALL | STAGE_NN_STD,
+    "outlier+nn+monitor": STAGES_ALL | STAGE_NN_MONITOR,
     "robust": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE,
     "robust+nn": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE | STAGE_BIAS_NN,
 }

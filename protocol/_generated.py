@@ -6,7 +6,7 @@ import enum
 from dataclasses import dataclass
 from typing import ClassVar
 
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -29,6 +29,7 @@ class Stage(enum.IntEnum):
     CHI2_GATE = 4
     NN_STD = 8
     ROBUST_UPDATE = 16
+    NN_MONITOR = 32
 
 
 class MeasKind(enum.IntEnum):
@@ -72,6 +73,7 @@ class ResultFlag(enum.IntEnum):
     SPEED = 8
     COVARIANCE = 16
     HEIGHT_FUSED = 32
+    NN_PAIR_OFF = 64
 
 
 class DropReason(enum.IntEnum):
@@ -405,9 +407,9 @@ class Stats:
     MSG_ID: ClassVar[int] = 0x83
     NAME: ClassVar[str] = 'STATS'
     DIRECTION: ClassVar[str] = 'to_host'
-    FORMAT: ClassVar[str] = '<IIIIIIIIIIIIIIIIIIIIIIIIIII'
-    SIZE: ClassVar[int] = 108
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('frames_ok', 'u32'), ('crc_errors', 'u32'), ('framing_errors', 'u32'), ('unknown_types', 'u32'), ('bad_lengths', 'u32'), ('non_finite', 'u32'), ('unknown_anchors', 'u32'), ('time_backwards', 'u32'), ('bad_configs', 'u32'), ('dropped_meas', 'u32'), ('imu_samples', 'u32'), ('twr_meas', 'u32'), ('tdoa_meas', 'u32'), ('results', 'u32'), ('predictions', 'u32'), ('seq_gaps', 'u32'), ('radio_packets', 'u32'), ('radio_meas', 'u32'), ('radio_no_reference', 'u32'), ('radio_clock', 'u32'), ('radio_expired', 'u32'), ('radio_malformed', 'u32'), ('radio_unknown_type', 'u32'), ('radio_no_position', 'u32'), ('divergences', 'u32'), ('heights', 'u32'), ('bad_values', 'u32'))
+    FORMAT: ClassVar[str] = '<IIIIIIIIIIIIIIIIIIIIIIIIIIII'
+    SIZE: ClassVar[int] = 112
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('frames_ok', 'u32'), ('crc_errors', 'u32'), ('framing_errors', 'u32'), ('unknown_types', 'u32'), ('bad_lengths', 'u32'), ('non_finite', 'u32'), ('unknown_anchors', 'u32'), ('time_backwards', 'u32'), ('bad_configs', 'u32'), ('dropped_meas', 'u32'), ('imu_samples', 'u32'), ('twr_meas', 'u32'), ('tdoa_meas', 'u32'), ('results', 'u32'), ('predictions', 'u32'), ('seq_gaps', 'u32'), ('radio_packets', 'u32'), ('radio_meas', 'u32'), ('radio_no_reference', 'u32'), ('radio_clock', 'u32'), ('radio_expired', 'u32'), ('radio_malformed', 'u32'), ('radio_unknown_type', 'u32'), ('radio_no_position', 'u32'), ('divergences', 'u32'), ('heights', 'u32'), ('bad_values', 'u32'), ('nn_pairs_disabled', 'u32'))
 
     frames_ok: int  # frames with a valid CRC
     crc_errors: int
@@ -436,6 +438,7 @@ class Stats:
     divergences: int  # times the supervisor re-initialised the filter
     heights: int  # HEIGHT pseudo-measurements fused
     bad_values: int  # frames refused with BAD_VALUE (a field outside its range)
+    nn_pairs_disabled: int  # anchor pairs on which the per-pair monitor switched the network's correction off
 
 
 @dataclass(frozen=True)

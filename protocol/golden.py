@@ -89,7 +89,7 @@ def _vectors() -> list[tuple[str, int, Any]]:
                              imu_samples=1000, twr_meas=200, tdoa_meas=0, results=190, predictions=100,
                              seq_gaps=0, radio_packets=500, radio_meas=450, radio_no_reference=20,
                              radio_clock=16, radio_expired=5, radio_malformed=4, radio_unknown_type=3,
-                             radio_no_position=2, divergences=2, heights=30, bad_values=1)),
+                             radio_no_position=2, divergences=2, heights=30, bad_values=1, nn_pairs_disabled=3)),
         ("error", 4, m.Error(code=4, msg_type=5, msg_seq=8, detail=12)),
         ("radio_tdoa2_lpp", 17, _radio(20_000, 0xFF_FFFF_FFFF, 0xBCCF000000000003, _TDOA2_LPP)),
         ("radio_tdoa3", 18, _radio(2**63, 0x12_3456_789A, 0xBCCF000000000005, _TDOA3)),

@@ -115,6 +115,7 @@ static void on_stats_req(firmware_t *fw)
     msg.u.stats.radio_unknown_type = s->radio_unknown_type;
     msg.u.stats.radio_no_position = s->radio_no_position;
     msg.u.stats.divergences = fw->est.divergences;
+    msg.u.stats.nn_pairs_disabled = fw->est.nnmon.disabled;
     msg.u.stats.heights = fw->est.heights;
     msg.u.stats.bad_values = s->bad_values;
     send_msg(fw, &msg);

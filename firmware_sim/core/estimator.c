@@ -68,6 +68,7 @@ int estimator_config_valid(const estimator_config_t *cfg)
 static void reset_filter(estimator_t *est)
 {
     const float pos[3] = {est->cfg.init_x, est->cfg.init_y, est->cfg.init_z};
+    nn_monitor_reset(&est->nnmon); /* a new flight: every pair trusted again */
     ekf_init(&est->ekf, pos, est->cfg.init_std_xy, est->cfg.init_std_z);
     memcpy(est->last_good_pos, pos, sizeof pos);
     est->has_imu_time = 0;
@@ -350,6 +351,9 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
         net = tdoa ? est->model->tdoa : est->model->twr;
     }
     std = tdoa ? cfg->std_tdoa : cfg->std_twr;
+    if ((cfg->stages & EST_STAGE_NN_MONITOR) && !nn_monitor_enabled(&est->nnmon, id_a, id_b)) {
+        net = NULL; /* the monitor switched this pair's correction off */
+    }
     bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a, std, &std_nn);
     y = (z - bias) - h;
     /* NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std */
@@ -366,6 +370,11 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     } else if ((cfg->stages & EST_STAGE_CHI2_GATE) &&
                !gate_chi2_pass(y, m.S, tdoa ? cfg->chi2_tdoa : cfg->chi2_twr)) {
         out->status = EST_REJECTED_CHI2;
+    }
+    /* the monitor compares what the filter sees with and without the correction, whatever the gates said */
+    if ((cfg->stages & EST_STAGE_NN_MONITOR) && bias != 0.0f &&
+        nn_monitor_observe(&est->nnmon, id_a, id_b, y, bias, m.S)) {
+        est->flags = (uint8_t)(est->flags | EST_FLAG_NN_PAIR_OFF);
     }
     c3 = platform_cost_now();
 

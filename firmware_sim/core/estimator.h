@@ -8,6 +8,7 @@
 
 #include "bias_nn.h"
 #include "ekf_core.h"
+#include "nn_monitor.h"
 
 #define ESTIMATOR_MAX_ANCHORS 16
 
@@ -27,7 +28,8 @@ enum {
     EST_FLAG_OUT_OF_BOX = 4,
     EST_FLAG_SPEED = 8,
     EST_FLAG_COVARIANCE = 16,
-    EST_FLAG_HEIGHT_FUSED = 32
+    EST_FLAG_HEIGHT_FUSED = 32,
+    EST_FLAG_NN_PAIR_OFF = 64 /* the pair monitor switched the correction off for this pair */
 };
 
 /* Measurement statuses (= protocol enum status). */
@@ -45,12 +47,13 @@ enum {
     EST_STAGE_KINEMATIC_GATE = 2,
     EST_STAGE_CHI2_GATE = 4,
     EST_STAGE_NN_STD = 8,       /* measurement std = the network's predicted std when it runs */
-    EST_STAGE_ROBUST_UPDATE = 16 /* M-estimation weights on the update (robust_update.h) */
+    EST_STAGE_ROBUST_UPDATE = 16, /* M-estimation weights on the update (robust_update.h) */
+    EST_STAGE_NN_MONITOR = 32     /* per-pair monitor of the corrections (nn_monitor.h) */
 };
 /* The paper's outlier rejection + network (the power-up default). */
 #define EST_STAGES_ALL (EST_STAGE_BIAS_NN | EST_STAGE_KINEMATIC_GATE | EST_STAGE_CHI2_GATE)
 /* Every bit CONFIG may set. */
-#define EST_STAGES_VALID (EST_STAGES_ALL | EST_STAGE_NN_STD | EST_STAGE_ROBUST_UPDATE)
+#define EST_STAGES_VALID (EST_STAGES_ALL | EST_STAGE_NN_STD | EST_STAGE_ROBUST_UPDATE | EST_STAGE_NN_MONITOR)
 
 /* What CONFIG carries (harness/config.py EstimatorConfig). */
 typedef struct {
@@ -93,6 +96,7 @@ typedef struct {
     uint64_t t_height_us;             /* last HEIGHT pseudo-measurement (time rule) */
     uint8_t has_height_time;
     uint8_t flags;                    /* EST_FLAG_* since the last result */
+    nn_monitor_t nnmon;               /* per-pair monitor of the network's corrections (reset with the filter) */
     float last_good_pos[3];           /* re-initialisation point of the supervisor */
     uint32_t cost_predict;            /* cost of the predictions since the last measurement */
     uint32_t predictions;             /* IMU or CV predictions since power-up */

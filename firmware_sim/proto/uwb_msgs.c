@@ -460,6 +460,7 @@ static void unpack_stats(const uint8_t *p, uwb_stats_t *m)
     m->divergences = get_u32(p + 96);
     m->heights = get_u32(p + 100);
     m->bad_values = get_u32(p + 104);
+    m->nn_pairs_disabled = get_u32(p + 108);
 }
 
 static void pack_stats(const uwb_stats_t *m, uint8_t *p)
@@ -491,6 +492,7 @@ static void pack_stats(const uwb_stats_t *m, uint8_t *p)
     put_u32(p + 96, m->divergences);
     put_u32(p + 100, m->heights);
     put_u32(p + 104, m->bad_values);
+    put_u32(p + 108, m->nn_pairs_disabled);
 }
 
 static void unpack_error(const uint8_t *p, uwb_error_t *m)

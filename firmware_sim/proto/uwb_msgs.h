@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 4u
+#define UWB_PROTO_VERSION 5u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -25,6 +25,7 @@ enum {
     UWB_STAGE_CHI2_GATE = 4,
     UWB_STAGE_NN_STD = 8,
     UWB_STAGE_ROBUST_UPDATE = 16,
+    UWB_STAGE_NN_MONITOR = 32,
 };
 
 /* Kind of UWB measurement in RESULT.kind */
@@ -64,6 +65,7 @@ enum {
     UWB_RESULT_FLAG_SPEED = 8,
     UWB_RESULT_FLAG_COVARIANCE = 16,
     UWB_RESULT_FLAG_HEIGHT_FUSED = 32,
+    UWB_RESULT_FLAG_NN_PAIR_OFF = 64,
 };
 
 /* RADIO_DROP.reason: why a radio packet produced no measurement (each has a STATS counter) */
@@ -295,7 +297,7 @@ typedef struct {
 
 /* STATS (to_host): Counters since power-up. Every byte or frame the device did not use is in one of them. */
 #define UWB_MSG_STATS 0x83u
-#define UWB_MSG_STATS_LEN 108u
+#define UWB_MSG_STATS_LEN 112u
 typedef struct {
     uint32_t frames_ok;
     uint32_t crc_errors;
@@ -324,6 +326,7 @@ typedef struct {
     uint32_t divergences;
     uint32_t heights;
     uint32_t bad_values;
+    uint32_t nn_pairs_disabled;
 } uwb_stats_t;
 
 /* ERROR (to_host): A frame with a valid CRC was refused. */

@@ -128,7 +128,7 @@ static void test_config_validation(void)
     EXPECT_VALID(mode, 2, 0);
     EXPECT_VALID(stages, 0, 1);
     EXPECT_VALID(stages, EST_STAGES_VALID, 1);
-    EXPECT_VALID(stages, 32, 0);
+    EXPECT_VALID(stages, 64, 0);
     EXPECT_VALID(std_twr, 0.0f, 0);
     EXPECT_VALID(std_twr, -0.1f, 0);
     EXPECT_VALID(std_tdoa, NAN, 0);
@@ -549,6 +549,36 @@ static void test_robust_update(void)
     CHECK(r.innovation_var > 10.0f * (0.25f * 0.25f)); /* S of the update carries the inflated R */
 }
 
+static void test_nn_monitor(void)
+{
+    static nn_monitor_t mon;
+    unsigned k;
+    memset(&mon, 0, sizeof mon);
+    nn_monitor_reset(&mon);
+    CHECK(nn_monitor_enabled(&mon, 3, 4) && !nn_monitor_enabled(&mon, 16, 4));
+    /* a correction that doubles the innovation (y = 0.2 with it, 0.1 without): off after 64 */
+    for (k = 0; k + 1 < NN_MON_MIN_SAMPLES; k++) {
+        CHECK(nn_monitor_observe(&mon, 3, 4, 0.2f, -0.1f, 0.0225f) == 0);
+    }
+    CHECK(nn_monitor_enabled(&mon, 3, 4));
+    CHECK(nn_monitor_observe(&mon, 3, 4, 0.2f, -0.1f, 0.0225f) == 1);
+    CHECK(!nn_monitor_enabled(&mon, 3, 4) && mon.disabled == 1u);
+    CHECK(nn_monitor_observe(&mon, 3, 4, 0.2f, -0.1f, 0.0225f) == 0 && mon.disabled == 1u); /* once */
+    /* a correction that helps (y = 0.02 with it, 0.1 without) is never switched off */
+    for (k = 0; k < 1000u; k++) {
+        CHECK(nn_monitor_observe(&mon, 5, 6, 0.02f, 0.08f, 0.0225f) == 0);
+    }
+    CHECK(nn_monitor_enabled(&mon, 5, 6));
+    /* one gross outlier does not decide: clipped at 9 S */
+    for (k = 0; k < 200u; k++) {
+        CHECK(nn_monitor_observe(&mon, 7, 7, (k == 100u) ? 50.0f : 0.02f, 0.08f, 0.0225f) == 0);
+    }
+    (void)nn_monitor_observe(&mon, 7, 7, NAN, 0.1f, 0.0225f); /* NaN: clipped like an outlier */
+    CHECK(nn_monitor_enabled(&mon, 7, 7));
+    nn_monitor_reset(&mon);
+    CHECK(nn_monitor_enabled(&mon, 3, 4) && mon.disabled == 1u); /* new flight: trusted again, count kept */
+}
+
 static void test_divergence_guard(void)
 {
     estimator_result_t r;
@@ -701,6 +731,7 @@ int main(void)
     RUN(test_gate_dt_references);
     RUN(test_bias_network_wiring);
     RUN(test_robust_update);
+    RUN(test_nn_monitor);
     RUN(test_divergence_guard);
     RUN(test_supervisor_bounds);
     RUN(test_height_pseudo_measurement);

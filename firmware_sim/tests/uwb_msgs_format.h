@@ -199,6 +199,7 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_u64(out + w, cap - w, "divergences", (unsigned long long)msg->u.stats.divergences);
         w += fmt_u64(out + w, cap - w, "heights", (unsigned long long)msg->u.stats.heights);
         w += fmt_u64(out + w, cap - w, "bad_values", (unsigned long long)msg->u.stats.bad_values);
+        w += fmt_u64(out + w, cap - w, "nn_pairs_disabled", (unsigned long long)msg->u.stats.nn_pairs_disabled);
         break;
     case UWB_MSG_ERROR:
         w += fmt_u64(out + w, cap - w, "code", (unsigned long long)msg->u.error.code);

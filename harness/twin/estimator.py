@@ -12,11 +12,12 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, STAGE_NN_STD,
-                            STAGE_ROBUST_UPDATE, EstimatorConfig)
+from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, STAGE_NN_MONITOR,
+                            STAGE_NN_STD, STAGE_ROBUST_UPDATE, EstimatorConfig)
 from harness.twin import gates, measurements
 from harness.twin.ekf import POS, ErrorStateEkf
 from harness.twin.features import features, ood_fade
+from harness.twin.nn_monitor import NnMonitor
 from protocol.messages import MAX_ANCHORS as PROTOCOL_MAX_ANCHORS
 from protocol.messages import ErrorCode, MeasKind, ResultFlag, Status
 
@@ -37,6 +38,7 @@ FLAG_OUT_OF_BOX = int(ResultFlag.OUT_OF_BOX)
 FLAG_SPEED = int(ResultFlag.SPEED)
 FLAG_COVARIANCE = int(ResultFlag.COVARIANCE)
 FLAG_HEIGHT_FUSED = int(ResultFlag.HEIGHT_FUSED)
+FLAG_NN_PAIR_OFF = int(ResultFlag.NN_PAIR_OFF)
 
 # protocol enum status
 ACCEPTED = int(Status.ACCEPTED)
@@ -142,12 +144,14 @@ class TwinEstimator:
         self.predictions = 0
         self.imu_ignored = 0
         self.divergences = 0
+        self.nnmon = NnMonitor()
         self.heights = 0
         self._reset_filter()
 
     # ---------------------------------------------------------------------------- configuration
     def _reset_filter(self) -> None:
         c = self.config
+        self.nnmon.reset()  # a new flight: every pair trusted again
         self.last_good_pos = np.array([c.init_x, c.init_y, c.init_z], dtype=np.float64)
         self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
         self.t_imu_us: int | None = None
@@ -328,6 +332,8 @@ class TwinEstimator:
         h, H3 = model
 
         net = getattr(self.model, "tdoa" if tdoa else "twr", None) if self.model is not None else None
+        if c.stages & STAGE_NN_MONITOR and not self.nnmon.enabled(*ids):
+            net = None  # the monitor switched this pair's correction off
         bias, std_nn = self._bias(net, anchor_a, anchor_b, c.std_tdoa if tdoa else c.std_twr)
         y = (z - bias) - h
 
@@ -339,6 +345,9 @@ class TwinEstimator:
             status = REJECTED_KINEMATIC
         elif c.stages & STAGE_CHI2_GATE and not gates.chi2_pass(y, upd.S, c.chi2_tdoa if tdoa else c.chi2_twr):
             status = REJECTED_CHI2
+        # the monitor compares what the filter sees with and without the correction, whatever the gates said
+        if c.stages & STAGE_NN_MONITOR and bias != 0.0 and self.nnmon.observe(ids[0], ids[1], y, bias, upd.S):
+            self.flags |= FLAG_NN_PAIR_OFF
 
         gain = np.zeros(3)
         if status == ACCEPTED:
