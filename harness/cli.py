@@ -15,55 +15,18 @@ import argparse
 import json
 import os
 import sys
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from harness import cli_verdict, options
-from harness.config import PRESETS, EstimatorConfig
-from harness.errors import ResultsFileError, UsageError, UwbHilError
-from harness.flight.model import Flight
-from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
-from harness.device_args import add_device_options as _add_device_options
-from harness.device_args import device_spec as _device_spec
-from harness.device_args import hello_dict as _hello_dict
-from harness.device_args import model_device_spec as _model_device_spec
-from harness.session import check_network_inputs, config_for, kind_name, open_device
-from harness.stream.streamer import PACING_MODES, Pacing, Streamer
-
-
-# ------------------------------------------------------------------------------------------ flights
-def make_flight(args: argparse.Namespace) -> Flight:
-    if args.recording:
-        from harness.flight.loaders import load_recording
-        anchors = Path(args.anchors) if args.anchors else None
-        return cli_verdict.apply_planar(args, load_recording(
-            Path(args.recording), anchors=anchors, constellation=getattr(args, "constellation", None),
-            check=not getattr(args, "force", False)))
-    from harness.flight.scenarios import scenario_flight
-    return cli_verdict.apply_planar(args, scenario_flight(args.scenario, mode=args.mode, duration_s=args.duration,
-                                                          seed=args.seed))
-
-
-def make_run_flight(args: argparse.Namespace) -> Flight:
-    """make_flight, at radio level with --radio."""
-    radio = getattr(args, "radio", None)
-    if radio and not args.recording and args.mode != "tdoa":
-        raise UsageError("--radio streams TDoA anchor packets: use it with --mode tdoa (or a TDoA recording)")
-    flight = make_flight(args)
-    if not radio:
-        return flight
-    from harness.flight.radio import radio_level
-    return radio_level(flight, radio, seed=args.seed, loss=getattr(args, "radio_loss", 0.0))
-
-
-def _long_simulation(args: argparse.Namespace) -> Any:
-    """The SimPlan of a simulated flight long enough to be streamed in slices, else None."""
-    from harness.stream.chunked_run import STREAM_ABOVE_S
-    if args.recording or args.duration <= STREAM_ABOVE_S:
-        return None
-    from harness.flight.scenarios import plan_scenario
-    return plan_scenario(args.scenario, mode=args.mode, duration_s=args.duration, seed=args.seed)
+from harness.config import PRESETS
+from harness.device_args import add_device_options, device_spec, model_device_spec
+from harness.errors import UsageError, UwbHilError
+from harness.run.demo import DemoFlights, run_demo
+from harness.run.single import checked_results_path, resume_one, run_one
+from harness.run.source import RunSource
+from harness.session import DeviceSpec
+from harness.stream.streamer import PACING_MODES, Pacing
 
 
 # ------------------------------------------------------------------------------------------ output
@@ -109,27 +72,8 @@ def print_run(summary: dict[str, Any]) -> None:
 
 
 # ------------------------------------------------------------------------------------------ commands
-_SOURCE_KEYS = ("scenario", "mode", "duration", "seed", "recording", "anchors", "constellation", "force", "stages",
-                "uwb_only", "model", "set", "radio", "radio_loss", "height", "height_std")
-
-
-def _run_source(args: argparse.Namespace) -> dict[str, Any]:
-    """What `run --resume` needs to rebuild the flight and the device (recorded in the results header)."""
-    src = {k: getattr(args, k, None) for k in _SOURCE_KEYS}
-    for k in ("recording", "anchors", "model"):
-        if src[k]:
-            src[k] = str(Path(src[k]).resolve())
-    return src
-
-
-def _run_config(args: argparse.Namespace, flight: Flight) -> EstimatorConfig:
-    """The estimator configuration of `run` (and of `run --resume`, which checks the recorded one against
-    it: an option that changes it must also be in _SOURCE_KEYS)."""
-    return config_for(flight, _config_with(args.set), stages=PRESETS[args.stages], uwb_only=args.uwb_only)
-
-
 #: options that `run --resume` takes from the results file's header and so refuses on its command line
-_RESUME_FIXED = (*_SOURCE_KEYS, "pacing", "window", "speed", "results", "overwrite")
+_RESUME_FIXED = (*RunSource.keys(), "pacing", "window", "speed", "results", "overwrite")
 
 
 def _refuse_resume_conflicts(args: argparse.Namespace) -> None:
@@ -143,133 +87,35 @@ def _refuse_resume_conflicts(args: argparse.Namespace) -> None:
 
 def cmd_resume(args: argparse.Namespace) -> int:
     """Continue an interrupted run from its results file (see harness/stream/resume.py)."""
-    from harness.stream.resume import ResumeError, check_resumable, read_results, resume_run
-    from harness.stream.results_file import LockedResults
     _refuse_resume_conflicts(args)
-    locked = LockedResults.existing(Path(args.resume))     # held until the resume is done
-    try:
-        rec = read_results(Path(args.resume))
-        src = rec.header.get("source")
-        if not isinstance(src, dict):
-            raise ResumeError(f"{rec.path}:1: header has no 'source' (not written by `uwb-hil run`): "
-                              "cannot rebuild the flight")
-        if src.get("radio"):
-            raise ResumeError(f"{rec.path}: a radio-level run cannot be resumed (the tag's TDoA engine state "
-                              "is not in the results file): run it again")
-        fargs = argparse.Namespace(**{**vars(args), **src})
-        flight = make_flight(fargs)
-        cfg = _run_config(fargs, flight)
-        spec, want_hash = _model_device_spec(fargs)
-        with open_device(spec, expected_model_hash=want_hash) as device:
-            hello = device.hello(timeout=args.timeout)
-            check_resumable(rec, flight, cfg, _hello_dict(hello))
-            update, stop = _progress_bar(f"{flight.name} (resume at {rec.next_index})")
-            try:
-                run, info = resume_run(device, rec, flight, locked, timeout_s=args.timeout, progress=update)
-            finally:
-                stop()
-    finally:
-        locked.close()
+    path = Path(args.resume)
+
+    def spec_for(src: RunSource) -> tuple[DeviceSpec, int | None]:
+        return model_device_spec(argparse.Namespace(**{**vars(args), "model": src.model}))
+
+    summary = resume_one(path, spec_for, args.timeout, progress=_progress_bar)
+    info = summary["resume"]
     if info.get("partial_line_bytes_dropped"):
-        print(f"uwb-hil: {rec.path}: cut a partial last line ({info['partial_line_bytes_dropped']} bytes, written "
+        print(f"uwb-hil: {path}: cut a partial last line ({info['partial_line_bytes_dropped']} bytes, written "
               "when the run was killed); its measurement was run again", file=sys.stderr)
-    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
-    summary["config"] = src.get("stages")
-    summary["device"] = _hello_dict(hello)
-    summary["resume"] = info
 
     def text() -> None:
-        print(f"resumed {rec.path} at measurement {info['resumed_at']}: replayed {info['replayed']} "
+        print(f"resumed {path} at measurement {info['resumed_at']}: replayed {info['replayed']} "
               f"(identical to the record), appended {info['appended']}")
         print_run(summary)
     return cli_verdict.finish(args, summary, [summary], cli_verdict.criteria_from(args), text)
-
-
-def _results_path(args: argparse.Namespace) -> Path | None:
-    """The --results file, refused before any device starts if it is a directory or an unfinished run."""
-    if not args.results:
-        return None
-    from harness.stream.results_file import check_not_in_use, describe_existing
-    path = Path(args.results)
-    if path.is_dir():
-        raise ResultsFileError(f"results file {path} is a directory: give a file name, e.g. {path / 'run.jsonl'}")
-    check_not_in_use(path)
-    why = describe_existing(path)
-    if why is not None and not args.overwrite:
-        raise ResultsFileError(f"results file {path} not overwritten: {why}, or pass --overwrite")
-    return path
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     if getattr(args, "resume", None):
         return cmd_resume(args)
     criteria = cli_verdict.criteria_from(args)
-    # long simulated flights are built and streamed in slices (not at radio level, nor with heights: those
-    # need the whole flight)
-    plan = None if (getattr(args, "radio", None) or getattr(args, "height", None)) else _long_simulation(args)
-    flight = make_run_flight(args) if plan is None else None
-    pacing = Pacing(mode=args.pacing, window=args.window, speed=args.speed)
-    results_path = _results_path(args)
-    spec, want_hash = _model_device_spec(args)
-    with open_device(spec, expected_model_hash=want_hash) as device:
-        hello = device.hello(timeout=args.timeout)
-        layouts = (hello.layout_twr, hello.layout_tdoa)
-
-        def checked_config(first: Flight) -> EstimatorConfig:
-            cfg = _run_config(args, first)
-            if not args.force:
-                check_network_inputs(first, cfg, layouts)
-            return cfg
-
-        update, stop = _progress_bar(f"{flight.name if flight is not None else plan.name} ({args.stages})")
-        header = {"source": _run_source(args), "device": _hello_dict(hello)}
-        streamer = Streamer(device, timeout_s=args.timeout)
-        try:
-            if plan is not None:
-                from harness.stream.chunked_run import stream_plan
-                chunked = stream_plan(streamer, plan, checked_config, pacing, results_path=results_path,
-                                      header_extra=header, progress=update, overwrite=args.overwrite)
-                run, flight = chunked.run, chunked.flight
-            else:
-                cfg = checked_config(flight)
-                if results_path is not None:
-                    from harness.stream.results_file import flight_digest
-                    header["flight_digest"] = flight_digest(flight)
-                run = streamer.run(flight, cfg, pacing, results_path=results_path, progress=update,
-                                   header_extra=header, overwrite=args.overwrite, radio=bool(args.radio))
-        finally:
-            stop()
-        radio = _radio_section(streamer, run, flight) if args.radio else None
-    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
-    summary["config"] = args.stages
-    summary["device"] = _hello_dict(hello)
-    if radio is not None:
-        summary["radio"] = radio
+    src = RunSource.from_mapping(vars(args))
+    results = checked_results_path(args.results, args.overwrite)
+    spec, want_hash = model_device_spec(args)
+    summary = run_one(spec, want_hash, src, Pacing(mode=args.pacing, window=args.window, speed=args.speed),
+                      args.timeout, results=results, overwrite=args.overwrite, progress=_progress_bar)
     return cli_verdict.finish(args, summary, [summary], criteria, lambda: print_run(summary))
-
-
-def _radio_section(streamer: Streamer, run: Any, flight: Flight) -> dict[str, Any]:
-    from harness.report.radio import query_clocks, radio_summary
-    return radio_summary(run, flight, query_clocks(streamer, flight))
-
-
-def _config_with(settings: Sequence[str]) -> EstimatorConfig:
-    """EstimatorConfig() with `--set FIELD=VALUE` overrides (numeric fields; mode, stages and the initial
-    position come from their own options and the flight)."""
-    fields = {k: v for k, v in vars(EstimatorConfig()).items()
-              if k not in ("mode", "stages", "init_x", "init_y", "init_z")}
-    overrides: dict[str, float] = {}
-    for item in settings:
-        name, sep, text = item.partition("=")
-        if not sep or name.strip() not in fields:
-            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(fields)}")
-        try:
-            overrides[name.strip()] = float(text)
-        except ValueError:
-            raise ValueError(f"--set {item!r}: {text!r} is not a number") from None
-    cfg = replace(EstimatorConfig(), **overrides)
-    cfg.validate()
-    return cfg
 
 
 def cmd_ports(args: argparse.Namespace) -> int:
@@ -287,36 +133,11 @@ def cmd_ports(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from harness.flight.scenarios import scenario_flight
     criteria = cli_verdict.criteria_from(args)
-    rows = []
-    spec = _device_spec(args)
-    with open_device(spec) as device:
-        hello = device.hello(timeout=args.timeout)
-        streamer = Streamer(device, timeout_s=args.timeout)
-        for mode in ("twr", "tdoa"):
-            flight = scenario_flight(args.scenario, mode=mode, duration_s=args.duration, seed=args.seed)
-            for preset in ("none", "outlier", "outlier+nn"):
-                cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
-                run = streamer.run(flight, cfg, Pacing(mode=args.pacing, window=args.window, speed=args.speed))
-                s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
-                s["mode"], s["config"] = mode, preset
-                rows.append(s)
-        # Radio level: the tag's engine turns anchor packets into the TDoA measurements (one per packet).
-        from harness.flight.radio import radio_level
-        base = scenario_flight(args.scenario, mode="tdoa", duration_s=args.duration, seed=args.seed)
-        for protocol in ("tdoa2", "tdoa3"):
-            flight = radio_level(base, protocol, seed=args.seed)
-            for preset in ("outlier", "outlier+nn"):
-                cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
-                run = streamer.run(flight, cfg, Pacing(mode=args.pacing, window=args.window, speed=args.speed),
-                                   radio=True)
-                s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
-                s["mode"], s["config"] = f"{protocol} radio", preset
-                s["radio"] = _radio_section(streamer, run, flight)
-                rows.append(s)
-    payload = {"device": _hello_dict(hello), "runs": rows}
-    return cli_verdict.finish(args, payload, rows, criteria, lambda: _print_demo_table(rows, _hello_dict(hello)))
+    device, rows = run_demo(device_spec(args), DemoFlights(args.scenario, args.duration, args.seed),
+                            Pacing(mode=args.pacing, window=args.window, speed=args.speed), args.timeout)
+    payload = {"device": device, "runs": rows}
+    return cli_verdict.finish(args, payload, rows, criteria, lambda: _print_demo_table(rows, device))
 
 
 def _print_demo_table(rows: list[dict[str, Any]], device: dict[str, Any]) -> None:
@@ -374,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="stream one flight through a device")
     _add_flight_options(run)
     _add_pacing_options(run)
-    _add_device_options(run)
+    add_device_options(run)
     run.add_argument("--stages", choices=tuple(PRESETS), default="outlier+nn",
                      help="none | outlier (kinematic + chi-square gates) | outlier+nn (plus bias network)")
     run.add_argument("--uwb-only", action="store_true", help="ignore the IMU (constant-velocity model)")
@@ -402,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="TWR and TDoA flights in three configurations, one table")
     _add_flight_options(demo, recorded=False)
     _add_pacing_options(demo)
-    _add_device_options(demo)
+    add_device_options(demo)
     demo.add_argument("--json", action="store_true", help="print every run's summary as JSON")
     cli_verdict.add_verdict_options(demo)
     demo.set_defaults(func=cmd_demo, duration=20.0)

@@ -1,6 +1,6 @@
 """Command-line side of verdicts and the planar mode (options, printing, exit codes) for `uwb-hil run`
-and `uwb-hil demo`. The logic lives in harness/report/verdict.py, harness/report/geometry.py and
-harness/flight/planar.py; this module only parses and prints.
+and `uwb-hil demo`. The logic lives in harness/report/verdict.py and harness/report/geometry.py (the planar
+mode's in harness/flight/planar.py, used by harness/run/source.py); this module only parses and prints.
 
 Exit codes (README "Verdicts and exit codes"): 0 pass, 1 verdict failed, 2 usage or input error,
 3 device or link failure.
@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any, Callable
 
 from harness.errors import DeviceError, LinkError
-from harness.flight.model import Flight
 from harness.report import jsonsafe
 from harness.report.verdict import Criteria, CriteriaError, Verdict, evaluate, evaluate_all
 
@@ -63,14 +62,6 @@ def criteria_from(args: argparse.Namespace) -> Criteria:
             if value is not None:
                 text = text.replace(f"{name} must", f"--{name.replace('_', '-')} must")
         raise CriteriaError(text) from None
-
-
-def apply_planar(args: argparse.Namespace, flight: Flight) -> Flight:
-    """The flight with HEIGHT pseudo-measurements when --height is given."""
-    if not getattr(args, "height", None):
-        return flight
-    from harness.flight.planar import parse_height, with_height
-    return with_height(flight, parse_height(str(args.height)), float(args.height_std))
 
 
 def finish(args: argparse.Namespace, payload: dict[str, Any], summaries: list[dict[str, Any]], criteria: Criteria,

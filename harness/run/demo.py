@@ -1,0 +1,59 @@
+"""`uwb-hil demo`: TWR and TDoA flights in three configurations, then TDoA at LPS radio level (TDoA2, TDoA3),
+all through one device."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from harness.config import PRESETS, EstimatorConfig
+from harness.device_args import hello_dict
+from harness.flight.model import Flight
+from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
+from harness.run.single import radio_section
+from harness.session import DeviceSpec, config_for, open_device
+from harness.stream.streamer import Pacing, Streamer
+
+#: (mode, configurations) of the measurement-level flights, and the configurations of the radio-level ones
+DEMO_MODES = (("twr", ("none", "outlier", "outlier+nn")), ("tdoa", ("none", "outlier", "outlier+nn")))
+RADIO_PROTOCOLS = ("tdoa2", "tdoa3")
+RADIO_PRESETS = ("outlier", "outlier+nn")
+
+
+@dataclass(frozen=True)
+class DemoFlights:
+    """The simulated flights of the demo (the same scenario and seed for every mode)."""
+    scenario: str = "circle"
+    duration_s: float = 20.0
+    seed: int = 1
+
+
+def run_demo(spec: DeviceSpec, flights: DemoFlights, pacing: Pacing,
+             timeout_s: float) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """Fly every demo row through one device. Returns the device identity and one summary per row (with
+    `mode` and `config`; radio rows also with their radio section)."""
+    from harness.flight.radio import radio_level
+    from harness.flight.scenarios import scenario_flight
+    rows = []
+    with open_device(spec) as device:
+        hello = device.hello(timeout=timeout_s)
+        streamer = Streamer(device, timeout_s=timeout_s)
+
+        def fly(flight: Flight, preset: str, mode: str, radio: bool = False) -> dict[str, Any]:
+            cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
+            run = streamer.run(flight, cfg, pacing, radio=radio)
+            s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+            s["mode"], s["config"] = mode, preset
+            if radio:
+                s["radio"] = radio_section(streamer, run, flight)
+            return s
+
+        for mode, presets in DEMO_MODES:
+            flight = scenario_flight(flights.scenario, mode=mode, duration_s=flights.duration_s, seed=flights.seed)
+            rows += [fly(flight, preset, mode) for preset in presets]
+        # Radio level: the tag's engine turns anchor packets into the TDoA measurements (one per packet).
+        base = scenario_flight(flights.scenario, mode="tdoa", duration_s=flights.duration_s, seed=flights.seed)
+        for protocol in RADIO_PROTOCOLS:
+            flight = radio_level(base, protocol, seed=flights.seed)
+            rows += [fly(flight, preset, f"{protocol} radio", radio=True) for preset in RADIO_PRESETS]
+    return hello_dict(hello), rows

@@ -1,0 +1,133 @@
+"""One run of `uwb-hil run`: a flight streamed through a device into a summary; or the resumption of an
+interrupted run from its results file (harness/stream/resume.py)."""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from harness.config import EstimatorConfig
+from harness.device_args import hello_dict
+from harness.errors import ResultsFileError
+from harness.flight.model import Flight
+from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
+from harness.run.source import RunSource, long_simulation, make_flight, make_run_flight, run_config
+from harness.session import DeviceSpec, check_network_inputs, open_device
+from harness.stream.streamer import Pacing, Streamer
+
+Progress = Callable[[int, int], None]
+#: label -> (update(done, total), stop()): how a caller shows a run's progress (a no-op by default)
+ProgressFactory = Callable[[str], tuple[Progress, Callable[[], None]]]
+
+
+def no_progress(label: str) -> tuple[Progress, Callable[[], None]]:
+    return (lambda done, total: None), (lambda: None)
+
+
+@contextmanager
+def _shown(progress: ProgressFactory, label: str) -> Iterator[Progress]:
+    update, stop = progress(label)
+    try:
+        yield update
+    finally:
+        stop()
+
+
+def checked_results_path(results: str | None, overwrite: bool) -> Path | None:
+    """The results file, refused before any device starts if it is a directory or an unfinished run."""
+    if not results:
+        return None
+    from harness.stream.results_file import check_not_in_use, describe_existing
+    path = Path(results)
+    if path.is_dir():
+        raise ResultsFileError(f"results file {path} is a directory: give a file name, e.g. {path / 'run.jsonl'}")
+    check_not_in_use(path)
+    why = describe_existing(path)
+    if why is not None and not overwrite:
+        raise ResultsFileError(f"results file {path} not overwritten: {why}, or pass --overwrite")
+    return path
+
+
+def radio_section(streamer: Streamer, run: Any, flight: Flight) -> dict[str, Any]:
+    """The summary's radio section of a radio-level run (asks the device for its clock estimates)."""
+    from harness.report.radio import query_clocks, radio_summary
+    return radio_summary(run, flight, query_clocks(streamer, flight))
+
+
+def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pacing, timeout_s: float,
+            results: Path | None = None, overwrite: bool = False,
+            progress: ProgressFactory = no_progress) -> dict[str, Any]:
+    """Stream the flight of `src` through the device and return the run's summary (without a verdict).
+    Long simulated flights are built and streamed in slices (not at radio level, nor with heights: those
+    need the whole flight)."""
+    plan = None if (src.radio or src.height) else long_simulation(src)
+    flight = make_run_flight(src) if plan is None else None
+    with open_device(spec, expected_model_hash=want_hash) as device:
+        hello = device.hello(timeout=timeout_s)
+        layouts = (hello.layout_twr, hello.layout_tdoa)
+
+        def checked_config(first: Flight) -> EstimatorConfig:
+            cfg = run_config(src, first)
+            if not src.force:
+                check_network_inputs(first, cfg, layouts)
+            return cfg
+
+        header = {"source": src.as_header(), "device": hello_dict(hello)}
+        streamer = Streamer(device, timeout_s=timeout_s)
+        with _shown(progress, f"{flight.name if flight is not None else plan.name} ({src.stages})") as update:
+            if plan is not None:
+                from harness.stream.chunked_run import stream_plan
+                chunked = stream_plan(streamer, plan, checked_config, pacing, results_path=results,
+                                      header_extra=header, progress=update, overwrite=overwrite)
+                run, flight = chunked.run, chunked.flight
+            else:
+                cfg = checked_config(flight)
+                if results is not None:
+                    from harness.stream.results_file import flight_digest
+                    header["flight_digest"] = flight_digest(flight)
+                run = streamer.run(flight, cfg, pacing, results_path=results, progress=update,
+                                   header_extra=header, overwrite=overwrite, radio=bool(src.radio))
+        radio = radio_section(streamer, run, flight) if src.radio else None
+    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+    summary["config"] = src.stages
+    summary["device"] = hello_dict(hello)
+    if radio is not None:
+        summary["radio"] = radio
+    return summary
+
+
+def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, int | None]], timeout_s: float,
+               progress: ProgressFactory = no_progress) -> dict[str, Any]:
+    """Continue the interrupted run recorded in `path`: the flight, configuration and pacing come from its
+    header; `device_spec` gives the device (and the model hash it must carry) for the recorded source.
+    Returns the summary over the whole flight, with `resume` = what the resume did."""
+    from harness.stream.resume import ResumeError, check_resumable, read_results, resume_run
+    from harness.stream.results_file import LockedResults
+    locked = LockedResults.existing(path)     # held until the resume is done
+    try:
+        rec = read_results(path)
+        header_src = rec.header.get("source")
+        if not isinstance(header_src, dict):
+            raise ResumeError(f"{rec.path}:1: header has no 'source' (not written by `uwb-hil run`): "
+                              "cannot rebuild the flight")
+        if header_src.get("radio"):
+            raise ResumeError(f"{rec.path}: a radio-level run cannot be resumed (the tag's TDoA engine state "
+                              "is not in the results file): run it again")
+        src = RunSource.from_mapping(header_src)
+        flight = make_flight(src)
+        cfg = run_config(src, flight)
+        spec, want_hash = device_spec(src)
+        with open_device(spec, expected_model_hash=want_hash) as device:
+            hello = device.hello(timeout=timeout_s)
+            check_resumable(rec, flight, cfg, hello_dict(hello))
+            with _shown(progress, f"{flight.name} (resume at {rec.next_index})") as update:
+                run, info = resume_run(device, rec, flight, locked, timeout_s=timeout_s, progress=update)
+    finally:
+        locked.close()
+    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+    summary["config"] = header_src.get("stages")
+    summary["device"] = hello_dict(hello)
+    summary["resume"] = info
+    return summary
+

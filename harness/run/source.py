@@ -1,0 +1,116 @@
+"""The flight and estimator configuration of one run: built from a RunSource, the options that decide them.
+
+The RunSource is also what a results file's header records (`source`), so that `run --resume` rebuilds the
+very same flight and configuration from the file alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from harness.config import PRESETS, EstimatorConfig
+from harness.errors import UsageError
+from harness.flight.model import Flight
+from harness.session import config_for
+
+
+@dataclass(frozen=True)
+class RunSource:
+    """A simulated or recorded flight, its radio level and planar mode, and the estimator options."""
+    scenario: str = "circle"
+    mode: str = "twr"
+    duration: float = 30.0
+    seed: int = 1
+    recording: str | None = None
+    anchors: str | None = None
+    constellation: int | None = None
+    force: bool = False
+    stages: str = "outlier+nn"
+    uwb_only: bool = False
+    model: str | None = None
+    set: Sequence[str] = field(default_factory=list)
+    radio: str | None = None
+    radio_loss: float = 0.0
+    height: str | None = None
+    height_std: float = 0.05
+
+    @classmethod
+    def keys(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> RunSource:
+        """From parsed options or a results header: the keys of a RunSource, others ignored; a key that is
+        missing or None takes the default (a header written before the key existed)."""
+        given = {k: values[k] for k in cls.keys() if values.get(k) is not None}
+        return cls(**given)
+
+    def as_header(self) -> dict[str, Any]:
+        """For the results header: file paths made absolute, so a resume works from any directory."""
+        src = asdict(self)
+        src["set"] = list(self.set)
+        for k in ("recording", "anchors", "model"):
+            if src[k]:
+                src[k] = str(Path(src[k]).resolve())
+        return src
+
+
+def make_flight(src: RunSource) -> Flight:
+    """The flight (measurement level), with HEIGHT pseudo-measurements when `height` is given."""
+    if src.recording:
+        from harness.flight.loaders import load_recording
+        flight = load_recording(Path(src.recording), anchors=Path(src.anchors) if src.anchors else None,
+                                constellation=src.constellation, check=not src.force)
+    else:
+        from harness.flight.scenarios import scenario_flight
+        flight = scenario_flight(src.scenario, mode=src.mode, duration_s=src.duration, seed=src.seed)
+    if not src.height:
+        return flight
+    from harness.flight.planar import parse_height, with_height
+    return with_height(flight, parse_height(str(src.height)), float(src.height_std))
+
+
+def make_run_flight(src: RunSource) -> Flight:
+    """make_flight, at LPS radio level when `radio` names a protocol."""
+    if src.radio and not src.recording and src.mode != "tdoa":
+        raise UsageError("--radio streams TDoA anchor packets: use it with --mode tdoa (or a TDoA recording)")
+    flight = make_flight(src)
+    if not src.radio:
+        return flight
+    from harness.flight.radio import radio_level
+    return radio_level(flight, src.radio, seed=src.seed, loss=src.radio_loss)
+
+
+def long_simulation(src: RunSource) -> Any:
+    """The SimPlan of a simulated flight long enough to be streamed in slices, else None."""
+    from harness.stream.chunked_run import STREAM_ABOVE_S
+    if src.recording or src.duration <= STREAM_ABOVE_S:
+        return None
+    from harness.flight.scenarios import plan_scenario
+    return plan_scenario(src.scenario, mode=src.mode, duration_s=src.duration, seed=src.seed)
+
+
+def run_config(src: RunSource, flight: Flight) -> EstimatorConfig:
+    """The estimator configuration of a run (a resume checks the recorded one against it: whatever changes
+    it must be a RunSource field)."""
+    return config_for(flight, config_with(src.set), stages=PRESETS[src.stages], uwb_only=src.uwb_only)
+
+
+def config_with(settings: Sequence[str]) -> EstimatorConfig:
+    """EstimatorConfig() with `FIELD=VALUE` overrides (numeric fields; mode, stages and the initial position
+    come from their own options and the flight)."""
+    allowed = [k for k in vars(EstimatorConfig()) if k not in ("mode", "stages", "init_x", "init_y", "init_z")]
+    overrides: dict[str, float] = {}
+    for item in settings:
+        name, sep, text = item.partition("=")
+        if not sep or name.strip() not in allowed:
+            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(allowed)}")
+        try:
+            overrides[name.strip()] = float(text)
+        except ValueError:
+            raise ValueError(f"--set {item!r}: {text!r} is not a number") from None
+    cfg = replace(EstimatorConfig(), **overrides)
+    cfg.validate()
+    return cfg
