@@ -8,22 +8,17 @@ from pathlib import Path
 from typing import Any, Callable
 
 from harness.biasnet.ceiling import HALF_WINDOW_S
-from harness.biasnet.dataset import XI_DEFAULT, build_samples
+from harness.biasnet.dataset import XI_DEFAULT
 from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
 from harness.biasnet.model import BiasModel
-from harness.biasnet.recipes import SimRecipe, load_recordings
-from harness.biasnet.train import TrainConfig, TrainReport
-from harness.biasnet.uncertainty import StdHeadConfig, with_std_head
-from harness.biasnet.workflow import compare, train_kind
-from harness.flight.model import KIND_TWR, Flight
-from harness.session import shared_data_dir
+from harness.biasnet.recipes import SimRecipe
+from harness.biasnet.train import TrainConfig
+from harness.biasnet.uncertainty import StdHeadConfig
+from harness.biasnet.workflow import EvalOptions, evaluate_model, fit_std_head, flights_for, train_into_model
 from harness.optional import require_torch
 from harness.paths import SHARED_DATA
 from harness.report import jsonsafe
-from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
-
-LAYOUTS = {("twr", "pose"): LAYOUT_TWR_POSE, ("twr", "pos"): LAYOUT_TWR_POS,
-           ("tdoa", "pose"): LAYOUT_TDOA_POSE, ("tdoa", "pos"): LAYOUT_TDOA_POS}
+from harness.session import shared_data_dir
 
 
 # ---------------------------------------------------------------------------------------------- progress
@@ -34,12 +29,6 @@ def _flights_progress(label: str) -> Callable[[int, int], None]:
 
 
 # ------------------------------------------------------------------------------------------------- train
-def _report_dict(report: TrainReport) -> dict[str, Any]:
-    return {"epochs": report.epochs, "best_epoch": report.best_epoch, "n_train": report.n_train,
-            "n_val": report.n_val, "seconds": round(report.seconds, 2), "stopped_by": report.stopped_by,
-            "val_rmse_before_m": report.val_rmse_before_m, "val_rmse_after_m": report.val_rmse_after_m}
-
-
 def _train_config(args: argparse.Namespace) -> TrainConfig:
     lr = args.lr if args.lr is not None else (3e-3 if args.optimizer == "adam" else 0.05)
     return TrainConfig(optimizer=args.optimizer, lr=lr, batch_size=args.batch_size, max_epochs=args.epochs,
@@ -47,36 +36,23 @@ def _train_config(args: argparse.Namespace) -> TrainConfig:
                        time_budget_s=args.time_budget)
 
 
-def _training_flights(args: argparse.Namespace) -> tuple[list[Flight], str, list[str]]:
-    if args.recording:
-        flights = load_recordings([Path(p) for p in args.recording], Path(args.anchors) if args.anchors else None,
-                                  check=not args.force)
-        kinds = {f.uwb.kind for f in flights}
-        if len(kinds) != 1:
-            raise ValueError("all training recordings must have the same measurement kind")
-        return flights, "twr" if kinds.pop() == KIND_TWR else "tdoa", [str(p) for p in args.recording]
-    recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
-                       profile=args.profile)
-    flights = recipe.build(_flights_progress(f"simulating {args.mode}"))
-    return flights, args.mode, [f"sim:{args.mode}:{args.profile}:seeds {recipe.seed0}-{recipe.seed0 + recipe.flights - 1}"]
+def _paths(items: list[str] | None) -> list[Path] | None:
+    return [Path(p) for p in items] if items else None
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     require_torch("uwb-hil train")       # before loading any data: say at once what is missing
-    flights, kind, sources = _training_flights(args)
-    layout = LAYOUTS[(kind, args.layout)] if args.layout else None
-    net, report, samples = train_kind(flights, layout, _train_config(args), kind, xi=args.xi)
+    recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
+                       profile=args.profile)
+    flights, kind, sources = flights_for(_paths(args.recording), Path(args.anchors) if args.anchors else None,
+                                         not args.force, recipe, _flights_progress(f"simulating {args.mode}"))
     base = BiasModel.load(Path(args.into)) if args.into else BiasModel(name=args.name or Path(args.out).stem)
-    meta = dict(base.meta)
-    meta[f"{kind}_trained_on"] = sources
-    meta[f"{kind}_training"] = _report_dict(report) | {"layout": samples.layout, "optimizer": args.optimizer,
-                                                        "seed": args.seed, "xi": args.xi}
-    model = BiasModel(twr=net if kind == "twr" else base.twr, tdoa=net if kind == "tdoa" else base.tdoa,
-                      name=args.name or base.name, meta=meta)
+    model, report, samples = train_into_model(flights, kind, sources, args.layout, _train_config(args), args.xi,
+                                              base, args.name)
     model.save(Path(args.out))
     if args.header:
         export_c(model, Path(args.header))
-    out = {"model": str(args.out), "hash": model.hash_hex, "kind": kind, **meta[f"{kind}_training"]}
+    out = {"model": str(args.out), "hash": model.hash_hex, "kind": kind, **model.meta[f"{kind}_training"]}
     if args.json:
         print(jsonsafe.dumps(out))
     else:
@@ -126,87 +102,29 @@ def _print_compare(res: dict[str, Any]) -> None:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    if not args.window > 0.0:
-        raise ValueError(f"--window must be a positive half width in seconds, got {args.window}")
-    model = BiasModel.load(Path(args.model))
-    anchors = Path(args.anchors) if args.anchors else None
-    test = load_recordings([Path(p) for p in args.recording], anchors, check=not args.force)
-    kinds = {f.uwb.kind for f in test}
-    if len(kinds) != 1:
-        raise ValueError("all evaluated recordings must have the same measurement kind")
-    kind = "twr" if kinds.pop() == KIND_TWR else "tdoa"
-    _check_attitude(model, kind, test, args.model)
-    train_paths = args.train
-    if train_paths is None:  # the recordings the model was trained on, when they are recordings
-        train_paths = [p for p in model.meta.get(f"{kind}_trained_on", []) if not str(p).startswith("sim:")]
-        train_paths = _resolve_training_paths(train_paths, Path(args.data_dir))
-    train = load_recordings([Path(p) for p in train_paths], anchors, check=not args.force) if train_paths else []
-    res = compare(model, test, train, args.xi, args.window)
-    if args.plot:
-        from harness.biasnet.plots import bias_vs_azimuth
-        trained_on = {Path(p).resolve() for p in train_paths}
-        seen = Path(args.recording[0]).resolve() in trained_on
-        bias_vs_azimuth(model, test[0], Path(args.plot), note="in the training set" if seen else "held out")
-        res["plot"] = args.plot
+    opts = EvalOptions(anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
+                       train=None if args.train is None else [Path(p) for p in args.train],
+                       data_dir=Path(args.data_dir), xi=args.xi, half_window_s=args.window,
+                       plot=Path(args.plot) if args.plot else None)
+    res = evaluate_model(BiasModel.load(Path(args.model)), args.model, [Path(p) for p in args.recording], opts)
     if args.json:
         print(jsonsafe.dumps(res))
     else:
         _print_compare(res)
-        if not train:
+        if "baseline_train" not in res:
             print("(no baseline: the model names no training recordings; pass --train)")
     return 0
-
-
-def _resolve_training_paths(paths: list[str], data_dir: Path) -> list[Path]:
-    """A model names its training recordings relative to the data folder (so it names no machine's paths):
-    resolve them against `data_dir`; a path that exists as given is taken as is."""
-    out: list[Path] = []
-    missing: list[str] = []
-    for p in paths:
-        q = Path(p)
-        if not q.exists() and not q.is_absolute():
-            q = data_dir / q
-        (out.append(q) if q.exists() else missing.append(str(p)))
-    if missing:
-        raise FileNotFoundError(f"baseline training recordings not found: {missing} (looked in {data_dir}, the "
-                                "model names them relative to the data folder): pass --data-dir DIR, or --train "
-                                "FILE ... to fit the baselines on other recordings, or --train alone for none")
-    return out
-
-
-def _check_attitude(model: BiasModel, kind: str, test: list[Flight], model_path: str) -> None:
-    """A pose-layout network needs the attitude truth of every evaluated recording."""
-    from harness.errors import InputError
-    from harness.session import position_only_hint
-    net = model.network(kind)
-    if net is None or net.layout not in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE):
-        return
-    lacking = [f.name for f in test if f.truth.quat is None]
-    if lacking:
-        raise InputError(f"{model_path}: its {kind.upper()} network takes roll, pitch and yaw (pose layout "
-                         f"{net.layout}), but {', '.join(lacking)} has no attitude truth: evaluate a position-only "
-                         f"network instead: {position_only_hint(test[0].uwb.kind)}")
 
 
 # ------------------------------------------------------------------------------------------------ std head
 def cmd_fit_std(args: argparse.Namespace) -> int:
     """Fit (or refit) the std head of one network of a model on flights its body never saw."""
     model = BiasModel.load(Path(args.model))
-    if args.recording:
-        flights = load_recordings([Path(p) for p in args.recording], Path(args.anchors) if args.anchors else None)
-        kinds = {f.uwb.kind for f in flights}
-        if len(kinds) != 1:
-            raise ValueError("all recordings must have the same measurement kind")
-        kind = "twr" if kinds.pop() == KIND_TWR else "tdoa"
-    else:
-        kind = args.mode
-        flights = SimRecipe(mode=kind, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
-                            spins=1).build(_flights_progress(f"simulating {kind}"))
-    net = model.network(kind)
-    if net is None:
-        raise ValueError(f"{args.model} has no {kind} network")
-    out = with_std_head(model, kind, build_samples(flights, net.layout, args.xi),
-                        StdHeadConfig(std_min=args.std_min, std_max=args.std_max))
+    recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0, spins=1)
+    flights, kind, _ = flights_for(_paths(args.recording), Path(args.anchors) if args.anchors else None, True,
+                                   recipe, _flights_progress(f"simulating {args.mode}"))
+    out = fit_std_head(model, args.model, flights, kind, StdHeadConfig(std_min=args.std_min, std_max=args.std_max),
+                       args.xi)
     out.save(Path(args.out))
     cal = out.meta[f"{kind}_std_head"]["calibration"]  # type: ignore[index]
     print(f"{kind} std head on {cal['n']} samples of {len(flights)} flights: predicted std RMS {cal['std_rms']:.4f} m, "

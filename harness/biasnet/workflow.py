@@ -1,10 +1,13 @@
-"""The steps of training and judging a bias network that both the `train`/`eval-bias` commands
-(harness/biasnet/cli.py) and the shipped-models recipe (harness/biasnet/shipped.py) run: train one network
-with a progress display, compare a network with the baselines on held-out flights."""
+"""The steps of training and judging a bias network that both the `train`/`eval-bias`/`fit-std` commands
+(harness/biasnet/cli.py, which only parses and prints) and the shipped-models recipe
+(harness/biasnet/shipped.py) run: train one network with a progress display, compare a network with the
+baselines on held-out flights, fit a std head."""
 
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 from harness.biasnet.baselines import PairConstant, VoxelTable
@@ -13,8 +16,13 @@ from harness.biasnet.dataset import XI_DEFAULT, Samples, build_samples
 from harness.biasnet.evaluate import Evaluation, evaluate
 from harness.biasnet.model import BiasModel
 from harness.biasnet.train import TrainConfig, TrainReport, train_network
-from harness.biasnet.uncertainty import calibration
+from harness.biasnet.recipes import SimRecipe, load_recordings
+from harness.biasnet.uncertainty import StdHeadConfig, calibration, with_std_head
+from harness.errors import InputError
 from harness.flight.model import KIND_TWR, Flight
+from harness.paths import SHARED_DATA
+from harness.session import position_only_hint
+from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
 
 def epoch_progress(label: str) -> tuple[Callable[[int, float, float], None], Callable[[], None]]:
@@ -73,3 +81,121 @@ def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float
                mae_raw=net_eval.mae_raw, mae_corrected=net_eval.mae_corrected, reduction=net_eval.reduction,
                floor=net_eval.rmse_floor, share_of_ceiling=net_eval.share_of_ceiling)
     return out
+
+
+# ------------------------------------------------------------------ what `train`, `eval-bias`, `fit-std` do
+#: --layout choice -> feature layout, per measurement kind
+LAYOUTS = {("twr", "pose"): LAYOUT_TWR_POSE, ("twr", "pos"): LAYOUT_TWR_POS,
+           ("tdoa", "pose"): LAYOUT_TDOA_POSE, ("tdoa", "pos"): LAYOUT_TDOA_POS}
+
+
+def kind_of(flights: list[Flight], what: str) -> str:
+    """"twr" or "tdoa": the one measurement kind of `flights` (ValueError naming `what` if they mix)."""
+    kinds = {f.uwb.kind for f in flights}
+    if len(kinds) != 1:
+        raise ValueError(f"all {what} must have the same measurement kind")
+    return "twr" if kinds.pop() == KIND_TWR else "tdoa"
+
+
+def flights_for(recordings: list[Path] | None, anchors: Path | None, check: bool, recipe: SimRecipe,
+                progress: Callable[[int, int], None] | None = None) -> tuple[list[Flight], str, list[str]]:
+    """The recordings (all of one kind), else the recipe's simulated flights; with their kind and the
+    sources a model's metadata names them by."""
+    if recordings:
+        flights = load_recordings(recordings, anchors, check=check)
+        return flights, kind_of(flights, "training recordings"), [str(p) for p in recordings]
+    flights = recipe.build(progress)
+    return flights, recipe.mode, [f"sim:{recipe.mode}:{recipe.profile}:seeds {recipe.seed0}-"
+                                  f"{recipe.seed0 + recipe.flights - 1}"]
+
+
+def report_dict(report: TrainReport) -> dict[str, Any]:
+    return {"epochs": report.epochs, "best_epoch": report.best_epoch, "n_train": report.n_train,
+            "n_val": report.n_val, "seconds": round(report.seconds, 2), "stopped_by": report.stopped_by,
+            "val_rmse_before_m": report.val_rmse_before_m, "val_rmse_after_m": report.val_rmse_after_m}
+
+
+def train_into_model(flights: list[Flight], kind: str, sources: list[str], layout: str | None, cfg: TrainConfig,
+                     xi: float, base: BiasModel, name: str | None) -> tuple[BiasModel, TrainReport, Samples]:
+    """Train the `kind` network on `flights` and return `base` with it (the other kind's network kept),
+    its metadata naming the training sources and figures."""
+    net, report, samples = train_kind(flights, LAYOUTS[(kind, layout)] if layout else None, cfg, kind, xi=xi)
+    meta = dict(base.meta)
+    meta[f"{kind}_trained_on"] = sources
+    meta[f"{kind}_training"] = report_dict(report) | {"layout": samples.layout, "optimizer": cfg.optimizer,
+                                                       "seed": cfg.seed, "xi": xi}
+    model = BiasModel(twr=net if kind == "twr" else base.twr, tdoa=net if kind == "tdoa" else base.tdoa,
+                      name=name or base.name, meta=meta)
+    return model, report, samples
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """What `eval-bias` compares on: `train` None = the recordings the model names (under `data_dir`)."""
+    anchors: Path | None = None
+    check: bool = True
+    train: list[Path] | None = None
+    data_dir: Path = SHARED_DATA
+    xi: float = XI_DEFAULT
+    half_window_s: float = HALF_WINDOW_S
+    plot: Path | None = None
+
+
+def evaluate_model(model: BiasModel, model_name: str, recordings: list[Path], opts: EvalOptions) -> dict[str, Any]:
+    """compare() on the held-out recordings, with the baselines fitted on the training recordings; the
+    figure of bias vs azimuth when `opts.plot` is given."""
+    if not opts.half_window_s > 0.0:
+        raise ValueError(f"--window must be a positive half width in seconds, got {opts.half_window_s}")
+    test = load_recordings(recordings, opts.anchors, check=opts.check)
+    kind = kind_of(test, "evaluated recordings")
+    check_attitude(model, kind, test, model_name)
+    train_paths = opts.train
+    if train_paths is None:  # the recordings the model was trained on, when they are recordings
+        named = [p for p in model.meta.get(f"{kind}_trained_on", []) if not str(p).startswith("sim:")]
+        train_paths = resolve_training_paths(named, opts.data_dir)
+    train = load_recordings(train_paths, opts.anchors, check=opts.check) if train_paths else []
+    res = compare(model, test, train, opts.xi, opts.half_window_s)
+    if opts.plot:
+        from harness.biasnet.plots import bias_vs_azimuth
+        seen = recordings[0].resolve() in {p.resolve() for p in train_paths}
+        bias_vs_azimuth(model, test[0], opts.plot, note="in the training set" if seen else "held out")
+        res["plot"] = str(opts.plot)
+    return res
+
+
+def resolve_training_paths(paths: list[str], data_dir: Path) -> list[Path]:
+    """A model names its training recordings relative to the data folder (so it names no machine's paths):
+    resolve them against `data_dir`; a path that exists as given is taken as is."""
+    out: list[Path] = []
+    missing: list[str] = []
+    for p in paths:
+        q = Path(p)
+        if not q.exists() and not q.is_absolute():
+            q = data_dir / q
+        (out.append(q) if q.exists() else missing.append(str(p)))
+    if missing:
+        raise FileNotFoundError(f"baseline training recordings not found: {missing} (looked in {data_dir}, the "
+                                "model names them relative to the data folder): pass --data-dir DIR, or --train "
+                                "FILE ... to fit the baselines on other recordings, or --train alone for none")
+    return out
+
+
+def check_attitude(model: BiasModel, kind: str, test: list[Flight], model_name: str) -> None:
+    """A pose-layout network needs the attitude truth of every evaluated recording."""
+    net = model.network(kind)
+    if net is None or net.layout not in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE):
+        return
+    lacking = [f.name for f in test if f.truth.quat is None]
+    if lacking:
+        raise InputError(f"{model_name}: its {kind.upper()} network takes roll, pitch and yaw (pose layout "
+                         f"{net.layout}), but {', '.join(lacking)} has no attitude truth: evaluate a position-only "
+                         f"network instead: {position_only_hint(test[0].uwb.kind)}")
+
+
+def fit_std_head(model: BiasModel, model_name: str, flights: list[Flight], kind: str, cfg: StdHeadConfig,
+                 xi: float = XI_DEFAULT) -> BiasModel:
+    """The model with a (re)fitted std head on its `kind` network, fitted on `flights`."""
+    net = model.network(kind)
+    if net is None:
+        raise ValueError(f"{model_name} has no {kind} network")
+    return with_std_head(model, kind, build_samples(flights, net.layout, xi), cfg)

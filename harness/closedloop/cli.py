@@ -12,13 +12,15 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from harness.closedloop.campaign import CampaignSpec, run_campaign
+from harness.closedloop.fly import FlySpec, fly_on_device
 from harness.closedloop.cosim import PACINGS, LoopConfig
 from harness.closedloop.mission import MISSIONS
 from harness.closedloop.sensors import NOISE_KINDS
 from harness.config import PAPER_PRESETS, PRESETS
-from harness.device_args import add_device_options, hello_dict, model_device_spec
+from harness.device_args import add_device_options, model_device_spec
 from harness.flight.errors_model import PROFILES
+from harness.report import jsonsafe
+from harness.report.verdict import Criteria, fly_verdict
 
 
 # ------------------------------------------------------------------------------------------ output
@@ -110,23 +112,17 @@ def add_fly_parser(sub: Any) -> None:
 
 
 def cmd_fly(args: argparse.Namespace) -> int:
-    from harness.session import open_device
     if args.seeds < 1:
         raise ValueError("--seeds must be >= 1")
     loop = LoopConfig(pacing=args.pacing, speed=args.speed, timeout_s=args.timeout, imu_every=args.imu_every)
-    spec = CampaignSpec(modes=args.mode, missions=args.mission, configs=args.config,
-                        seeds=tuple(range(args.seed0, args.seed0 + args.seeds)), laps=args.laps,
-                        hover_s=args.hover_s, radius=args.radius, height=args.height, profile=args.profile,
-                        noise=args.noise, mass=args.mass, loop=loop)
+    spec = FlySpec(modes=args.mode, missions=args.mission, configs=args.config,
+                   seeds=tuple(range(args.seed0, args.seed0 + args.seeds)), laps=args.laps,
+                   hover_s=args.hover_s, radius=args.radius, height=args.height, profile=args.profile,
+                   noise=args.noise, mass=args.mass, loop=loop)
     progress = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     device_spec, want_hash = model_device_spec(args)
-    with open_device(device_spec, expected_model_hash=want_hash) as device:
-        hello = hello_dict(device.last_hello or device.hello(timeout=args.timeout))
-        result = run_campaign(device, spec, progress)
-    result["device"] = hello
+    result = fly_on_device(device_spec, want_hash, spec, progress)
     result["command"] = "uwb-hil " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("uwb-hil") else None
-    from harness.report import jsonsafe
-    from harness.report.verdict import Criteria, fly_verdict
     verdict = fly_verdict(result, Criteria(max_rmse=args.max_rmse))
     result["verdict"] = verdict.as_dict()
     if args.out:
@@ -136,7 +132,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     elif args.markdown:
         print(markdown_table(result))
     else:
-        print_table(result, hello)
+        print_table(result, result["device"])
         print(f"verdict: {'PASS' if verdict.passed else 'FAIL'} ({len(verdict.checks)} checks)")
     if not verdict.passed:
         print(f"uwb-hil: verdict failed: {verdict.reason()}", file=sys.stderr)

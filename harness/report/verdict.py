@@ -198,7 +198,7 @@ def assert_verdict(summary: Mapping[str, Any], criteria: Criteria | None = None,
 
 
 def fly_verdict(result: Mapping[str, Any], criteria: Criteria = Criteria()) -> Verdict:
-    """The verdict of `uwb-hil fly` (harness.closedloop.campaign.run_campaign): per cell, every flight
+    """The verdict of `uwb-hil fly` (harness.closedloop.fly.fly_cells): per cell, every flight
     took off and completed its mission; with max_rmse, the worst seed's tracking RMSE |p_true - p_cmd|."""
     checks: list[Check] = []
     for c in result.get("cells", []):

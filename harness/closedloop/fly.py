@@ -1,5 +1,6 @@
-"""Closed-loop campaigns (modes x missions x configurations x seeds) through one device; the `uwb-hil fly`
-command (harness/closedloop/cli.py) parses its options and prints the result."""
+"""What `uwb-hil fly` does: closed-loop flights (modes x missions x configurations x seeds) through one
+device; the command (harness/closedloop/cli.py) parses its options and prints the result. (Not to be
+confused with harness/campaign/, the open-loop experiments of `uwb-hil campaign`.)"""
 
 from __future__ import annotations
 
@@ -14,10 +15,11 @@ from harness.closedloop.vehicle import VehicleParams
 from harness.config import MODE_IMU, PRESETS, EstimatorConfig
 from harness.flight.arena import NLOS_BOXES, Arena
 from harness.flight.errors_model import sim_config
+from harness.session import DeviceSpec, open_device
 
 
 @dataclass(frozen=True)
-class CampaignSpec:
+class FlySpec:
     modes: tuple[str, ...] = ("twr", "tdoa")
     missions: tuple[str, ...] = ("circle", "circle-z")
     configs: tuple[str, ...] = ("none", "outlier", "outlier+nn")
@@ -36,7 +38,7 @@ class CampaignSpec:
 Progress = Callable[[str], None]
 
 
-def run_campaign(device: Any, spec: CampaignSpec, progress: Progress | None = None,
+def fly_cells(device: Any, spec: FlySpec, progress: Progress | None = None,
                  keep_logs: bool = False) -> dict[str, Any]:
     """Fly every cell; returns {"cells": [...]} with aggregates and per-flight metrics."""
     sim = sim_config(spec.profile)
@@ -72,11 +74,23 @@ def run_campaign(device: Any, spec: CampaignSpec, progress: Progress | None = No
         name: plan(_mission(spec, name), arena).duration for name in spec.missions}}
 
 
-def _mission(spec: CampaignSpec, name: str) -> Mission:
+def fly_on_device(device_spec: DeviceSpec, want_hash: int | None, spec: FlySpec,
+                  progress: Progress | None = None) -> dict[str, Any]:
+    """fly_cells on the device `device_spec` describes (which must carry the model `want_hash` when given);
+    the result's `device` is its identity."""
+    from harness.device_args import hello_dict
+    with open_device(device_spec, expected_model_hash=want_hash) as device:
+        hello = hello_dict(device.last_hello or device.hello(timeout=spec.loop.timeout_s))
+        result = fly_cells(device, spec, progress)
+    result["device"] = hello
+    return result
+
+
+def _mission(spec: FlySpec, name: str) -> Mission:
     return Mission(name=name, laps=spec.laps, hover_s=spec.hover_s, radius=spec.radius, height=spec.height)
 
 
-def _spec_dict(spec: CampaignSpec) -> dict[str, Any]:
+def _spec_dict(spec: FlySpec) -> dict[str, Any]:
     from dataclasses import asdict
     d = asdict(spec)
     d["seeds"] = list(spec.seeds)
