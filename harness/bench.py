@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.flight.model import KIND_TWR
+from harness.flight.data import KIND_TWR
 from harness.report.metrics import latency_summary
 from harness.session import DEFAULT_FIRMWARE, DeviceSpec, config_for, open_device
 from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
@@ -50,7 +50,7 @@ def _twin_cost_us(flight: Any, cfg: EstimatorConfig, model: Any) -> np.ndarray:
 
 
 def bench_compute(device: Any, duration_s: float, seed: int) -> list[dict[str, Any]]:
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
     from harness.flight.scenarios import scenario_flight
     from harness.paths import MODELS_DIR
     model = BiasModel.load(MODELS_DIR / "bias_model_default.npz")

@@ -96,7 +96,7 @@ def flight_for(mode: str, duration_s: float, seed: int, uwb_hz: float = 100.0, i
         from harness.flight.scenarios import scenario_flight
     except ImportError:
         return synthetic_flight(mode, duration_s, seed, uwb_hz, imu_hz)
-    from harness.flight.model import ImuStream
+    from harness.flight.data import ImuStream
     flight = scenario_flight("circle", mode=mode, duration_s=duration_s, seed=seed, noise="gaussian",
                              noise_std=0.1, rate_hz=uwb_hz)
     imu = flight.imu
@@ -111,7 +111,7 @@ def flight_for(mode: str, duration_s: float, seed: int, uwb_hz: float = 100.0, i
 def synthetic_flight(mode: str, duration_s: float, seed: int, uwb_hz: float = 100.0, imu_hz: float = 500.0) -> Any:
     """Level circle (r 1.5 m, 1.5 m up, 0.5 rad/s) in a 4 x 4 x 3 m room with 8 anchors; true IMU;
     Gaussian UWB noise (0.1 m) plus 5 % outliers (+0.8 m) so that the gates have work to do."""
-    from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
+    from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
     rng = np.random.default_rng(seed)
     corners = np.array([[x, y, z] for z in (0.2, 2.8) for x, y in ((-2, -2), (2, -2), (2, 2), (-2, 2))], float)
     anchors = Anchors(ids=np.arange(8), positions=corners)

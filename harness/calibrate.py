@@ -28,8 +28,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from harness.flight.arena import Arena, with_facing_orientations
-from harness.flight.errors_model import SimConfig, azimuth_elevation, link_directions, sim_config, uwb_errors
-from harness.flight.model import KIND_TWR, Anchors, FlightError
+from harness.flight.measurement_errors import SimConfig, azimuth_elevation, link_directions, sim_config, uwb_errors
+from harness.flight.data import KIND_TWR, Anchors, FlightError
 from harness.report import jsonsafe
 from harness.session import shared_data_dir
 

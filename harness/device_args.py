@@ -69,7 +69,7 @@ def model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None]
     spec = device_spec(args)
     if not getattr(args, "model", None):
         return spec, None
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
     model = BiasModel.load(Path(args.model))
     if spec.resolved_target() == "emulator" and spec.firmware_path() == DEFAULT_FIRMWARE:
         from harness.biasnet.cbuild import firmware_for

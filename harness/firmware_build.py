@@ -18,7 +18,7 @@ from harness.errors import UwbHilError
 from harness.paths import FIRMWARE_BUILD_DIR, FIRMWARE_DIR
 
 if TYPE_CHECKING:
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
 
 STM32_DIR = FIRMWARE_DIR / "stm32"
 BUILD_TARGETS = ("host", "stm32")

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.flight.radio import radio_level
 from harness.flight.scenarios import scenario_flight
 from harness.report.metrics import accuracy_summary

@@ -9,7 +9,7 @@ from typing import Iterator
 from contextlib import contextmanager
 
 from harness.config import MODE_IMU, MODE_UWB_ONLY, EstimatorConfig
-from harness.flight.model import KIND_TDOA, KIND_TWR, Flight
+from harness.flight.data import KIND_TDOA, KIND_TWR, Flight
 
 from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, REPO_ROOT, SHARED_DATA  # noqa: F401 (re-exported)
 

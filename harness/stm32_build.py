@@ -28,7 +28,7 @@ from harness.firmware_build import BuildError, build_firmware
 from harness.paths import FIRMWARE_DIR, REPO_ROOT
 
 if TYPE_CHECKING:
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
 
 FW_DIR = FIRMWARE_DIR
 STM32_DIR = FW_DIR / "stm32"
@@ -89,7 +89,7 @@ class ProbeSpec:
 def probe_model(spec: ProbeSpec = ProbeSpec()) -> BiasModel:
     """Random TWR (6-in) and TDoA (9-in) networks, rescaled so the bias over the input box is centred on
     0 m with ~target_std_m spread: well inside the clamp, so the output clamp never hides the network."""
-    from harness.biasnet.model import BiasModel, init_network  # noqa: F811 - runtime import
+    from harness.biasnet.network import BiasModel, init_network  # noqa: F811 - runtime import
     from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
 
     rng = np.random.default_rng(spec.seed)

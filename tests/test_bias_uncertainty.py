@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from harness.biasnet.dataset import Samples
-from harness.biasnet.model import BiasModel, ModelFormatError, init_network
+from harness.biasnet.network import BiasModel, ModelFormatError, init_network
 from harness.biasnet.uncertainty import StdHeadConfig, calibration, fit_std_head
 from harness.twin.features import LAYOUT_TWR_POS
 

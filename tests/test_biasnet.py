@@ -15,10 +15,10 @@ from harness.biasnet.cbuild import build_nn_eval, firmware_for
 from harness.biasnet.dataset import Samples, build_samples, flight_samples, split_by_flight
 from harness.biasnet.evaluate import evaluate
 from harness.biasnet.export import DEFAULT_NPZ, export_c, header_text
-from harness.biasnet.model import BiasModel, BiasNetwork, ModelFormatError, init_network
+from harness.biasnet.network import BiasModel, BiasNetwork, ModelFormatError, init_network
 from harness.biasnet.train import TrainConfig, to_torch, train_network
 from harness.errors import ModelMismatch
-from harness.flight.model import KIND_TDOA, Anchors, Flight, Truth, UwbStream
+from harness.flight.data import KIND_TDOA, Anchors, Flight, Truth, UwbStream
 from harness.session import shared_data_dir
 from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 

@@ -155,7 +155,7 @@ def test_models_json_entries_are_kept_only_with_their_network(tmp_path: Path) ->
     """The report once showed held-out figures of a models.json whose model file was absent: the snapshot
     keeps an entry only when the network it describes (same hash) is copied into the directory."""
     from harness.biasnet.export import DEFAULT_NPZ
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
     from harness.campaign.models import snapshot_models
     from harness.campaign.store import CampaignDir
     repo = tmp_path / "repo"

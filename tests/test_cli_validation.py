@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from harness import cli
-from harness.biasnet.model import BiasModel, init_network
+from harness.biasnet.network import BiasModel, init_network
 from harness.session import DEFAULT_FIRMWARE
 from harness.twin.features import LAYOUT_TDOA_POS
 

@@ -23,8 +23,8 @@ from harness.closedloop.vehicle import GRAVITY, Vehicle, VehicleParams
 from harness.config import PRESETS, EstimatorConfig
 from harness.errors import DeviceDied
 from harness.flight.arena import NLOS_BOXES, Arena
-from harness.flight.errors_model import hardware_params, range_bias, sim_config, uwb_errors
-from harness.flight.model import KIND_TDOA
+from harness.flight.measurement_errors import hardware_params, range_bias, sim_config, uwb_errors
+from harness.flight.data import KIND_TDOA
 
 ARENA = Arena()
 
@@ -94,7 +94,7 @@ def test_vehicle_params_are_checked() -> None:
 
 # ------------------------------------------------------------------------------------------ sensors
 def test_link_bias_equals_the_simulator_error_model() -> None:
-    """The scalar per-step bias is errors_model's: TWR links and TDoA pairs, random poses."""
+    """The scalar per-step bias is measurement_errors's: TWR links and TDoA pairs, random poses."""
     cfg = sim_config("los")
     links = LinkModel(cfg, ARENA)
     hw = hardware_params(cfg.antenna, ARENA.anchors.ids)
@@ -116,7 +116,7 @@ def test_link_bias_equals_the_simulator_error_model() -> None:
         assert ba == pytest.approx(ref_twr[i], abs=1e-9)
         tdoa = bb - ba + links.pair[(int(a_ids[i]), int(b_ids[i]))] + cfg.antenna.pair_att_k * (utb - uta)
         assert tdoa == pytest.approx(ref_tdoa[i], abs=1e-9)
-    # multipath probability near the floor, as errors_model: p_base + p_ground exp(-z / h)
+    # multipath probability near the floor, as measurement_errors: p_base + p_ground exp(-z / h)
     nl = cfg.nlos
     assert links.multipath_probability((0.0, 0.0, 0.0)) == pytest.approx(nl.p_base + nl.p_ground)
     assert links.multipath_probability((0.0, 0.0, 1.0)) == pytest.approx(

@@ -17,7 +17,7 @@ import pytest
 
 from harness.config import (MODE_IMU, MODE_UWB_ONLY, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, STAGES_OUTLIER,
                             EstimatorConfig)
-from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStream, ImuStream, Truth, UwbStream
+from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStream, ImuStream, Truth, UwbStream
 from harness.twin.estimator import (ACCEPTED, FLAG_DIVERGED, FLAG_HEIGHT_FUSED, FLAG_OUT_OF_BOX, FLAG_SPEED,
                                     REJECTED_CHI2, REJECTED_KINEMATIC, TwinResult, run_flight)
 
@@ -266,7 +266,7 @@ def test_height_pseudo_measurements_match_twin(replay_core: Path) -> None:
 # ----------------------------------------------------------- with a bias network that predicts its std
 def std_head_model() -> "BiasModel":
     """Random pose networks (bias within +-0.1 m) with a std head spanning its bounds on this flight."""
-    from harness.biasnet.model import BiasModel, init_network
+    from harness.biasnet.network import BiasModel, init_network
     from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
     rng = np.random.default_rng(21)
     lo6 = np.array([-6.0, -6.0, -3.0, -0.3, -0.3, -np.pi])
@@ -284,7 +284,7 @@ def std_head_model() -> "BiasModel":
 def narrowed(model: "BiasModel") -> "BiasModel":
     """The same networks trained (so to speak) on dp_x in [-3.6, 3.6] m only: the flight (|dp_x| from 2.5 to
     4.5 m) leaves that range part of the time."""
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
     nets = {}
     for kind in ("twr", "tdoa"):
         net = model.network(kind)
@@ -395,9 +395,9 @@ def test_correction_fades_outside_the_training_range_as_in_the_twin(tmp_path_fac
 
 def harmful_model() -> "BiasModel":
     """A network whose 'correction' is a wrong +0.25 to +0.35 m everywhere (out range [0.25, 0.35])."""
-    from harness.biasnet.model import init_network
+    from harness.biasnet.network import init_network
     from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
     rng = np.random.default_rng(5)
     lo6 = np.array([-6.0, -6.0, -3.0, -0.3, -0.3, -np.pi])
     lo9 = np.concatenate([lo6[:3], lo6])

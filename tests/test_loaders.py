@@ -19,7 +19,7 @@ import pytest
 from harness.config import MODE_IMU, MODE_UWB_ONLY, PRESETS, EstimatorConfig
 from harness.flight.loaders import (RecordingError, load_anchors, load_flight, load_rcv_twr, load_recording,
                                     save_flight, time_slice)
-from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
+from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
 from harness.session import config_for, shared_data_dir
 
 FIX = Path(__file__).parent / "fixtures" / "recordings"

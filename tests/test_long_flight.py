@@ -30,7 +30,7 @@ from harness.config import PRESETS, EstimatorConfig
 from harness.device.emulator import EmulatorDevice
 from harness.flight.chunked import SimPlan
 from harness.flight.faults import FlightFaults, InjectedFaults, inject_chunks
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.flight.scenarios import plan_scenario, scenario_flight
 from harness.report.chi2 import chi2_cdf, chi2_quantile
 from harness.report.consistency import monte_carlo_nees, position_nees

@@ -101,7 +101,7 @@ assert "torch" not in sys.modules or sys.modules["torch"] is None
 def test_train_works_with_the_train_extra(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The other half of the light-install check: with [train] installed (make installs it), train works."""
     pytest.importorskip("torch", reason="the [train] extra is not installed")
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
     out = tmp_path / "m.npz"
     assert main(["train", "--mode", "twr", "--flights", "3", "--duration", "10", "--epochs", "3", "--out", str(out),
                  "--json"]) == 0

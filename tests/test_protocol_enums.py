@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from harness import config
-from harness.flight import model as flight_model
+from harness.flight import data as flight_model
 from harness.twin import estimator as twin_estimator
 from harness.twin import features
 from protocol.messages import MAX_ANCHORS, EkfMode, Layout, MeasKind, ResultFlag, Stage, Status

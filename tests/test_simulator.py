@@ -12,8 +12,8 @@ import pytest
 
 from harness.flight.arena import (Arena, Box, ConstellationError, default_anchors, load_constellation,
                                   save_constellation_yaml)
-from harness.flight.errors_model import sim_config, uwb_errors
-from harness.flight.model import KIND_TDOA, KIND_TWR
+from harness.flight.measurement_errors import sim_config, uwb_errors
+from harness.flight.data import KIND_TDOA, KIND_TWR
 from harness.flight.scenarios import SCENARIOS, ScenarioError, scenario_flight
 from harness.flight.trajectory import GRAVITY, quat_to_rot
 

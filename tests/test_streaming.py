@@ -15,7 +15,7 @@ import pytest
 from harness.config import PRESETS, EstimatorConfig
 from harness.device.emulator import EmulatorDevice
 from harness.flight.chunked import concat_flights
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.flight.scenarios import plan_scenario, scenario_flight
 from harness.report.metrics import run_summary
 from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, config_for

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.flight.errors_model import DW1000_TICK_M
-from harness.flight.model import Flight, RadioStream
+from harness.flight.measurement_errors import DW1000_TICK_M
+from harness.flight.data import Flight, RadioStream
 from harness.flight.radio_packets import RemoteInfo, tdoa2_payload, tdoa3_payload
 from harness.flight.radio_sim import RadioConfig, simulate_radio
 from harness.flight.scenarios import scenario_flight

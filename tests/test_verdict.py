@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from harness.config import EstimatorConfig
-from harness.flight.model import KIND_TWR, Anchors, Flight, Truth, UwbStream
+from harness.flight.data import KIND_TWR, Anchors, Flight, Truth, UwbStream
 from harness.paths import REPO_ROOT
 from harness.report import jsonsafe
 from harness.report.geometry import geometry_summary

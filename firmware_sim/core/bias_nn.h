@@ -43,7 +43,7 @@ typedef struct {
 typedef struct {
     const bias_nn_t *twr;
     const bias_nn_t *tdoa;
-    uint64_t hash;       /* harness/biasnet/model.py: first 8 bytes of SHA-256, little-endian */
+    uint64_t hash;       /* harness/biasnet/network.py: first 8 bytes of SHA-256, little-endian */
 } bias_model_t;
 
 /* Number of inputs of a layout (0 for unknown). */

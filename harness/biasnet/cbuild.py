@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from harness.biasnet.model import BiasModel
+from harness.biasnet.network import BiasModel
 from harness.firmware_build import BuildError, build_firmware, run_make
 from harness.paths import FIRMWARE_BUILD_DIR, FIRMWARE_DIR
 

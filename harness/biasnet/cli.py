@@ -10,7 +10,7 @@ from typing import Any, Callable
 from harness.biasnet.ceiling import HALF_WINDOW_S
 from harness.biasnet.dataset import XI_DEFAULT
 from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
-from harness.biasnet.model import BiasModel
+from harness.biasnet.network import BiasModel
 from harness.biasnet.recipes import SimRecipe
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.uncertainty import StdHeadConfig

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.flight.model import KIND_TDOA, KIND_TWR, Flight, FlightError
+from harness.flight.data import KIND_TDOA, KIND_TWR, Flight, FlightError
 from harness.twin.features import (LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE,
                                    layout_inputs)
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from harness.biasnet.dataset import XI_DEFAULT, flight_samples
-from harness.biasnet.model import BiasModel
-from harness.flight.model import KIND_TWR, Flight
+from harness.biasnet.network import BiasModel
+from harness.flight.data import KIND_TWR, Flight
 
 
 def _rotate_world_to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:

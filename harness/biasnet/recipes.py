@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 
 FIRST_EVAL_SEED = 1000
 

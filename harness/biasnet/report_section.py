@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from harness.biasnet.model import BiasModel
+from harness.biasnet.network import BiasModel
 
 if TYPE_CHECKING:
     from harness.report.html import Section

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
-from harness.biasnet.model import BiasModel
+from harness.biasnet.network import BiasModel
 from harness.biasnet.recipes import (FIRST_EVAL_SEED, SimRecipe, load_recordings, rcv_heldout_dirs, rcv_train_dirs,
                                      util_heldout_files, util_train_files)
 from harness.biasnet.train import TrainConfig

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from harness.biasnet.dataset import Samples, split_by_flight
-from harness.biasnet.model import HIDDEN, BiasNetwork
+from harness.biasnet.network import HIDDEN, BiasNetwork
 from harness.biasnet.uncertainty import StdHeadConfig, fit_std_head
 from harness.optional import require_torch
 

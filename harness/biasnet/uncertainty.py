@@ -20,10 +20,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from harness.biasnet.dataset import Samples
-from harness.biasnet.model import BiasNetwork
+from harness.biasnet.network import BiasNetwork
 
 if TYPE_CHECKING:
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
 
 
 @dataclass(frozen=True)
@@ -97,7 +97,7 @@ def with_std_head(model: "BiasModel", kind: str, samples: Samples,
                   cfg: StdHeadConfig = StdHeadConfig()) -> "BiasModel":
     """``model`` with a std head fitted on ``samples`` for its ``kind`` network (the bias part unchanged);
     the meta records the head's calibration on those samples."""
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
     net = model.network(kind)
     if net is None:
         raise ValueError(f"the model has no {kind} network")

@@ -14,12 +14,12 @@ from harness.biasnet.baselines import PairConstant, VoxelTable
 from harness.biasnet.ceiling import HALF_WINDOW_S, fast_residual
 from harness.biasnet.dataset import XI_DEFAULT, Samples, build_samples
 from harness.biasnet.evaluate import Evaluation, evaluate
-from harness.biasnet.model import BiasModel
+from harness.biasnet.network import BiasModel
 from harness.biasnet.train import TrainConfig, TrainReport, train_network
 from harness.biasnet.recipes import SimRecipe, load_recordings
 from harness.biasnet.uncertainty import StdHeadConfig, calibration, with_std_head
 from harness.errors import InputError
-from harness.flight.model import KIND_TWR, Flight
+from harness.flight.data import KIND_TWR, Flight
 from harness.paths import SHARED_DATA
 from harness.session import position_only_hint
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE

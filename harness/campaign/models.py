@@ -31,7 +31,7 @@ def models_dir(cdir: CampaignDir) -> Path:
 def snapshot_models(cdir: CampaignDir, run_models: Iterable[str | None], default_npz: Path, summary_json: Path,
                     data_dir: Path | None) -> dict[str, Any]:
     """Copy the default network, every run's network and the matching models.json entries into DIR/models."""
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
 
     out = models_dir(cdir)
     out.mkdir(parents=True, exist_ok=True)

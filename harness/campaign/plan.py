@@ -329,7 +329,7 @@ def attach_firmware(runs: list[RunSpec], build_root: Path | None = None) -> list
     """Point every run that names a model at a firmware carrying it (built once per model, cached by hash:
     harness.biasnet.cbuild.firmware_for) and record the hash the device must report."""
     from harness.biasnet.cbuild import firmware_for
-    from harness.biasnet.model import BiasModel
+    from harness.biasnet.network import BiasModel
 
     built: dict[str, tuple[str, str]] = {}
     out = []

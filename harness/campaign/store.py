@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from harness.flight.model import KIND_TDOA, Flight
+from harness.flight.data import KIND_TDOA, Flight
 
 STATUS_OK = "ok"
 STATUS_FAILED = "failed"
@@ -189,7 +189,7 @@ class StoredFlight:
     meta: dict[str, Any]
 
     def position_at(self, t_us: np.ndarray) -> np.ndarray:
-        """Linear interpolation of the true tag position (same rule as harness.flight.model.Truth)."""
+        """Linear interpolation of the true tag position (same rule as harness.flight.data.Truth)."""
         t = np.asarray(t_us, dtype=np.float64)
         tt = self.truth_t_us.astype(np.float64)
         return np.stack([np.interp(t, tt, self.truth_pos[:, k]) for k in range(3)], axis=-1)

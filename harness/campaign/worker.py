@@ -22,7 +22,7 @@ from harness.campaign.plan import FIRST_EVAL_SEED, ROLE_RADIO, FlightSpec, RunSp
 from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_array_atomic, save_flight,
                                     write_json_atomic)
 from harness.config import PRESETS, EstimatorConfig
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.session import DeviceSpec, config_for, open_device
 from harness.stream.streamer import Pacing, Streamer

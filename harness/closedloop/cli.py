@@ -18,7 +18,7 @@ from harness.closedloop.mission import MISSIONS
 from harness.closedloop.sensors import NOISE_KINDS
 from harness.config import PAPER_PRESETS, PRESETS
 from harness.device_args import add_device_options, model_device_spec
-from harness.flight.errors_model import PROFILES
+from harness.flight.measurement_errors import PROFILES
 from harness.report import jsonsafe
 from harness.report.verdict import Criteria, fly_verdict
 

@@ -32,7 +32,7 @@ from harness.closedloop.vehicle import Vehicle, VehicleParams
 from harness.config import MODE_IMU, EstimatorConfig
 from harness.errors import DeviceDied, DeviceError, DeviceTimeout, LinkClosed
 from harness.flight.arena import Arena
-from harness.flight.errors_model import SimConfig
+from harness.flight.measurement_errors import SimConfig
 from protocol import encode_frame
 from protocol.framing import FrameDecoder
 from protocol import messages as m

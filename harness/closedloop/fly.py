@@ -14,7 +14,7 @@ from harness.closedloop.sensors import SensorConfig
 from harness.closedloop.vehicle import VehicleParams
 from harness.config import MODE_IMU, PRESETS, EstimatorConfig
 from harness.flight.arena import NLOS_BOXES, Arena
-from harness.flight.errors_model import sim_config
+from harness.flight.measurement_errors import sim_config
 from harness.session import DeviceSpec, open_device
 
 

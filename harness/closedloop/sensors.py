@@ -1,11 +1,11 @@
 """Sensors of the closed loop: UWB measurements and IMU samples produced from the TRUE vehicle state, one
-control step at a time, with the simulator's calibrated error models (harness/flight/errors_model.py).
+control step at a time, with the simulator's calibrated error models (harness/flight/measurement_errors.py).
 
 The simulator evaluates its models vectorised over a whole pre-computed flight; in the loop the true
 state is known only step by step, where numpy's per-call overhead on a handful of rows dominates. So the
-per-link bias b_i, the TDoA pair term and the multipath probability of errors_model are evaluated here in
+per-link bias b_i, the TDoA pair term and the multipath probability of measurement_errors are evaluated here in
 scalar form, from the same HardwareParams (same hardware_seed: the same radios the bias network was
-trained on). tests/test_closedloop.py checks the scalar bias against errors_model to 1e-9 m.
+trained on). tests/test_closedloop.py checks the scalar bias against measurement_errors to 1e-9 m.
 
 Schedule (as the simulator's): TWR round-robin over the anchors, TDoA2 consecutive pairs
 (N-1, 0), (0, 1), ...; periodic at `rate_hz` with a uniform jitter of +-`schedule_jitter` periods.
@@ -19,15 +19,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.flight.arena import Arena
-from harness.flight.errors_model import HardwareParams, ImuConfig, SimConfig, hardware_params
-from harness.flight.model import KIND_TDOA, KIND_TWR
+from harness.flight.measurement_errors import HardwareParams, ImuConfig, SimConfig, hardware_params
+from harness.flight.data import KIND_TDOA, KIND_TWR
 
 NOISE_KINDS = ("none", "gaussian", "realistic")
 _S3, _S15, _S5 = math.sqrt(3.0), math.sqrt(15.0), math.sqrt(5.0)
 
 
 def _harmonics(x: float, y: float, z: float) -> tuple[float, ...]:
-    """The 8 real degree-1/2 harmonics of errors_model.harmonics, for one unit vector."""
+    """The 8 real degree-1/2 harmonics of measurement_errors.harmonics, for one unit vector."""
     return (_S3 * x, _S3 * y, _S3 * z, _S15 * x * y, _S15 * x * z, _S15 * y * z,
             0.5 * _S15 * (x * x - y * y), 0.5 * _S5 * (3 * z * z - 1))
 
@@ -51,7 +51,7 @@ class UwbSample:
 
 
 class LinkModel:
-    """Scalar evaluation of errors_model's pose-dependent link bias and TDoA pair term."""
+    """Scalar evaluation of measurement_errors's pose-dependent link bias and TDoA pair term."""
 
     def __init__(self, cfg: SimConfig, arena: Arena) -> None:
         anchors = arena.anchors

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.flight.formats.yaml_lines import LineList, LineMap, YamlSyntaxError, load_yaml_lines
-from harness.flight.model import Anchors, FlightError
+from harness.flight.data import Anchors, FlightError
 from harness.flight.trajectory import rot_to_quat
 
 

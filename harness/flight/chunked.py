@@ -25,9 +25,9 @@ from typing import Any, Iterator
 import numpy as np
 
 from harness.flight.arena import Arena
-from harness.flight.errors_model import (IMU_DRAW_LAYOUT, ImuCarry, RngSource, SimConfig, imu_errors_continued,
+from harness.flight.measurement_errors import (IMU_DRAW_LAYOUT, ImuCarry, RngSource, SimConfig, imu_errors_continued,
                                          quantise, uwb_draw_layout, uwb_errors)
-from harness.flight.model import KIND_TWR, Flight, ImuStream, Truth, UwbStream
+from harness.flight.data import KIND_TWR, Flight, ImuStream, Truth, UwbStream
 from harness.flight.trajectory import SampleCarry, Trajectory, sample_continued
 
 IMU_RATE_HZ = 1000

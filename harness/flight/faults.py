@@ -10,7 +10,7 @@ from typing import Iterator
 import numpy as np
 
 from harness.flight.chunked import IMU_RATE_HZ, SimPlan
-from harness.flight.model import KIND_TWR, Flight, FlightError
+from harness.flight.data import KIND_TWR, Flight, FlightError
 
 
 @dataclass(frozen=True)

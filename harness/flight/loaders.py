@@ -23,7 +23,7 @@ from harness.flight.formats.common import RecordingError
 from harness.flight.formats.rcv_twr import (ANCHOR_COLUMNS, DEFAULT_ANCHOR_OFFSET, GT_COLUMNS, is_rcv_twr_dir,
                                             load_rcv_twr)
 from harness.flight.formats.util import constellation_from_name, load_util_csv, util_layout
-from harness.flight.model import KIND_TWR, Anchors, Flight, FlightError
+from harness.flight.data import KIND_TWR, Anchors, Flight, FlightError
 from harness.flight.native import is_native, load_flight, save_flight
 from harness.flight.plausibility import ImplausibleRecording, check_recording
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from harness.flight.formats.common import RecordingError
-from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
+from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
 
 FORMAT_NAME = "uwb-hil-flight"
 FORMAT_VERSION = 1

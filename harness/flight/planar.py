@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from harness.flight.model import Flight, HeightStream
+from harness.flight.data import Flight, HeightStream
 
 DEFAULT_HEIGHT_STD = 0.05
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.flight.formats.common import RecordingError
-from harness.flight.model import KIND_TWR, Flight
+from harness.flight.data import KIND_TWR, Flight
 
 
 @dataclass(frozen=True)

@@ -3,8 +3,8 @@ timestamp level), recorded TDoA flights through the packet synthesis of radio_re
 
 from __future__ import annotations
 
-from harness.flight.errors_model import sim_config
-from harness.flight.model import Flight
+from harness.flight.measurement_errors import sim_config
+from harness.flight.data import Flight
 from harness.flight.radio_replay import RadioReplayError, radio_from_recording
 from harness.flight.radio_sim import PROTOCOLS, RadioConfig, simulate_radio
 

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from harness.flight.errors_model import DW1000_TICK_M, SPEED_OF_LIGHT, SimConfig, hardware_params
-from harness.flight.model import KIND_TDOA, Flight, RadioStream, UwbStream
+from harness.flight.measurement_errors import DW1000_TICK_M, SPEED_OF_LIGHT, SimConfig, hardware_params
+from harness.flight.data import KIND_TDOA, Flight, RadioStream, UwbStream
 from harness.flight.radio_clock import TS_FREQ, DeviceClock
 from harness.flight.radio_config import RadioConfig
 from harness.flight.radio_packets import ANCHOR_ADDR_BASE, PAYLOAD_MAX, RemoteInfo, tdoa2_payload, tdoa3_payload

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.flight.model import KIND_TDOA, Flight, RadioStream
+from harness.flight.data import KIND_TDOA, Flight, RadioStream
 from harness.flight.radio_packets import ANCHOR_ADDR_BASE, PAYLOAD_MAX, RemoteInfo, tdoa2_payload, tdoa3_payload
 from harness.twin.tdoa_engine import METRES_PER_TICK, TS_FREQ
 

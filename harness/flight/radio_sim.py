@@ -8,7 +8,7 @@ packet reports, per other anchor, the seq and RX time (own clock) of the last pa
 the anchor-anchor time of flight in own ticks including the antenna delay (what the anchors' ranging
 measures). Every device stamps RX late and TX early by half the antenna delay.
 
-The error model of harness/flight/errors_model.py enters at timestamp level: each tag reception is
+The error model of harness/flight/measurement_errors.py enters at timestamp level: each tag reception is
 delayed by the link's pose-dependent bias + NLOS excess + noise (std tdoa_std / sqrt(2) per link, so a
 difference has tdoa_std); the pair offset o_AB enters through the ToF anchor B reports for A.
 
@@ -22,9 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from harness.flight.arena import NLOS_BOXES, Arena
-from harness.flight.errors_model import (DW1000_TICK_M, SPEED_OF_LIGHT, SimConfig, _link_nlos, hardware_params,
+from harness.flight.measurement_errors import (DW1000_TICK_M, SPEED_OF_LIGHT, SimConfig, _link_nlos, hardware_params,
                                          link_directions, range_bias)
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.flight.radio_clock import TS_FREQ, DeviceClock
 from harness.flight.radio_assemble import assemble
 from harness.flight.radio_config import PROTOCOLS, RadioConfig, RadioSimError  # noqa: F401 (re-exported)

@@ -10,7 +10,7 @@ Every flight starts and ends at rest (speed envelope); `takeoff=True` adds groun
 landing inside `duration_s` (campaign flights: 60-80 s with take-off).
 
 Noise: "none" (exact values, perfect IMU), "gaussian" (N(0, noise_std) on every measurement, IMU noise),
-"realistic" (the calibrated error model of harness/flight/errors_model.py, profile "los" or "nlos").
+"realistic" (the calibrated error model of harness/flight/measurement_errors.py, profile "los" or "nlos").
 Same arguments and seed -> identical arrays.
 """
 
@@ -23,8 +23,8 @@ import numpy as np
 
 from harness.flight.arena import NLOS_BOXES, Arena, default_anchors
 from harness.flight.chunked import IMU_RATE_HZ, SimPlan
-from harness.flight.errors_model import SimConfig, sim_config
-from harness.flight.model import KIND_TDOA, KIND_TWR, Anchors, Flight
+from harness.flight.measurement_errors import SimConfig, sim_config
+from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight
 from harness.flight.trajectory import Trajectory, circle_path, compose_flight, random_path
 
 SCENARIOS = ("circle", "circle-z", "random", "spin", "hover")

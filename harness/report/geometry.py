@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from harness.flight.model import KIND_TDOA, Flight
+from harness.flight.data import KIND_TDOA, Flight
 
 EPOCH_S = 0.5
 WINDOW_S = 1.0

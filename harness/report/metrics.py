@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT, RunResult
 from protocol.messages import CostUnit, ErrorCode, MeasKind, ResultFlag, Stage, Status
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_NO_MEAS, OUTCOME_RESULT, RunResult, Streamer
 from protocol import messages as m
 from protocol._generated import DropReason

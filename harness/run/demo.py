@@ -8,7 +8,7 @@ from typing import Any
 
 from harness.config import PRESETS, EstimatorConfig
 from harness.device_args import hello_dict
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.run.single import radio_section
 from harness.session import DeviceSpec, config_for, open_device

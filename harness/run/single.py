@@ -10,7 +10,7 @@ from typing import Any, Callable, Iterator
 from harness.config import EstimatorConfig
 from harness.device_args import hello_dict
 from harness.errors import ResultsFileError
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.run.source import RunSource, long_simulation, make_flight, make_run_flight, run_config
 from harness.session import DeviceSpec, check_network_inputs, open_device

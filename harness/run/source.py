@@ -12,7 +12,7 @@ from typing import Any, Mapping, Sequence
 
 from harness.config import PRESETS, EstimatorConfig
 from harness.errors import UsageError
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.session import config_for
 
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from harness.config import EstimatorConfig
 from harness.flight.chunked import SimPlan
-from harness.flight.model import Flight, Truth, UwbStream
+from harness.flight.data import Flight, Truth, UwbStream
 from harness.stream.results_file import FlightDigest
 from harness.stream.streamer import RESULTS_DTYPE, Pacing, ResultsWriter, RunResult, Streamer
 

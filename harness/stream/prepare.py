@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.config import EstimatorConfig
-from harness.flight.model import KIND_TWR, Flight
+from harness.flight.data import KIND_TWR, Flight
 from harness.stream.batch import encode_rows
 from protocol import encode_frame
 from protocol import messages as m

@@ -22,7 +22,7 @@ from typing import IO, Any
 import numpy as np
 
 from harness.errors import ResultsFileError
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 
 
 def _oserror(path: Path, what: str, exc: OSError) -> ResultsFileError:

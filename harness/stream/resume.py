@@ -31,7 +31,7 @@ import numpy as np
 
 from harness.config import EstimatorConfig
 from harness.errors import ResultsFileError
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.stream.streamer import (OUTCOME_PENDING, OUTCOME_RESULT, RESULTS_DTYPE, Pacing, ResultsWriter,
                                      RunResult, Streamer)
 from harness.stream.results_file import LockedResults, flight_digest, truncate_partial_line

@@ -22,7 +22,7 @@ import numpy as np
 
 from harness.config import EstimatorConfig
 from harness.errors import DeviceDied, DeviceTimeout, LinkClosed
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.stream.batch import body_dtype, decode_rows
 from harness.stream.prepare import PreparedFlight, prepare, setup_frames
 from harness.stream.results_file import LockedResults

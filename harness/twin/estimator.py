@@ -22,7 +22,7 @@ from protocol.messages import MAX_ANCHORS as PROTOCOL_MAX_ANCHORS
 from protocol.messages import ErrorCode, MeasKind, ResultFlag, Status
 
 if TYPE_CHECKING:
-    from harness.flight.model import Flight
+    from harness.flight.data import Flight
 
 MAX_ANCHORS = PROTOCOL_MAX_ANCHORS     # what the estimator holds = what the protocol addresses
 #: Supervisor: beyond this |position| [m] the state counts as diverged even without anchors (estimator.c).

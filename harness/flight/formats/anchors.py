@@ -22,7 +22,7 @@ import numpy as np
 
 from harness.flight.formats.common import RecordingError, normalised_quats, read_csv_table
 from harness.flight.formats.yaml_lines import LineList, LineMap, YamlSyntaxError, load_yaml_lines
-from harness.flight.model import Anchors, FlightError
+from harness.flight.data import Anchors, FlightError
 
 ANCHORS_CSV_COLUMNS = ("constellation", "anchor_id", "x_m", "y_m", "z_m")
 MAX_ANCHOR_ID = 15   # the firmware's ESTIMATOR_MAX_ANCHORS - 1

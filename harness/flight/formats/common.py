@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from harness.flight.model import Anchors, FlightError
+from harness.flight.data import Anchors, FlightError
 
 
 class RecordingError(FlightError):

@@ -26,7 +26,7 @@ import numpy as np
 from harness.flight.formats.anchors import load_anchor_yaml
 from harness.flight.formats.common import (CsvTable, RecordingError, anchor_positions, check_not_backwards,
                                            normalised_quats, read_csv_table, repeated_rows)
-from harness.flight.model import KIND_TWR, Anchors, Flight, FlightError, Truth, UwbStream
+from harness.flight.data import KIND_TWR, Anchors, Flight, FlightError, Truth, UwbStream
 
 ANCHOR_COLUMNS = ("Time", "Address", "Range", "Rxpower", "Position X", "Position Y", "Position Z",
                   "Orientation X", "Orientation Y", "Orientation Z", "Orientation W")

@@ -25,7 +25,7 @@ import numpy as np
 
 from harness.flight.formats.common import (CsvTable, RecordingError, anchor_positions, check_not_backwards,
                                            normalised_quats, quat_to_rotmat, read_csv_table, repeated_rows, seconds_to_us)
-from harness.flight.model import KIND_TDOA, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
+from harness.flight.data import KIND_TDOA, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
 
 REDUCED_COLUMNS = ("idA", "idB", "tdoa_meas", "t_tdoa", "pose_x", "pose_y", "pose_z", "t_pose")
 OFFICIAL_COLUMNS = ("t_tdoa", "idA", "idB", "tdoa_meas", "t_acc", "acc_x", "acc_y", "acc_z",

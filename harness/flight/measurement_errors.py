@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Callable, Union
 
 import numpy as np
 
-from harness.flight.model import KIND_TDOA, KIND_TWR
+from harness.flight.data import KIND_TDOA, KIND_TWR
 from harness.flight.trajectory import quat_to_rot
 
 if TYPE_CHECKING:
