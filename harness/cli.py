@@ -232,7 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
     ports.set_defaults(func=cmd_ports)
     from harness.closedloop.cli import add_fly_parser
     add_fly_parser(sub)
-    from harness.calibrate import add_parser as add_calibrate_parser
+    from harness.calibrate.cli import add_parser as add_calibrate_parser
     add_calibrate_parser(sub)
     from harness.campaign import cli as campaign_cli
     from harness.report import cli as report_cli

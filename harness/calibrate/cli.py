@@ -1,0 +1,76 @@
+"""`uwb-hil calibrate`: parses the options, prints the statistics (harness/calibrate/compare.py)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from harness.calibrate.compare import calibrate
+from harness.calibrate.plots import write_plots
+from harness.calibrate.stats import STATS_KEYS
+from harness.report import jsonsafe
+from harness.session import shared_data_dir
+
+
+def _f(x: float, d: int = 3) -> str:
+    return "-" if x != x else f"{x:.{d}f}"
+
+
+def format_report(res: dict[str, Any]) -> str:
+    lines = []
+    for g in res["util"]:
+        lines.append(f"{g['group']}: {len(g['real_files'])} real trials vs {len(g['sim_flights'])} simulated "
+                     f"({g['mode']}, profile {g['profile']}); mean over trials [min..max]")
+        lines.append(f"  {'statistic':<14}{'real':>26}{'simulated':>26}{'sim/real':>10}")
+        for key in STATS_KEYS[1:]:
+            r, s = g["real"][key], g["sim"][key]
+            d = 4 if key.startswith("frac") else 3
+            ratio = s["mean"] / r["mean"] if r["mean"] not in (0.0,) and r["mean"] == r["mean"] else math.nan
+            lines.append(f"  {key:<14}{_f(r['mean'], d):>10} [{_f(r['min'], d)}..{_f(r['max'], d)}]"
+                         f"{_f(s['mean'], d):>10} [{_f(s['min'], d)}..{_f(s['max'], d)}]"
+                         f"{_f(ratio, 2) if key in ('std', 'pair_spread') else '':>10}")
+        lines.append("")
+    if "twr" in res:
+        st = res["twr"]["stats"]
+        lines.append("rcv_twr TWR (5 sequences, 4 anchors; simulator error model at the recorded poses)")
+        lines.append(f"  {'statistic':<14}{'real':>10}{'simulated':>12}")
+        for key in ("mean", "median", "std", "centred_std", "frac_gt_0.3", "frac_gt_1", "pair_spread", "noise"):
+            d = 4 if key.startswith("frac") else 3
+            lines.append(f"  {key:<14}{_f(st['real'][key], d):>10}{_f(st['sim'][key], d):>12}")
+        lines.append("  pose dependence (std of binned medians of the centred error) [m]:")
+        for key, d in res["twr"]["dependence"].items():
+            lines.append(f"    {key:<10} real {_f(d['amplitude']['real'])}  sim {_f(d['amplitude']['sim'])}   "
+                         "medians real/sim by bin: " + " ".join(
+                             f"{_f(a, 2)}/{_f(b, 2)}" for a, b in zip(d["real_median"], d["sim_median"])))
+    return "\n".join(lines)
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser("calibrate", help="simulated vs real UWB error statistics (UTIL TDoA, rcv_twr TWR)")
+    p.add_argument("--data", help="real data directory (default ../shared/data or $UWB_HIL_DATA)")
+    p.add_argument("--trials", type=int, default=5, help="simulated trials per group")
+    p.add_argument("--duration", type=float, default=60.0, help="simulated trial length [s]")
+    p.add_argument("--out", help="directory for the PNG plots")
+    p.add_argument("--no-twr", action="store_true", help="skip the rcv_twr TWR comparison")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.set_defaults(func=cmd_calibrate)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    data = Path(args.data) if args.data else shared_data_dir()
+    if args.trials < 1 or not args.duration > 20.0:
+        raise ValueError("--trials must be >= 1 and --duration > 20 s (take-off and landing take 10 s)")
+    res = calibrate(data, n_trials=args.trials, duration_s=args.duration, twr=not args.no_twr)
+    links = res.pop("_links", None)
+    if args.out:
+        plots = write_plots(Path(args.out), links, res.get("twr", {}).get("dependence"), res["util"])
+        res["plots"] = [str(p) for p in plots]
+    if args.json:
+        print(jsonsafe.dumps(res, indent=1))
+    else:
+        print(format_report(res))
+        for p in res.get("plots", []):
+            print(f"plot: {p}")
+    return 0
