@@ -243,7 +243,7 @@ def test_shipped_build_equals_host_firmware(stm32_build: Path, tmp_path: Path) -
 
 def test_m4_network_kernels_match_pytorch_and_are_faster(stm32_build: Path, probe_builds: dict[str, Any],
                                                          tmp_path: Path) -> None:
-    from harness.bench_qemu import NN_TOLERANCE, network_kernels
+    from harness.bench_qemu_nn import NN_TOLERANCE, network_kernels
     probe = network_kernels(n_inputs=25, seed=5, log_dir=tmp_path, elf=probe_builds["stm32"] / "uwb-nnbench.elf",
                             model="probe")
     assert {r.kind for r in probe} == {"twr", "tdoa"}
