@@ -205,6 +205,19 @@ def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
     return r
 
 
+def distinct_poses(t: np.ndarray, table: CsvTable, field: str, *columns: np.ndarray) -> tuple[np.ndarray, int]:
+    """Indices of the pose rows to keep (logging duplicates of the row before dropped) and how many were
+    dropped; two different poses at one time are refused, naming the line."""
+    rep = repeated_rows(t, *columns)
+    keep = np.nonzero(~rep)[0]
+    same_t = np.nonzero(np.diff(t[keep]) == 0)[0]
+    if same_t.size:
+        k = int(keep[same_t[0] + 1])
+        raise RecordingError(f"two different poses with the same timestamp (expected strictly increasing {field})",
+                             path=table.path, line=int(table.lines[k]), field=field)
+    return keep, int(rep.sum())
+
+
 def normalised_quats(q: np.ndarray, table: CsvTable | None, field: str, path: Path | None = None,
                      rows: np.ndarray | None = None, tol: float = 0.01) -> np.ndarray:
     """Normalise quaternions; one whose norm is off by more than tol is corrupt, not rounding."""

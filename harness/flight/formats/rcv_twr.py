@@ -25,7 +25,7 @@ import numpy as np
 
 from harness.flight.formats.anchors import load_anchor_yaml
 from harness.flight.formats.common import (CsvTable, RecordingError, anchor_positions, check_not_backwards,
-                                           normalised_quats, read_csv_table, repeated_rows)
+                                           distinct_poses, normalised_quats, read_csv_table, repeated_rows)
 from harness.flight.data import KIND_TWR, Anchors, Flight, FlightError, Truth, UwbStream
 
 ANCHOR_COLUMNS = ("Time", "Address", "Range", "Rxpower", "Position X", "Position Y", "Position Z",
@@ -55,53 +55,11 @@ def load_rcv_twr(directory: Path, anchors: Anchors | None = None,
         anchors = load_anchor_yaml(yaml)
     offset = np.zeros(3) if anchor_offset is None else np.asarray(anchor_offset, dtype=np.float64)
     anchors = Anchors(ids=anchors.ids, positions=anchors.positions + offset, orientations=anchors.orientations)
-
-    files = sorted((int(m.group(1)), p) for p in directory.iterdir() if (m := _ANCHOR_FILE.match(p.name)))
-    if not files:
-        raise RecordingError("no anchor_K.csv range files in this directory", path=directory)
-    known = set(int(i) for i in anchors.ids)
-    gt_path = directory / "gt.csv"
-    gt = read_csv_table(gt_path, "rcv_twr ground-truth CSV")
-    _require(gt, GT_COLUMNS)
-    if len(gt) < 2:
-        raise RecordingError(f"the ground truth needs at least 2 samples, got {len(gt)}", path=gt_path)
-    gt_t = _datetimes(gt)
-    tables: list[tuple[int, CsvTable, np.ndarray]] = []
-    for k, path in files:
-        table = read_csv_table(path, "rcv_twr range CSV")
-        _require(table, ANCHOR_COLUMNS)
-        if k not in known:
-            raise RecordingError(f"unknown anchor {k}: the anchor file has {sorted(known)}", path=path)
-        tables.append((k, table, _datetimes(table)))
+    gt, gt_t, tables = _read_tables(directory, set(int(i) for i in anchors.ids))
     t0 = min([int(gt_t[0])] + [int(t[0]) for _, _, t in tables if len(t)])
-
     dropped: dict[str, int] = {}
     addresses: dict[str, list[int]] = {}
-    parts = []
-    for k, table, t_abs in tables:
-        t = t_abs - t0
-        check_not_backwards(t, table, "Time")
-        rng = table.floats("Range")
-        addr = table.ints("Address", hi=1 << 31)
-        pose = np.stack([table.floats(c) for c in ("Position X", "Position Y", "Position Z")], axis=1)
-        rep = repeated_rows(t, rng, pose)
-        if rep.any():
-            dropped[f"duplicate_rows_anchor_{k}"] = int(rep.sum())
-        keep = ~rep
-        if drop_nonpositive:
-            bad = keep & ~(rng > 0)
-            if bad.any():
-                dropped[f"nonpositive_range_anchor_{k}"] = int(bad.sum())
-            keep &= rng > 0
-        addresses[str(k)] = sorted(set(int(x) for x in addr))
-        parts.append((t[keep], np.full(int(keep.sum()), k, dtype=np.int64), rng[keep], pose[keep]))
-    t = np.concatenate([p[0] for p in parts])
-    aid = np.concatenate([p[1] for p in parts])
-    rng = np.concatenate([p[2] for p in parts])
-    matched = np.concatenate([p[3] for p in parts])
-    order = np.lexsort((aid, t))    # time order; equal times by anchor id, so the merge is deterministic
-    t, aid, rng, matched = t[order], aid[order], rng[order], matched[order]
-
+    t, aid, rng, matched = _merged_ranges(tables, t0, drop_nonpositive, dropped, addresses)
     truth = _truth(gt, gt_t - t0, dropped)
     inside = (t >= truth.t_us[0]) & (t <= truth.t_us[-1])
     if (~inside).any():
@@ -127,6 +85,56 @@ def load_rcv_twr(directory: Path, anchors: Anchors | None = None,
     except FlightError as exc:  # pragma: no cover - the checks above are stricter
         raise RecordingError(str(exc), path=directory) from None
     return flight
+
+
+def _read_tables(directory: Path,
+                 known: set[int]) -> tuple[CsvTable, np.ndarray, list[tuple[int, CsvTable, np.ndarray]]]:
+    """The ground truth (with its absolute times) and every anchor_K.csv (anchor id, table, absolute times)."""
+    files = sorted((int(m.group(1)), p) for p in directory.iterdir() if (m := _ANCHOR_FILE.match(p.name)))
+    if not files:
+        raise RecordingError("no anchor_K.csv range files in this directory", path=directory)
+    gt_path = directory / "gt.csv"
+    gt = read_csv_table(gt_path, "rcv_twr ground-truth CSV")
+    _require(gt, GT_COLUMNS)
+    if len(gt) < 2:
+        raise RecordingError(f"the ground truth needs at least 2 samples, got {len(gt)}", path=gt_path)
+    gt_t = _datetimes(gt)
+    tables: list[tuple[int, CsvTable, np.ndarray]] = []
+    for k, path in files:
+        table = read_csv_table(path, "rcv_twr range CSV")
+        _require(table, ANCHOR_COLUMNS)
+        if k not in known:
+            raise RecordingError(f"unknown anchor {k}: the anchor file has {sorted(known)}", path=path)
+        tables.append((k, table, _datetimes(table)))
+    return gt, gt_t, tables
+
+
+def _merged_ranges(tables: list[tuple[int, CsvTable, np.ndarray]], t0: int, drop_nonpositive: bool,
+                   dropped: dict[str, int], addresses: dict[str, list[int]]) -> tuple[np.ndarray, ...]:
+    """Every anchor's ranges in one time-ordered stream: (t_us, anchor id, range, tag position), logging
+    duplicates (and non-positive ranges) dropped and counted in `dropped`, the radio addresses seen per
+    anchor in `addresses`."""
+    parts = []
+    for k, table, t_abs in tables:
+        t = t_abs - t0
+        check_not_backwards(t, table, "Time")
+        rng = table.floats("Range")
+        addr = table.ints("Address", hi=1 << 31)
+        pose = np.stack([table.floats(c) for c in ("Position X", "Position Y", "Position Z")], axis=1)
+        rep = repeated_rows(t, rng, pose)
+        if rep.any():
+            dropped[f"duplicate_rows_anchor_{k}"] = int(rep.sum())
+        keep = ~rep
+        if drop_nonpositive:
+            bad = keep & ~(rng > 0)
+            if bad.any():
+                dropped[f"nonpositive_range_anchor_{k}"] = int(bad.sum())
+            keep &= rng > 0
+        addresses[str(k)] = sorted(set(int(x) for x in addr))
+        parts.append((t[keep], np.full(int(keep.sum()), k, dtype=np.int64), rng[keep], pose[keep]))
+    t, aid, rng, matched = (np.concatenate([p[i] for p in parts]) for i in range(4))
+    order = np.lexsort((aid, t))    # time order; equal times by anchor id, so the merge is deterministic
+    return t[order], aid[order], rng[order], matched[order]
 
 
 def _require(table: CsvTable, columns: tuple[str, ...]) -> None:
@@ -158,13 +166,7 @@ def _truth(gt: CsvTable, t: np.ndarray, dropped: dict[str, int]) -> Truth:
     q_xyzw = np.stack([gt.floats(c) for c in ("Orientation X", "Orientation Y", "Orientation Z",
                                               "Orientation W")], axis=1)
     quat = normalised_quats(q_xyzw[:, [3, 0, 1, 2]], gt, "Orientation W")
-    rep = repeated_rows(t, pos, quat)
-    keep = np.nonzero(~rep)[0]
-    same_t = np.nonzero(np.diff(t[keep]) == 0)[0]
-    if same_t.size:
-        k = int(keep[same_t[0] + 1])
-        raise RecordingError("two different poses with the same timestamp (expected strictly increasing Time)",
-                             path=gt.path, line=int(gt.lines[k]), field="Time")
-    if rep.any():
-        dropped["duplicate_gt_rows"] = int(rep.sum())
+    keep, n_rep = distinct_poses(t, gt, "Time", pos, quat)
+    if n_rep:
+        dropped["duplicate_gt_rows"] = n_rep
     return Truth(t_us=t[keep], pos=pos[keep], quat=quat[keep])

@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from harness.flight.formats.common import (CsvTable, RecordingError, anchor_positions, check_not_backwards,
-                                           normalised_quats, quat_to_rotmat, read_csv_table, repeated_rows, seconds_to_us)
+                                           distinct_poses, normalised_quats, quat_to_rotmat, read_csv_table, repeated_rows,
+                                           seconds_to_us)
 from harness.flight.data import KIND_TDOA, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
 
 REDUCED_COLUMNS = ("idA", "idB", "tdoa_meas", "t_tdoa", "pose_x", "pose_y", "pose_z", "t_pose")
@@ -115,16 +116,9 @@ def _truth(table: CsvTable, layout: str, dropped: dict[str, int]) -> Truth:
         quat = normalised_quats(q_xyzw[:, [3, 0, 1, 2]], table, "pose_qw")
     _nonnegative(t, table, "t_pose")
     check_not_backwards(t, table, "t_pose")
-    cols = [t, pos] + ([quat] if quat is not None else [])
-    rep = repeated_rows(*cols)
-    keep = np.nonzero(~rep)[0]
-    dup_t = np.nonzero(np.diff(t[keep]) == 0)[0]
-    if dup_t.size:
-        k = int(keep[dup_t[0] + 1])
-        raise RecordingError("two different poses with the same timestamp (expected strictly increasing t_pose)",
-                             path=table.path, line=int(table.lines[k]), field="t_pose")
-    if rep.any():
-        dropped["duplicate_pose_rows"] = int(rep.sum())
+    keep, n_rep = distinct_poses(t, table, "t_pose", pos, *([quat] if quat is not None else []))
+    if n_rep:
+        dropped["duplicate_pose_rows"] = n_rep
     t, pos = t[keep], pos[keep]
     if quat is not None:
         quat = quat[keep]
