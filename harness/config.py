@@ -1,11 +1,15 @@
-"""Estimator configuration shared by the firmware (CONFIG message) and the numpy twin."""
+"""Estimator configuration shared by the firmware (CONFIG message) and the numpy twin.
+
+The fields, their defaults, units and bounds are defined once, on the CONFIG message in
+protocol/messages.toml; `python -m protocol.generate` makes EstimatorConfigBase (the dataclass and its
+validate()) and the firmware's C struct, defaults and checks from them. Here: the helpers and presets.
+"""
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 
-from protocol.messages import EkfMode, Stage
+from protocol.messages import ConfigError, EkfMode, EstimatorConfigBase, Stage  # noqa: F401 (ConfigError re-exported)
 
 # Protocol enums ekf_mode and stage (protocol/messages.toml), as plain ints.
 MODE_IMU = int(EkfMode.IMU)
@@ -19,7 +23,6 @@ STAGE_NN_MONITOR = int(Stage.NN_MONITOR)        # per-pair monitor switching a h
 STAGES_ALL = STAGE_BIAS_NN | STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE  # the paper's outlier rejection + network
 STAGES_OUTLIER = STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
 STAGES_VALID = STAGES_ALL | STAGE_NN_STD | STAGE_ROBUST_UPDATE | STAGE_NN_MONITOR  # every bit CONFIG may set
-FLOAT32_MAX = 3.4028234663852886e38   # largest finite IEEE-754 single (the CONFIG frame's field type)
 
 #: The three configurations of the paper's experiments, then the alternatives of issue 14: the network's
 #: std as the measurement std, and the robust update in place of the chi-square gate.
@@ -36,61 +39,12 @@ PRESETS: dict[str, int] = {
 PAPER_PRESETS: tuple[str, ...] = ("none", "outlier", "outlier+nn")
 
 
-class ConfigError(ValueError):
-    """An estimator configuration value is out of range."""
-
-
 @dataclass(frozen=True)
-class EstimatorConfig:
-    """What CONFIG carries. Defaults are the firmware's power-up values (firmware_sim/core/estimator.c)."""
-
-    mode: int = MODE_IMU
-    stages: int = STAGES_ALL
-    std_twr: float = 0.25
-    std_tdoa: float = 0.15
-    # Kinematic gate: d_max = |v| dt + a_max dt^2 / 2 with dt >= gate_dt_min. Like the paper's on-board
-    # code (a_max = 4 T_max g), a_max is a tuned bound, not a physical acceleration.
-    a_max_twr: float = 5000.0
-    a_max_tdoa: float = 5000.0
-    gate_dt_min: float = 0.01
-    chi2_twr: float = 3.841
-    chi2_tdoa: float = 3.841
-    proc_acc_xy: float = 0.5
-    proc_acc_z: float = 1.0
-    proc_cv_acc: float = 2.0
-    init_x: float = 0.0
-    init_y: float = 0.0
-    init_z: float = 0.0
-    init_std_xy: float = 1.0
-    init_std_z: float = 1.0
-    nn_min_z: float = 0.5
-    # Supervisor (as the Crazyflie's): a position outside the anchors' bounding box widened by sup_margin
-    # [m], a speed above sup_max_speed [m/s] or a position variance above sup_max_var [m^2] (never below
-    # the initial variance) re-initialises the filter and reports DIVERGED (docs/ARCHITECTURE.md).
-    sup_margin: float = 10.0
-    sup_max_speed: float = 10.0
-    sup_max_var: float = 50.0
-
-    def validate(self) -> None:
-        """Raise ConfigError naming the first invalid field (the firmware refuses the same values)."""
-        if self.mode not in (MODE_IMU, MODE_UWB_ONLY):
-            raise ConfigError(f"mode must be {MODE_IMU} (IMU) or {MODE_UWB_ONLY} (UWB-only), got {self.mode}")
-        if self.stages & ~STAGES_VALID:
-            raise ConfigError(f"stages has unknown bits: {self.stages:#x}")
-        for name, value in asdict(self).items():
-            if isinstance(value, float) and not math.isfinite(value):
-                raise ConfigError(f"{name} must be finite, got {value}")
-            if isinstance(value, float) and abs(value) > FLOAT32_MAX:    # the CONFIG frame carries float32
-                raise ConfigError(f"{name} = {value:g} does not fit the device's 32-bit float "
-                                  f"(|value| <= {FLOAT32_MAX:.4g})")
-        positive = ("std_twr", "std_tdoa", "a_max_twr", "a_max_tdoa", "gate_dt_min", "chi2_twr",
-                    "chi2_tdoa", "proc_cv_acc", "init_std_xy", "init_std_z", "sup_max_speed", "sup_max_var")
-        for name in positive:
-            if getattr(self, name) <= 0.0:
-                raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
-        for name in ("proc_acc_xy", "proc_acc_z", "sup_margin"):
-            if getattr(self, name) < 0.0:
-                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)}")
+class EstimatorConfig(EstimatorConfigBase):
+    """What CONFIG carries: the generated fields (defaults = the firmware's power-up values) and validate().
+    Kinematic gate: d_max = |v| dt + a_max dt^2 / 2 with dt >= gate_dt_min. Supervisor: a position outside
+    the anchors' box widened by sup_margin, a speed above sup_max_speed or a position variance above
+    sup_max_var re-initialises the filter (docs/ARCHITECTURE.md)."""
 
     def with_stages(self, stages: int) -> "EstimatorConfig":
         return replace(self, stages=stages)

@@ -6,6 +6,8 @@ import enum
 from dataclasses import dataclass
 from typing import ClassVar
 
+from protocol.config_check import ConfigError, ConfigField, check_field  # noqa: F401
+
 PROTOCOL_VERSION = 5
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
@@ -146,29 +148,29 @@ class Config:
     SIZE: ClassVar[int] = 80
     FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('reserved', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'))
 
-    mode: int  # ekf_mode
-    stages: int  # stage bit flags
+    mode: int  # estimator mode
+    stages: int  # pipeline stages on
     reset: int  # 1: re-initialise the filter at init_pos
-    reserved: int
-    std_twr: float  # TWR measurement std [m], > 0
-    std_tdoa: float  # TDoA measurement std [m], > 0
-    a_max_twr: float  # kinematic gate acceleration bound for TWR [m/s^2], > 0
-    a_max_tdoa: float  # kinematic gate acceleration bound for TDoA [m/s^2], > 0
-    gate_dt_min: float  # floor of the kinematic gate's dt [s], > 0
-    chi2_twr: float  # chi-square gate threshold on y^2/S for TWR, > 0
-    chi2_tdoa: float  # chi-square gate threshold on y^2/S for TDoA, > 0
-    proc_acc_xy: float  # IMU mode: horizontal acceleration process noise [m/s^2], >= 0
-    proc_acc_z: float  # IMU mode: vertical acceleration process noise [m/s^2], >= 0
-    proc_cv_acc: float  # UWB-only mode: white-acceleration std [m/s^2], > 0
-    init_x: float
+    reserved: int  # must be 0
+    std_twr: float  # TWR measurement std
+    std_tdoa: float  # TDoA measurement std
+    a_max_twr: float  # kinematic gate acceleration bound for TWR (a tuned bound, as the paper's a_max = 4 T_max g, not a physical acceleration)
+    a_max_tdoa: float  # kinematic gate acceleration bound for TDoA
+    gate_dt_min: float  # floor of the kinematic gate's dt
+    chi2_twr: float  # chi-square gate threshold on y^2/S for TWR
+    chi2_tdoa: float  # chi-square gate threshold on y^2/S for TDoA
+    proc_acc_xy: float  # IMU mode: horizontal acceleration process noise
+    proc_acc_z: float  # IMU mode: vertical acceleration process noise
+    proc_cv_acc: float  # UWB-only mode: white-acceleration std
+    init_x: float  # initial position (reset)
     init_y: float
     init_z: float
-    init_std_xy: float  # > 0
-    init_std_z: float  # > 0
-    nn_min_z: float  # bias correction only when the estimated z is above this [m]
-    sup_margin: float  # supervisor: the position must stay inside the anchors' bounding box widened by this [m], >= 0 (default 10)
-    sup_max_speed: float  # supervisor: speed bound [m/s], > 0 (default 10, as the Crazyflie's maxVel)
-    sup_max_var: float  # supervisor: bound on each position variance [m^2], > 0 (default 50; the covariance clamp is 100)
+    init_std_xy: float  # initial horizontal position std
+    init_std_z: float  # initial vertical position std
+    nn_min_z: float  # bias correction only when the estimated z is above this
+    sup_margin: float  # supervisor: the position must stay inside the anchors' bounding box widened by this
+    sup_max_speed: float  # supervisor: speed bound (as the Crazyflie's maxVel)
+    sup_max_var: float  # supervisor: bound on each position variance (the covariance clamp is 100)
 
 
 @dataclass(frozen=True)
@@ -527,3 +529,93 @@ class Control:
 
 MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, StatsReq, Radio, ClockReq, Height, Setpoint, HelloReply, Result, Stats, Error, RadioDrop, Clock, Control,)
 MESSAGES_BY_ID: dict[int, type] = {cls.MSG_ID: cls for cls in MESSAGE_TYPES}
+
+
+#: The CONFIG fields with their defaults and bounds (the message's own fields last, control=True).
+CONFIG_FIELDS: tuple[ConfigField, ...] = (
+    ConfigField('mode', 'u8', 0, doc='estimator mode', choices=(('IMU', 0), ('UWB_ONLY', 1))),
+    ConfigField('stages', 'u8', 7, doc='pipeline stages on', mask=0x3f),
+    ConfigField('std_twr', 'f32', 0.25, unit='m', doc='TWR measurement std', gt=0.0),
+    ConfigField('std_tdoa', 'f32', 0.15, unit='m', doc='TDoA measurement std', gt=0.0),
+    ConfigField('a_max_twr', 'f32', 5000.0, unit='m/s^2', doc="kinematic gate acceleration bound for TWR (a tuned bound, as the paper's a_max = 4 T_max g, not a physical acceleration)", gt=0.0),
+    ConfigField('a_max_tdoa', 'f32', 5000.0, unit='m/s^2', doc='kinematic gate acceleration bound for TDoA', gt=0.0),
+    ConfigField('gate_dt_min', 'f32', 0.01, unit='s', doc="floor of the kinematic gate's dt", gt=0.0),
+    ConfigField('chi2_twr', 'f32', 3.841, doc='chi-square gate threshold on y^2/S for TWR', gt=0.0),
+    ConfigField('chi2_tdoa', 'f32', 3.841, doc='chi-square gate threshold on y^2/S for TDoA', gt=0.0),
+    ConfigField('proc_acc_xy', 'f32', 0.5, unit='m/s^2', doc='IMU mode: horizontal acceleration process noise', ge=0.0),
+    ConfigField('proc_acc_z', 'f32', 1.0, unit='m/s^2', doc='IMU mode: vertical acceleration process noise', ge=0.0),
+    ConfigField('proc_cv_acc', 'f32', 2.0, unit='m/s^2', doc='UWB-only mode: white-acceleration std', gt=0.0),
+    ConfigField('init_x', 'f32', 0.0, unit='m', doc='initial position (reset)'),
+    ConfigField('init_y', 'f32', 0.0, unit='m'),
+    ConfigField('init_z', 'f32', 0.0, unit='m'),
+    ConfigField('init_std_xy', 'f32', 1.0, unit='m', doc='initial horizontal position std', gt=0.0),
+    ConfigField('init_std_z', 'f32', 1.0, unit='m', doc='initial vertical position std', gt=0.0),
+    ConfigField('nn_min_z', 'f32', 0.5, unit='m', doc='bias correction only when the estimated z is above this'),
+    ConfigField('sup_margin', 'f32', 10.0, unit='m', doc="supervisor: the position must stay inside the anchors' bounding box widened by this", ge=0.0),
+    ConfigField('sup_max_speed', 'f32', 10.0, unit='m/s', doc="supervisor: speed bound (as the Crazyflie's maxVel)", gt=0.0),
+    ConfigField('sup_max_var', 'f32', 50.0, unit='m^2', doc='supervisor: bound on each position variance (the covariance clamp is 100)', gt=0.0),
+    ConfigField('reset', 'u8', 1, doc='1: re-initialise the filter at init_pos', le=1.0, control=True),
+    ConfigField('reserved', 'u8', 0, doc='must be 0', le=0.0, control=True),
+)
+
+
+@dataclass(frozen=True)
+class EstimatorConfigBase:
+    """The estimator configuration CONFIG carries; defaults are the device's power-up values.
+    harness/config.py EstimatorConfig adds the helpers. validate() applies the device's bounds."""
+
+    mode: int = 0  # estimator mode (ekf_mode)
+    stages: int = 7  # pipeline stages on (stage bits)
+    std_twr: float = 0.25  # TWR measurement std [m], > 0
+    std_tdoa: float = 0.15  # TDoA measurement std [m], > 0
+    a_max_twr: float = 5000.0  # kinematic gate acceleration bound for TWR (a tuned bound, as the paper's a_max = 4 T_max g, not a physical acceleration) [m/s^2], > 0
+    a_max_tdoa: float = 5000.0  # kinematic gate acceleration bound for TDoA [m/s^2], > 0
+    gate_dt_min: float = 0.01  # floor of the kinematic gate's dt [s], > 0
+    chi2_twr: float = 3.841  # chi-square gate threshold on y^2/S for TWR, > 0
+    chi2_tdoa: float = 3.841  # chi-square gate threshold on y^2/S for TDoA, > 0
+    proc_acc_xy: float = 0.5  # IMU mode: horizontal acceleration process noise [m/s^2], >= 0
+    proc_acc_z: float = 1.0  # IMU mode: vertical acceleration process noise [m/s^2], >= 0
+    proc_cv_acc: float = 2.0  # UWB-only mode: white-acceleration std [m/s^2], > 0
+    init_x: float = 0.0  # initial position (reset) [m]
+    init_y: float = 0.0  # [m]
+    init_z: float = 0.0  # [m]
+    init_std_xy: float = 1.0  # initial horizontal position std [m], > 0
+    init_std_z: float = 1.0  # initial vertical position std [m], > 0
+    nn_min_z: float = 0.5  # bias correction only when the estimated z is above this [m]
+    sup_margin: float = 10.0  # supervisor: the position must stay inside the anchors' bounding box widened by this [m], >= 0
+    sup_max_speed: float = 10.0  # supervisor: speed bound (as the Crazyflie's maxVel) [m/s], > 0
+    sup_max_var: float = 50.0  # supervisor: bound on each position variance (the covariance clamp is 100) [m^2], > 0
+
+    def validate(self) -> None:
+        """Raise ConfigError naming the first invalid field (the device refuses the same values)."""
+        for f in CONFIG_FIELDS:
+            if not f.control:
+                check_field(f, getattr(self, f.name))
+
+    def to_message(self, reset: int = 1, reserved: int = 0) -> Config:
+        """The CONFIG message carrying this configuration."""
+        return Config(
+            mode=self.mode,
+            stages=self.stages,
+            reset=reset,
+            reserved=reserved,
+            std_twr=self.std_twr,
+            std_tdoa=self.std_tdoa,
+            a_max_twr=self.a_max_twr,
+            a_max_tdoa=self.a_max_tdoa,
+            gate_dt_min=self.gate_dt_min,
+            chi2_twr=self.chi2_twr,
+            chi2_tdoa=self.chi2_tdoa,
+            proc_acc_xy=self.proc_acc_xy,
+            proc_acc_z=self.proc_acc_z,
+            proc_cv_acc=self.proc_cv_acc,
+            init_x=self.init_x,
+            init_y=self.init_y,
+            init_z=self.init_z,
+            init_std_xy=self.init_std_xy,
+            init_std_z=self.init_std_z,
+            nn_min_z=self.nn_min_z,
+            sup_margin=self.sup_margin,
+            sup_max_speed=self.sup_max_speed,
+            sup_max_var=self.sup_max_var,
+        )

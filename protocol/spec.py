@@ -30,11 +30,29 @@ class SpecError(ValueError):
     """messages.toml is inconsistent."""
 
 
+#: Keys a field's attribute table may hold (the CONFIG fields: docs/ARCHITECTURE.md, "Configuration").
+FIELD_ATTRS = frozenset({"default", "ge", "gt", "le", "lt", "unit", "enum", "flags", "control"})
+
+
 @dataclass(frozen=True)
 class FieldSpec:
+    """One field. The optional attributes (a table after the doc in messages.toml) carry the default and
+    the bounds the device enforces: ge / gt / le / lt (inclusive / exclusive), `enum` (the value must be
+    one of that enum's), `flags` (only that enum's bits), `control` (a field of the message itself, e.g.
+    CONFIG.reset, not of the configuration it carries)."""
+
     name: str
     wire: str          # u8 u16 u32 u64 f32 bytesN
     doc: str = ""
+    default: float | int | None = None
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    unit: str = ""
+    enum: str | None = None
+    flags: str | None = None
+    control: bool = False
 
     @property
     def is_bytes(self) -> bool:
@@ -100,6 +118,80 @@ class ProtocolSpec:
     enums: tuple[EnumSpec, ...]
     messages: tuple[MessageSpec, ...]
 
+    def enum(self, name: str) -> EnumSpec:
+        for e in self.enums:
+            if e.name == name:
+                return e
+        raise SpecError(f"no enum {name!r}")
+
+    def message(self, name: str) -> MessageSpec:
+        for m in self.messages:
+            if m.name == name:
+                return m
+        raise SpecError(f"no message {name!r}")
+
+
+#: The message whose non-control fields are the estimator configuration (EstimatorConfig, estimator_config_t).
+CONFIG_MESSAGE = "CONFIG"
+
+
+def _enum_value(enums: dict[str, EnumSpec], owner: str, text: str, bits: bool) -> int:
+    """An enum default written by name: "IMU", or for flags "A|B" (empty: 0)."""
+    values = dict(enums[owner].values)
+    names = [n.strip() for n in text.split("|") if n.strip()] if bits else [text]
+    unknown = [n for n in names if n not in values]
+    if unknown:
+        raise SpecError(f"{owner}: no member {unknown[0]!r}")
+    out = 0
+    for n in names:
+        out |= values[n]
+    return out
+
+
+def _field(msg: str, entry: list, enums: dict[str, EnumSpec]) -> FieldSpec:  # type: ignore[type-arg]
+    """[name, wire, doc?, {attributes}?] -> FieldSpec, attributes checked."""
+    fname, wire = entry[0], entry[1]
+    where = f"{msg}.{fname}"
+    if wire not in SCALARS and not (wire.startswith("bytes") and wire[5:].isdigit()):
+        raise SpecError(f"{where}: unknown wire type {wire!r}")
+    doc = next((e for e in entry[2:] if isinstance(e, str)), "")
+    attrs = next((e for e in entry[2:] if isinstance(e, dict)), {})
+    unknown = set(attrs) - FIELD_ATTRS
+    if unknown:
+        raise SpecError(f"{where}: unknown attribute(s) {sorted(unknown)}")
+    owner = attrs.get("enum") or attrs.get("flags")
+    if owner is not None and owner not in enums:
+        raise SpecError(f"{where}: no enum {owner!r}")
+    default = attrs.get("default")
+    if isinstance(default, str):
+        if owner is None:
+            raise SpecError(f"{where}: a default by name needs `enum` or `flags`")
+        default = _enum_value(enums, owner, default, bits="flags" in attrs)
+    if default is not None:
+        default = float(default) if wire == "f32" else int(default)
+    bounds = {k: (float(attrs[k]) if k in attrs else None) for k in ("ge", "gt", "le", "lt")}
+    return FieldSpec(fname, wire, doc, default=default, unit=str(attrs.get("unit", "")), enum=attrs.get("enum"),
+                     flags=attrs.get("flags"), control=bool(attrs.get("control", False)), **bounds)
+
+
+def _check_config(msg: MessageSpec, enums: dict[str, EnumSpec]) -> None:
+    """Every CONFIG field has a default its bounds accept (the generated defaults must be valid)."""
+    for f in msg.fields:
+        if f.default is None:
+            raise SpecError(f"{msg.name}.{f.name}: needs a default")
+        if f.is_bytes or (f.wire != "f32" and f.wire != "u8"):
+            raise SpecError(f"{msg.name}.{f.name}: configuration fields are u8 or f32")
+        d = f.default
+        if ((f.ge is not None and not d >= f.ge) or (f.gt is not None and not d > f.gt)
+                or (f.le is not None and not d <= f.le) or (f.lt is not None and not d < f.lt)):
+            raise SpecError(f"{msg.name}.{f.name}: default {d} outside its bounds")
+        values = {v for _, v in enums[f.enum].values} if f.enum else set()
+        mask = 0
+        for _, v in enums[f.flags].values if f.flags else ():
+            mask |= v
+        if (f.enum and d not in values) or (f.flags and int(d) & ~mask):
+            raise SpecError(f"{msg.name}.{f.name}: default {d} is not a value of its enum")
+
 
 def load_spec(path: Path = SPEC_PATH) -> ProtocolSpec:
     """Parse and check the definition: unique ids and names, known types, frames fit max_body."""
@@ -110,17 +202,12 @@ def load_spec(path: Path = SPEC_PATH) -> ProtocolSpec:
     for name, table in raw.get("enums", {}).items():
         values = tuple((k, int(v)) for k, v in table.items() if k != "doc")
         enums.append(EnumSpec(name=name, doc=str(table.get("doc", "")), values=values))
+    enums_by_name = {e.name: e for e in enums}
     messages = []
     seen_ids: set[int] = set()
     seen_names: set[str] = set()
     for m in raw["message"]:
-        fields = []
-        for entry in m["fields"]:
-            fname, wire = entry[0], entry[1]
-            doc = entry[2] if len(entry) > 2 else ""
-            if wire not in SCALARS and not (wire.startswith("bytes") and wire[5:].isdigit()):
-                raise SpecError(f"{m['name']}.{fname}: unknown wire type {wire!r}")
-            fields.append(FieldSpec(fname, wire, doc))
+        fields = [_field(m["name"], entry, enums_by_name) for entry in m["fields"]]
         spec = MessageSpec(m["name"], int(m["id"]), m["dir"], m.get("doc", ""), tuple(fields))
         if spec.msg_id in seen_ids or spec.name in seen_names:
             raise SpecError(f"duplicate message id or name: {spec.name} {spec.msg_id:#x}")
@@ -129,6 +216,8 @@ def load_spec(path: Path = SPEC_PATH) -> ProtocolSpec:
         body = HEADER_SIZE + spec.payload_size + CRC_SIZE
         if body > int(proto["max_body"]):
             raise SpecError(f"{spec.name}: body of {body} bytes exceeds max_body {proto['max_body']}")
+        if spec.name == CONFIG_MESSAGE:
+            _check_config(spec, enums_by_name)
         seen_ids.add(spec.msg_id)
         seen_names.add(spec.name)
         messages.append(spec)

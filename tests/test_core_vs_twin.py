@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,9 +24,6 @@ from harness.twin.estimator import (ACCEPTED, FLAG_DIVERGED, FLAG_HEIGHT_FUSED, 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware_sim"
 GRAVITY = 9.81
-CONFIG_FIELDS = ("std_twr", "std_tdoa", "a_max_twr", "a_max_tdoa", "gate_dt_min", "chi2_twr", "chi2_tdoa",
-                 "proc_acc_xy", "proc_acc_z", "proc_cv_acc", "init_x", "init_y", "init_z", "init_std_xy",
-                 "init_std_z", "nn_min_z", "sup_margin", "sup_max_speed", "sup_max_var")
 
 
 # --------------------------------------------------------------------------------- the flight
@@ -131,7 +128,7 @@ def replay_core(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def event_stream(flight: Flight, cfg: EstimatorConfig) -> str:
     """The replay_core text stream of ``flight`` under ``cfg``."""
-    lines = [f"C {cfg.mode} {cfg.stages} " + " ".join(repr(float(getattr(cfg, n))) for n in CONFIG_FIELDS)]
+    lines = ["C " + " ".join(f"{name}={value!r}" for name, value in asdict(cfg).items())]
     for i, p in zip(flight.anchors.ids, flight.anchors.positions):
         lines.append(f"A {int(i)} " + " ".join(repr(float(v)) for v in p))
     u, imu, hgt = flight.uwb, flight.imu, flight.height

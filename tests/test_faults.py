@@ -252,15 +252,8 @@ GOOD = EstimatorConfig()
 
 
 def _config_msg(cfg: EstimatorConfig, reset: int = 1, **raw: float | int) -> m.Config:
-    fields = dict(mode=cfg.mode, stages=cfg.stages, reset=reset, reserved=0, std_twr=cfg.std_twr,
-                  std_tdoa=cfg.std_tdoa, a_max_twr=cfg.a_max_twr, a_max_tdoa=cfg.a_max_tdoa,
-                  gate_dt_min=cfg.gate_dt_min, chi2_twr=cfg.chi2_twr, chi2_tdoa=cfg.chi2_tdoa,
-                  proc_acc_xy=cfg.proc_acc_xy, proc_acc_z=cfg.proc_acc_z, proc_cv_acc=cfg.proc_cv_acc,
-                  init_x=cfg.init_x, init_y=cfg.init_y, init_z=cfg.init_z, init_std_xy=cfg.init_std_xy,
-                  init_std_z=cfg.init_std_z, nn_min_z=cfg.nn_min_z, sup_margin=cfg.sup_margin,
-                  sup_max_speed=cfg.sup_max_speed, sup_max_var=cfg.sup_max_var)
-    fields.update(raw)
-    return m.Config(**fields)
+    """CONFIG carrying ``cfg`` with some fields overwritten by raw (possibly invalid) values."""
+    return replace(cfg.to_message(reset=reset), **raw)
 
 
 BAD, NONFIN = int(m.ErrorCode.BAD_CONFIG), int(m.ErrorCode.NON_FINITE)

@@ -4,11 +4,13 @@ it rejected, and valid frames after the garbage are processed."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from harness.config import MODE_UWB_ONLY, EstimatorConfig
 from harness.device.emulator import EmulatorDevice
 from harness.session import DEFAULT_FIRMWARE
 from protocol import encode_frame
@@ -61,7 +63,8 @@ def test_a_mebibyte_of_garbage_and_mutated_frames_is_survived_and_accounted(tmp_
         hello = dev.hello(timeout=10.0)
         assert hello.proto_version == m.PROTOCOL_VERSION
         _drain(dev)
-        ch.send(m.Config(**{**_config_fields(), "init_x": 2.0, "init_y": 2.0, "init_z": 1.0}, reset=1, reserved=0))
+        # UWB-only: no IMU in this test
+        ch.send(replace(EstimatorConfig(), mode=MODE_UWB_ONLY).with_init(2.0, 2.0, 1.0).to_message(reset=1))
         _drain(dev)
         seq = ch.send(m.Twr(t_us=10_000_000, anchor_id=0, range=3.0))
         res = ch.expect(lambda f: isinstance(f.msg, m.Result) and f.msg.meas_seq == seq, 10.0, "RESULT")
@@ -73,13 +76,3 @@ def test_a_mebibyte_of_garbage_and_mutated_frames_is_survived_and_accounted(tmp_
     print(f"sent {sent} B, {mutated} mutated frames, rejected {rejected}, frames_ok {after.frames_ok - before.frames_ok}")
     assert rejected >= mutated
     assert after.frames_ok - before.frames_ok >= 3  # HELLO, CONFIG, TWR (+ this STATS_REQ)
-
-
-def _config_fields() -> dict[str, object]:
-    from dataclasses import asdict
-
-    from harness.config import MODE_UWB_ONLY, EstimatorConfig
-    fields = dict(m.Config.FIELDS)
-    cfg = asdict(EstimatorConfig())
-    cfg["mode"] = MODE_UWB_ONLY  # no IMU in this test
-    return {k: v for k, v in cfg.items() if k in fields}

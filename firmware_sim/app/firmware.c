@@ -2,6 +2,7 @@
 
 #include "bias_nn.h"
 #include "cobs.h"
+#include "config_msg.h" /* CONFIG message -> estimator_config_t (generated) */
 #include "firmware.h"
 #include "platform.h"
 #include "proto_checks.h"
@@ -125,29 +126,9 @@ static void on_config(firmware_t *fw, const uwb_msg_t *in)
 {
     const uwb_config_t *c = &in->u.config;
     estimator_config_t cfg;
-    cfg.mode = c->mode;
-    cfg.stages = c->stages;
-    cfg.std_twr = c->std_twr;
-    cfg.std_tdoa = c->std_tdoa;
-    cfg.a_max_twr = c->a_max_twr;
-    cfg.a_max_tdoa = c->a_max_tdoa;
-    cfg.gate_dt_min = c->gate_dt_min;
-    cfg.chi2_twr = c->chi2_twr;
-    cfg.chi2_tdoa = c->chi2_tdoa;
-    cfg.proc_acc_xy = c->proc_acc_xy;
-    cfg.proc_acc_z = c->proc_acc_z;
-    cfg.proc_cv_acc = c->proc_cv_acc;
-    cfg.init_x = c->init_x;
-    cfg.init_y = c->init_y;
-    cfg.init_z = c->init_z;
-    cfg.init_std_xy = c->init_std_xy;
-    cfg.init_std_z = c->init_std_z;
-    cfg.nn_min_z = c->nn_min_z;
-    cfg.sup_margin = c->sup_margin;
-    cfg.sup_max_speed = c->sup_max_speed;
-    cfg.sup_max_var = c->sup_max_var;
+    config_from_msg(c, &cfg);
     /* Refuse the whole message: a half-applied configuration would be worse than none. */
-    if (c->reset > 1 || c->reserved != 0 || !estimator_config_valid(&cfg)) {
+    if (!config_msg_control_valid(c) || !estimator_config_valid(&cfg)) {
         fw->stats.bad_configs++;
         send_error(fw, UWB_ERROR_CODE_BAD_CONFIG, in, 0);
         return;

@@ -11,59 +11,6 @@
 #include "platform.h"
 #include "robust_update.h"
 
-void estimator_default_config(estimator_config_t *cfg)
-{
-    /* Keep in step with harness/config.py EstimatorConfig. */
-    cfg->mode = EST_MODE_IMU;
-    cfg->stages = EST_STAGES_ALL;
-    cfg->std_twr = 0.25f;
-    cfg->std_tdoa = 0.15f;
-    cfg->a_max_twr = 5000.0f;
-    cfg->a_max_tdoa = 5000.0f;
-    cfg->gate_dt_min = 0.01f;
-    cfg->chi2_twr = 3.841f;
-    cfg->chi2_tdoa = 3.841f;
-    cfg->proc_acc_xy = 0.5f;
-    cfg->proc_acc_z = 1.0f;
-    cfg->proc_cv_acc = 2.0f;
-    cfg->init_x = 0.0f;
-    cfg->init_y = 0.0f;
-    cfg->init_z = 0.0f;
-    cfg->init_std_xy = 1.0f;
-    cfg->init_std_z = 1.0f;
-    cfg->nn_min_z = 0.5f;
-    cfg->sup_margin = 10.0f;
-    cfg->sup_max_speed = 10.0f;
-    cfg->sup_max_var = 50.0f;
-}
-
-int estimator_config_valid(const estimator_config_t *cfg)
-{
-    const float positive[] = {cfg->std_twr, cfg->std_tdoa, cfg->a_max_twr, cfg->a_max_tdoa,
-                              cfg->gate_dt_min, cfg->chi2_twr, cfg->chi2_tdoa, cfg->proc_cv_acc,
-                              cfg->init_std_xy, cfg->init_std_z, cfg->sup_max_speed, cfg->sup_max_var};
-    const float other[] = {cfg->proc_acc_xy, cfg->proc_acc_z, cfg->init_x, cfg->init_y, cfg->init_z,
-                           cfg->nn_min_z, cfg->sup_margin};
-    unsigned i;
-    if (cfg->mode != EST_MODE_IMU && cfg->mode != EST_MODE_UWB_ONLY) {
-        return 0;
-    }
-    if (cfg->stages & ~EST_STAGES_VALID) {
-        return 0;
-    }
-    for (i = 0; i < sizeof positive / sizeof positive[0]; i++) {
-        if (!isfinite(positive[i]) || !(positive[i] > 0.0f)) {
-            return 0;
-        }
-    }
-    for (i = 0; i < sizeof other / sizeof other[0]; i++) {
-        if (!isfinite(other[i])) {
-            return 0;
-        }
-    }
-    return cfg->proc_acc_xy >= 0.0f && cfg->proc_acc_z >= 0.0f && cfg->sup_margin >= 0.0f;
-}
-
 /* Filter at the configured init position; time references forgotten. */
 static void reset_filter(estimator_t *est)
 {

@@ -8,6 +8,7 @@
 
 #include "bias_nn.h"
 #include "ekf_core.h"
+#include "estimator_config.h" /* estimator_config_t, its defaults and checks: generated from messages.toml */
 #include "nn_monitor.h"
 
 #define ESTIMATOR_MAX_ANCHORS 16
@@ -55,15 +56,6 @@ enum {
 /* Every bit CONFIG may set. */
 #define EST_STAGES_VALID (EST_STAGES_ALL | EST_STAGE_NN_STD | EST_STAGE_ROBUST_UPDATE | EST_STAGE_NN_MONITOR)
 
-/* What CONFIG carries (harness/config.py EstimatorConfig). */
-typedef struct {
-    uint8_t mode, stages;
-    float std_twr, std_tdoa, a_max_twr, a_max_tdoa, gate_dt_min, chi2_twr, chi2_tdoa, proc_acc_xy,
-        proc_acc_z, proc_cv_acc, init_x, init_y, init_z, init_std_xy, init_std_z, nn_min_z;
-    /* Supervisor bounds (docs/ARCHITECTURE.md "Supervisor"). */
-    float sup_margin, sup_max_speed, sup_max_var;
-} estimator_config_t;
-
 typedef struct {
     uint8_t status;        /* EST_ACCEPTED / EST_REJECTED_* */
     float innovation;      /* y = z - bias - h(x), before the update (0 for geometry) */
@@ -104,12 +96,6 @@ typedef struct {
     uint32_t divergences;             /* times the supervisor re-initialised the filter */
     uint32_t heights;                 /* HEIGHT pseudo-measurements fused */
 } estimator_t;
-
-/* Same defaults as harness/config.py EstimatorConfig. */
-void estimator_default_config(estimator_config_t *cfg);
-
-/* 1 if valid: same rules as EstimatorConfig.validate(). */
-int estimator_config_valid(const estimator_config_t *cfg);
 
 /* Default config, filter at its init position, no anchors, counters zero. */
 void estimator_init(estimator_t *est, const bias_model_t *model);

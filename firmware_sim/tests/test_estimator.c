@@ -47,63 +47,6 @@ static const float no_gyro[3] = {0.0f, 0.0f, 0.0f};
 
 /* ------------------------------------------------------------------------------------------ */
 
-#ifdef UWB_REPO_ROOT
-/* Every numeric default in harness/config.py ("    name: float = value") equals the C default. */
-static void check_python_defaults(const estimator_config_t *c)
-{
-    static const struct {
-        const char *name;
-        size_t offset;
-    } fields[] = {
-        {"std_twr", offsetof(estimator_config_t, std_twr)}, {"std_tdoa", offsetof(estimator_config_t, std_tdoa)},
-        {"a_max_twr", offsetof(estimator_config_t, a_max_twr)}, {"a_max_tdoa", offsetof(estimator_config_t, a_max_tdoa)},
-        {"gate_dt_min", offsetof(estimator_config_t, gate_dt_min)}, {"chi2_twr", offsetof(estimator_config_t, chi2_twr)},
-        {"chi2_tdoa", offsetof(estimator_config_t, chi2_tdoa)}, {"proc_acc_xy", offsetof(estimator_config_t, proc_acc_xy)},
-        {"proc_acc_z", offsetof(estimator_config_t, proc_acc_z)}, {"proc_cv_acc", offsetof(estimator_config_t, proc_cv_acc)},
-        {"init_x", offsetof(estimator_config_t, init_x)}, {"init_y", offsetof(estimator_config_t, init_y)},
-        {"init_z", offsetof(estimator_config_t, init_z)}, {"init_std_xy", offsetof(estimator_config_t, init_std_xy)},
-        {"init_std_z", offsetof(estimator_config_t, init_std_z)}, {"nn_min_z", offsetof(estimator_config_t, nn_min_z)},
-        {"sup_margin", offsetof(estimator_config_t, sup_margin)},
-        {"sup_max_speed", offsetof(estimator_config_t, sup_max_speed)},
-        {"sup_max_var", offsetof(estimator_config_t, sup_max_var)},
-    };
-    char line[256];
-    unsigned found = 0, i;
-    FILE *f = fopen(UWB_REPO_ROOT "/harness/config.py", "r");
-    CHECK(f != NULL);
-    if (f == NULL) {
-        return;
-    }
-    while (fgets(line, sizeof line, f) != NULL) {
-        for (i = 0; i < sizeof fields / sizeof fields[0]; i++) {
-            char pattern[64];
-            size_t n;
-            snprintf(pattern, sizeof pattern, "    %s: float = ", fields[i].name);
-            n = strlen(pattern);
-            if (strncmp(line, pattern, n) == 0) {
-                const float py = (float)strtod(line + n, NULL);
-                const float cv = *(const float *)(const void *)((const char *)c + fields[i].offset);
-                if (py != cv) {
-                    fprintf(stderr, "default %s: python %g, C %g\n", fields[i].name, (double)py, (double)cv);
-                }
-                CHECK(py == cv);
-                found++;
-            }
-        }
-        if (strncmp(line, "    mode: int = MODE_IMU", 24) == 0) {
-            CHECK(c->mode == EST_MODE_IMU);
-            found++;
-        }
-        if (strncmp(line, "    stages: int = STAGES_ALL", 28) == 0) {
-            CHECK(c->stages == EST_STAGES_ALL);
-            found++;
-        }
-    }
-    fclose(f);
-    CHECK(found == sizeof fields / sizeof fields[0] + 2);
-}
-#endif
-
 static void test_default_config(void)
 {
     estimator_config_t c;
@@ -112,9 +55,6 @@ static void test_default_config(void)
     CHECK(estimator_config_valid(&c));
     CHECK(c.mode == EST_MODE_IMU && c.stages == EST_STAGES_ALL);
     CHECK(c.std_twr == 0.25f && c.std_tdoa == 0.15f && c.nn_min_z == 0.5f);
-#ifdef UWB_REPO_ROOT
-    check_python_defaults(&c);
-#endif
     estimator_init(&est, &no_model);
     CHECK(memcmp(&est.cfg, &c, sizeof c) == 0);
 }

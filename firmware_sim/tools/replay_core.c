@@ -2,10 +2,9 @@
  * Used by tests/test_core_vs_twin.py to compare the C core with the numpy twin.
  *
  * Input lines (stdin), fields separated by blanks:
- *   C mode stages std_twr std_tdoa a_max_twr a_max_tdoa gate_dt_min chi2_twr chi2_tdoa
- *     proc_acc_xy proc_acc_z proc_cv_acc init_x init_y init_z init_std_xy init_std_z nn_min_z
- *     sup_margin sup_max_speed sup_max_var
- *                               configure with reset (prints "E 6" if invalid)
+ *   C name=value ...            configure with reset: the power-up defaults with these CONFIG fields
+ *                               (names of core/estimator_config.h's table) changed; "E 6" if invalid
+ *   V name=value ...            only check such a configuration: prints "V 1" (valid) or "V 0"
  *   A id x y z                  anchor
  *   I t ax ay az gx gy gz       IMU sample (t in us)
  *   T t id range                TWR
@@ -14,7 +13,8 @@
  * Output: one line per measurement,
  *   R status innovation S bias d_max gx gy gz px py pz vx vy vz qw qx qy qz var0..var8 flags
  * or "E code" for a refused input; a final "S predictions divergences heights" line.
- * Option --no-model runs without the compiled-in bias networks. */
+ * Options: --no-model runs without the compiled-in bias networks; --fields prints "F name default" for
+ * each configuration field and exits. */
 #include <inttypes.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -24,17 +24,58 @@
 
 static const bias_model_t no_model = {NULL, NULL, 0};
 
-static int parse_config(const char *s, estimator_config_t *c)
+/* Defaults with the `name=value` pairs of s applied; 0 for an unknown name or a malformed value. */
+static int parse_config(const char *line, estimator_config_t *c)
 {
-    unsigned mode, stages;
-    int n = sscanf(s, "%u %u %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f %f", &mode, &stages,
-                   &c->std_twr, &c->std_tdoa, &c->a_max_twr, &c->a_max_tdoa, &c->gate_dt_min,
-                   &c->chi2_twr, &c->chi2_tdoa, &c->proc_acc_xy, &c->proc_acc_z, &c->proc_cv_acc,
-                   &c->init_x, &c->init_y, &c->init_z, &c->init_std_xy, &c->init_std_z, &c->nn_min_z,
-                   &c->sup_margin, &c->sup_max_speed, &c->sup_max_var);
-    c->mode = (uint8_t)mode;
-    c->stages = (uint8_t)stages;
-    return n == 21 && mode < 256 && stages < 256;
+    static char s[4096];
+    char *tok;
+    estimator_default_config(c);
+    strncpy(s, line, sizeof s - 1); /* strtok writes into it; the caller's line stays whole for messages */
+    for (tok = strtok(s, " \t\r\n"); tok != NULL; tok = strtok(NULL, " \t\r\n")) {
+        const char *eq = strchr(tok, '=');
+        char *end;
+        unsigned i;
+        for (i = 0; eq != NULL && i < ESTIMATOR_CONFIG_N_FIELDS; i++) {
+            const estimator_config_field_t *f = &estimator_config_fields[i];
+            if (strlen(f->name) == (size_t)(eq - tok) && strncmp(f->name, tok, (size_t)(eq - tok)) == 0) {
+                break;
+            }
+        }
+        if (eq == NULL || i == ESTIMATOR_CONFIG_N_FIELDS) {
+            return 0;
+        }
+        if (estimator_config_fields[i].is_float) {
+            const float v = strtof(eq + 1, &end);
+            memcpy((char *)c + estimator_config_fields[i].offset, &v, sizeof v);
+        } else {
+            const unsigned long v = strtoul(eq + 1, &end, 10);
+            if (v > 255ul) {
+                return 0;
+            }
+            *((uint8_t *)c + estimator_config_fields[i].offset) = (uint8_t)v;
+        }
+        if (end == eq + 1 || *end != '\0') {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static void print_fields(void)
+{
+    estimator_config_t d;
+    unsigned i;
+    estimator_default_config(&d);
+    for (i = 0; i < ESTIMATOR_CONFIG_N_FIELDS; i++) {
+        const estimator_config_field_t *f = &estimator_config_fields[i];
+        if (f->is_float) {
+            float v;
+            memcpy(&v, (const char *)&d + f->offset, sizeof v);
+            printf("F %s %.9g\n", f->name, (double)v);
+        } else {
+            printf("F %s %u\n", f->name, (unsigned)*((const uint8_t *)&d + f->offset));
+        }
+    }
 }
 
 static void print_result(const estimator_t *est, const estimator_result_t *r)
@@ -63,21 +104,35 @@ static void print_result(const estimator_t *est, const estimator_result_t *r)
 int main(int argc, char **argv)
 {
     static estimator_t est;
-    char line[512];
+    char line[4096];
     estimator_result_t res;
     long lineno = 0;
-    int rc;
+    int rc, i, with_model = 1;
 
-    estimator_init(&est, (argc > 1 && strcmp(argv[1], "--no-model") == 0) ? &no_model : &bias_model_compiled);
+    for (i = 1; i < argc; i++) {
+        if (strcmp(argv[i], "--fields") == 0) {
+            print_fields();
+            return 0;
+        }
+        with_model = with_model && strcmp(argv[i], "--no-model") != 0;
+    }
+    estimator_init(&est, with_model ? &bias_model_compiled : &no_model);
     while (fgets(line, sizeof line, stdin) != NULL) {
         uint64_t t;
         unsigned id, ida, idb;
         float v[6];
         lineno++;
         switch (line[0]) {
-        case 'C': {
+        case 'C':
+        case 'V': {
             estimator_config_t cfg;
-            if (!parse_config(line + 1, &cfg) || !estimator_config_valid(&cfg)) {
+            const char kind = line[0];
+            if (!parse_config(line + 1, &cfg)) {
+                goto bad;
+            }
+            if (kind == 'V') {
+                printf("V %d\n", estimator_config_valid(&cfg));
+            } else if (!estimator_config_valid(&cfg)) {
                 printf("E 6\n");
             } else {
                 estimator_configure(&est, &cfg, 1);

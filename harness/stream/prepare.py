@@ -31,14 +31,7 @@ def setup_frames(config: EstimatorConfig, flight: Flight, seq0: int, reset: bool
     """CONFIG (with reset) and one ANCHOR per anchor (unless `anchors` is False: at radio level the
     positions come over the air, in the packets' LPP), ahead of the sensor stream."""
     config.validate()
-    msgs = [m.Config(mode=config.mode, stages=config.stages, reset=int(reset), reserved=0,
-                     std_twr=config.std_twr, std_tdoa=config.std_tdoa, a_max_twr=config.a_max_twr,
-                     a_max_tdoa=config.a_max_tdoa, gate_dt_min=config.gate_dt_min, chi2_twr=config.chi2_twr,
-                     chi2_tdoa=config.chi2_tdoa, proc_acc_xy=config.proc_acc_xy, proc_acc_z=config.proc_acc_z,
-                     proc_cv_acc=config.proc_cv_acc, init_x=config.init_x, init_y=config.init_y,
-                     init_z=config.init_z, init_std_xy=config.init_std_xy, init_std_z=config.init_std_z,
-                     nn_min_z=config.nn_min_z, sup_margin=config.sup_margin,
-                     sup_max_speed=config.sup_max_speed, sup_max_var=config.sup_max_var)]
+    msgs: list[object] = [config.to_message(reset=int(reset))]
     for aid, pos in zip(flight.anchors.ids, flight.anchors.positions) if anchors else ():
         msgs.append(m.Anchor(anchor_id=int(aid), x=float(pos[0]), y=float(pos[1]), z=float(pos[2])))
     out = b"".join(encode_frame(msg, seq0 + i) for i, msg in enumerate(msgs))
