@@ -148,11 +148,8 @@ float bias_nn_predict(const bias_nn_t *net, const float *features, float *std_ou
     float x[BIAS_NN_MAX_IN], h1[BIAS_NN_HIDDEN], h2[BIAS_NN_HIDDEN];
     float y;
     int i;
-    const uint8_t n_in = net->n_in <= BIAS_NN_MAX_IN ? net->n_in : (uint8_t)BIAS_NN_MAX_IN;
+    const uint8_t n_in = (uint8_t)bias_nn_scale_inputs(net, features, x);
 
-    for (i = 0; i < (int)n_in; i++) {
-        x[i] = (features[i] - net->in_min[i]) / (net->in_max[i] - net->in_min[i]);
-    }
     dense_relu(x, n_in, net->w1, net->b1, h1);
     dense_relu(h1, (uint8_t)BIAS_NN_HIDDEN, net->w2, net->b2, h2);
     y = net->b3;
@@ -162,12 +159,5 @@ float bias_nn_predict(const bias_nn_t *net, const float *features, float *std_ou
     if (std_out != NULL) {
         *std_out = bias_nn_std_head(net, h2);
     }
-    y = y * (net->out_max - net->out_min) + net->out_min;
-    if (y < net->out_min) {
-        y = net->out_min;
-    }
-    if (y > net->out_max) {
-        y = net->out_max;
-    }
-    return y;
+    return bias_nn_descale_output(net, y);
 }

@@ -70,6 +70,31 @@ float bias_nn_ood_excess(const bias_nn_t *net, const float *features);
 /* 1 inside the training range, falling linearly to 0 at BIAS_NN_OOD_MARGIN of excess (0 for NaN). */
 float bias_nn_ood_fade(float excess);
 
+/* The two ends of every kernel (bias_nn.c, the M4 kernels), inline so each kernel's instruction count is
+ * its own: inputs min-max scaled as trained (returns n_in, at most BIAS_NN_MAX_IN), the linear output
+ * de-scaled and clamped to [out_min, out_max]. */
+static inline unsigned bias_nn_scale_inputs(const bias_nn_t *net, const float *features, float x[BIAS_NN_MAX_IN])
+{
+    unsigned i;
+    const unsigned n_in = net->n_in <= BIAS_NN_MAX_IN ? net->n_in : (unsigned)BIAS_NN_MAX_IN;
+    for (i = 0; i < n_in; i++) {
+        x[i] = (features[i] - net->in_min[i]) / (net->in_max[i] - net->in_min[i]);
+    }
+    return n_in;
+}
+
+static inline float bias_nn_descale_output(const bias_nn_t *net, float y)
+{
+    y = y * (net->out_max - net->out_min) + net->out_min;
+    if (y < net->out_min) {
+        y = net->out_min;
+    }
+    if (y > net->out_max) {
+        y = net->out_max;
+    }
+    return y;
+}
+
 /* The std head on a computed second hidden layer h2 (shared by bias_nn.c and the M4 kernel). */
 float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN]);
 

@@ -38,6 +38,8 @@ void usart_puts(const char *s);
 void usart_put_hex32(uint32_t v);
 /* Longest contiguous run of received bytes (0 if none); *data points into the ring. */
 size_t usart_rx_peek(const uint8_t **data);
+/* usart_rx_peek(), but sleeps (WFI) until at least one byte has arrived: never returns 0. */
+size_t usart_rx_wait(const uint8_t **data);
 /* Mark n bytes returned by usart_rx_peek() as consumed (re-enables reception if it was paused). */
 void usart_rx_release(size_t n);
 /* Bytes the ISR found in the data register while the ring was full. With the pause-on-full

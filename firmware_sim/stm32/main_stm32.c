@@ -23,17 +23,7 @@ int main(void)
 
     for (;;) {
         const uint8_t *data;
-        size_t n;
-        cpu_irq_disable();
-        n = usart_rx_peek(&data);
-        if (n == 0u) {
-            /* Sleep with interrupts masked: a byte arriving between the check and WFI still wakes
-             * the core (pending IRQ), and is handled once interrupts are re-enabled. */
-            cpu_wfi();
-            cpu_irq_enable();
-            continue;
-        }
-        cpu_irq_enable();
+        size_t n = usart_rx_wait(&data);
         firmware_feed(&fw, data, n);
         usart_rx_release(n);
     }

@@ -95,26 +95,15 @@ static inline float predict_with(const bias_nn_t *net, const float *features, fl
     float x[BIAS_NN_MAX_IN];
     float h1[H], h2[H];
     float y;
-    unsigned i;
-    const unsigned n_in = net->n_in <= BIAS_NN_MAX_IN ? net->n_in : BIAS_NN_MAX_IN;
+    const unsigned n_in = bias_nn_scale_inputs(net, features, x);
 
-    for (i = 0; i < n_in; i++) {
-        x[i] = (features[i] - net->in_min[i]) / (net->in_max[i] - net->in_min[i]);
-    }
     layer(x, n_in, net->w1, net->b1, h1);
     layer(h1, H, net->w2, net->b2, h2);
     y = dense_out(h2, net->w3, net->b3);
     if (std_out != (float *)0) {
         *std_out = bias_nn_std_head(net, h2); /* 50 MACs and one expf: the core's C is enough */
     }
-    y = y * (net->out_max - net->out_min) + net->out_min;
-    if (y < net->out_min) {
-        y = net->out_min;
-    }
-    if (y > net->out_max) {
-        y = net->out_max;
-    }
-    return y;
+    return bias_nn_descale_output(net, y);
 }
 
 float nn_m4_predict(const bias_nn_t *net, const float *features, float *std_out)

@@ -15,6 +15,29 @@
     .cpu cortex-m4
     .fpu fpv4-sp-d16
     .thumb
+
+/* acc10 X: s0-s9 += s16-s25 * X (the 10 accumulators of a block, one input) */
+    .macro acc10 x
+    vfma.f32    s0, s16, \x
+    vfma.f32    s1, s17, \x
+    vfma.f32    s2, s18, \x
+    vfma.f32    s3, s19, \x
+    vfma.f32    s4, s20, \x
+    vfma.f32    s5, s21, \x
+    vfma.f32    s6, s22, \x
+    vfma.f32    s7, s23, \x
+    vfma.f32    s8, s24, \x
+    vfma.f32    s9, s25, \x
+    .endm
+
+/* relu2 A, B: store max(0, A), max(0, B) to [r4], r4 += 8 (ReLU on the integer bits) */
+    .macro relu2 a, b
+    vmov        ip, lr, \a, \b
+    bic         ip, ip, ip, asr #31
+    bic         lr, lr, lr, asr #31
+    strd        ip, lr, [r4], #8
+    .endm
+
     .section .text.dense_relu_m4,"ax",%progbits
     .global dense_relu_m4
     .type dense_relu_m4, %function
@@ -33,65 +56,23 @@ dense_relu_m4:
 2:  vldmia      r6!, {s10-s11}         @ x[i], x[i+1]
     vldm        r7, {s16-s25}           @ w[i][block]
     add         r7, r7, #200
-    vfma.f32    s0, s16, s10
-    vfma.f32    s1, s17, s10
-    vfma.f32    s2, s18, s10
-    vfma.f32    s3, s19, s10
-    vfma.f32    s4, s20, s10
-    vfma.f32    s5, s21, s10
-    vfma.f32    s6, s22, s10
-    vfma.f32    s7, s23, s10
-    vfma.f32    s8, s24, s10
-    vfma.f32    s9, s25, s10
+    acc10       s10
     vldm        r7, {s16-s25}           @ w[i+1][block]
     add         r7, r7, #200
-    vfma.f32    s0, s16, s11
-    vfma.f32    s1, s17, s11
-    vfma.f32    s2, s18, s11
-    vfma.f32    s3, s19, s11
-    vfma.f32    s4, s20, s11
-    vfma.f32    s5, s21, s11
-    vfma.f32    s6, s22, s11
-    vfma.f32    s7, s23, s11
-    vfma.f32    s8, s24, s11
-    vfma.f32    s9, s25, s11
+    acc10       s11
     subs        r8, r8, #1
     bne         2b
 3:  tst         r1, #1                  @ odd input count: one more
     beq         4f
     vldmia      r6!, {s10}
     vldm        r7, {s16-s25}
-    vfma.f32    s0, s16, s10
-    vfma.f32    s1, s17, s10
-    vfma.f32    s2, s18, s10
-    vfma.f32    s3, s19, s10
-    vfma.f32    s4, s20, s10
-    vfma.f32    s5, s21, s10
-    vfma.f32    s6, s22, s10
-    vfma.f32    s7, s23, s10
-    vfma.f32    s8, s24, s10
-    vfma.f32    s9, s25, s10
+    acc10       s10
 4:
-    vmov        ip, lr, s0, s1
-    bic         ip, ip, ip, asr #31
-    bic         lr, lr, lr, asr #31
-    strd        ip, lr, [r4], #8
-    vmov        ip, lr, s2, s3
-    bic         ip, ip, ip, asr #31
-    bic         lr, lr, lr, asr #31
-    strd        ip, lr, [r4], #8
-    vmov        ip, lr, s4, s5
-    bic         ip, ip, ip, asr #31
-    bic         lr, lr, lr, asr #31
-    strd        ip, lr, [r4], #8
-    vmov        ip, lr, s6, s7
-    bic         ip, ip, ip, asr #31
-    bic         lr, lr, lr, asr #31
-    strd        ip, lr, [r4], #8
-    vmov        ip, lr, s8, s9
-    bic         ip, ip, ip, asr #31
-    bic         lr, lr, lr, asr #31
-    strd        ip, lr, [r4], #8
+    relu2       s0, s1
+    relu2       s2, s3
+    relu2       s4, s5
+    relu2       s6, s7
+    relu2       s8, s9
     adds        r2, r2, #40             @ next block of 10 columns
     subs        r5, r5, #1
     bne         1b

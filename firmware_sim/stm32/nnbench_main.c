@@ -25,15 +25,7 @@ static void read_exact(uint8_t *dst, size_t n)
 {
     while (n > 0u) {
         const uint8_t *data;
-        size_t got;
-        cpu_irq_disable();
-        got = usart_rx_peek(&data);
-        if (got == 0u) {
-            cpu_wfi();
-            cpu_irq_enable();
-            continue;
-        }
-        cpu_irq_enable();
+        size_t got = usart_rx_wait(&data);
         if (got > n) {
             got = n;
         }

@@ -61,15 +61,7 @@ int main(void)
 
     for (;;) {
         const uint8_t *data;
-        size_t n;
-        cpu_irq_disable();
-        n = usart_rx_peek(&data);
-        if (n == 0u) {
-            cpu_wfi();
-            cpu_irq_enable();
-            continue;
-        }
-        cpu_irq_enable();
+        size_t n = usart_rx_wait(&data);
         if (data[0] == 'B') {
             uint32_t c0, c1;
             usart_rx_release(1);

@@ -106,6 +106,23 @@ size_t usart_rx_peek(const uint8_t **data)
     return (size_t)(avail < run ? avail : run);
 }
 
+size_t usart_rx_wait(const uint8_t **data)
+{
+    for (;;) {
+        size_t n;
+        cpu_irq_disable();
+        n = usart_rx_peek(data);
+        if (n != 0u) {
+            cpu_irq_enable();
+            return n;
+        }
+        /* Sleep with interrupts masked: a byte arriving between the check and WFI still wakes the
+         * core (pending IRQ), and is handled once interrupts are re-enabled. */
+        cpu_wfi();
+        cpu_irq_enable();
+    }
+}
+
 void usart_rx_release(size_t n)
 {
     rx_tail += (uint32_t)n;
