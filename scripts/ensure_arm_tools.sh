@@ -32,30 +32,10 @@ if [ ${#missing[@]} -eq 0 ]; then
     exit 0
 fi
 
-if [ "${UWB_NO_INSTALL:-0}" = "1" ]; then
-    echo "ensure_arm_tools: missing ${missing[*]} (UWB_NO_INSTALL=1, not installing)" >&2
-    exit 1
-fi
-
-SUDO=""
-if [ "$(id -u)" -ne 0 ]; then
-    if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
-        SUDO="sudo -n env DEBIAN_FRONTEND=noninteractive"  # sudo drops the environment
-    else
-        echo "ensure_arm_tools: missing ${missing[*]}; not root and no passwordless sudo." >&2
-        echo "  install them with: apt-get install --no-install-recommends ${missing[*]}" >&2
-        exit 1
-    fi
-fi
-if ! command -v apt-get >/dev/null 2>&1; then
-    echo "ensure_arm_tools: missing ${missing[*]} and apt-get is not available" >&2
-    exit 1
-fi
-
-echo "ensure_arm_tools: installing ${missing[*]}"
-export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -q >/dev/null
-$SUDO apt-get install -y -q --no-install-recommends "${missing[@]}" >/dev/null
+# shellcheck source=apt_install.sh
+. "$(dirname "$0")/apt_install.sh"
+apt_ready ensure_arm_tools "${missing[@]}"
+apt_get_install "${missing[@]}"
 
 for pkg in gcc-arm-none-eabi binutils-arm-none-eabi qemu-system-arm; do
     if ! command -v "${PROBE[$pkg]}" >/dev/null 2>&1; then

@@ -10,28 +10,10 @@ if command -v ser2net >/dev/null 2>&1; then
     echo "ensure_ser2net: $(ser2net -v 2>&1 | head -1) present"
     exit 0
 fi
-if [ "${UWB_NO_INSTALL:-0}" = "1" ]; then
-    echo "ensure_ser2net: ser2net missing (UWB_NO_INSTALL=1, not installing)" >&2
-    exit 1
-fi
-SUDO=""
-if [ "$(id -u)" -ne 0 ]; then
-    if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
-        SUDO="sudo -n env DEBIAN_FRONTEND=noninteractive"  # sudo drops the environment
-    else
-        echo "ensure_ser2net: ser2net missing; not root and no passwordless sudo." >&2
-        echo "  install it with: apt-get install --no-install-recommends ser2net" >&2
-        exit 1
-    fi
-fi
-if ! command -v apt-get >/dev/null 2>&1; then
-    echo "ensure_ser2net: ser2net missing and apt-get is not available" >&2
-    exit 1
-fi
-echo "ensure_ser2net: installing ser2net"
-export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -q >/dev/null
-$SUDO apt-get install -y -q --no-install-recommends ser2net >/dev/null
+# shellcheck source=apt_install.sh
+. "$(dirname "$0")/apt_install.sh"
+apt_ready ensure_ser2net ser2net
+apt_get_install ser2net
 if ! command -v ser2net >/dev/null 2>&1; then
     echo "ensure_ser2net: ser2net still missing after apt-get install" >&2
     exit 1

@@ -28,31 +28,16 @@ probe() {
 if cc=$(find_clang) && probe "$cc"; then
     echo "$cc"; exit 0
 fi
-if [ "${UWB_NO_INSTALL:-0}" = "1" ]; then
-    echo "ensure_clang: clang with libFuzzer not usable (UWB_NO_INSTALL=1, not installing)" >&2
-    exit 1
-fi
-SUDO=""
-if [ "$(id -u)" -ne 0 ]; then
-    if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
-        SUDO="sudo -n"
-    else
-        echo "ensure_clang: clang/libFuzzer missing; not root and no passwordless sudo." >&2
-        echo "  install with: apt-get install --no-install-recommends clang libclang-rt-dev" >&2
-        exit 1
-    fi
-fi
-command -v apt-get >/dev/null 2>&1 || { echo "ensure_clang: clang missing and no apt-get" >&2; exit 1; }
-export DEBIAN_FRONTEND=noninteractive
-echo "ensure_clang: installing clang and the compiler-rt runtimes" >&2
-$SUDO apt-get -o DPkg::Lock::Timeout=900 update -q >/dev/null
+# shellcheck source=../../scripts/apt_install.sh
+. "$(dirname "$0")/../../scripts/apt_install.sh"
+apt_ready ensure_clang clang libclang-rt-dev
 pkgs=(clang)
 # The runtimes (libclang_rt.fuzzer, asan, ubsan) live in libclang-rt-N-dev on Debian >= 12.
 ver=$(apt-cache depends clang 2>/dev/null | sed -n 's/.*Depends: clang-\([0-9][0-9]*\)$/\1/p' | head -1)
 if [ -n "$ver" ] && apt-cache show "libclang-rt-$ver-dev" >/dev/null 2>&1; then
     pkgs+=("libclang-rt-$ver-dev")
 fi
-$SUDO apt-get -o DPkg::Lock::Timeout=900 install -y -q --no-install-recommends "${pkgs[@]}" >/dev/null
+apt_get_install "${pkgs[@]}"
 if cc=$(find_clang) && probe "$cc"; then
     echo "$cc"; exit 0
 fi
