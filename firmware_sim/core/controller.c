@@ -118,31 +118,14 @@ static void motors_off(controller_t *c, uint8_t mode, ctl_output_t *out)
     c->was_flying = 0;
 }
 
-int controller_step(controller_t *c, uint64_t t_us, const ctl_setpoint_t *sp, const ctl_estimate_t *est,
-                    ctl_output_t *out)
+/* Desired acceleration (world), with the integral of the position error. A long gap (the host paused)
+ * is not integrated: it says nothing about a steady-state error. Returns the limit flags. */
+static uint8_t desired_acc(controller_t *c, const ctl_setpoint_t *sp, const ctl_estimate_t *est, float dt,
+                           float a[3])
 {
     const ctl_params_t *p = &c->p;
-    float R[3][3], a[3], zd[3], xc[3], yd[3], xd[3], er[3], M[3][3];
-    float dt = 0.0f, h, h_max, n, thrust;
     uint8_t flags = 0;
-    int i, j, k;
-
-    if (c->has_time && t_us < c->t_us) {
-        return CTL_ERR_TIME_BACKWARDS;
-    }
-    if (c->has_time && c->was_flying) {
-        dt = (float)(t_us - c->t_us) * 1e-6f;
-    }
-    c->t_us = t_us;
-    c->has_time = 1;
-
-    if (sp->mode != CTL_MODE_POSITION || !estimate_finite(est) || !quat_to_rot(est->quat, R)) {
-        motors_off(c, CTL_MODE_OFF, out);
-        return CTL_OK;
-    }
-
-    /* Desired acceleration (world), with the integral of the position error. A long gap (the host
-     * paused) is not integrated: it says nothing about a steady-state error. */
+    int i;
     for (i = 0; i < 3; i++) {
         float ep = sp->pos[i] - est->pos[i];
         float ev = sp->vel[i] - est->vel[i];
@@ -162,29 +145,31 @@ int controller_step(controller_t *c, uint64_t t_us, const ctl_setpoint_t *sp, co
         a[2] = p->a_z_min;
         flags |= CTL_FLAG_TILT_LIMITED;
     }
-    h = sqrtf(a[0] * a[0] + a[1] * a[1]);
-    h_max = a[2] * tanf(p->max_tilt);
-    if (h > h_max) {
-        a[0] *= h_max / h;
-        a[1] *= h_max / h;
-        flags |= CTL_FLAG_TILT_LIMITED;
+    {
+        const float h = sqrtf(a[0] * a[0] + a[1] * a[1]);
+        const float h_max = a[2] * tanf(p->max_tilt);
+        if (h > h_max) {
+            a[0] *= h_max / h;
+            a[1] *= h_max / h;
+            flags |= CTL_FLAG_TILT_LIMITED;
+        }
     }
+    return flags;
+}
 
-    /* Collective thrust: the desired force projected on the current body z axis. */
-    thrust = p->mass * (a[0] * R[0][2] + a[1] * R[1][2] + a[2] * R[2][2]);
-    if (thrust < 0.0f || thrust > p->thrust_max) {
-        flags |= CTL_FLAG_THRUST_SATURATED;
-        thrust = clampf(thrust, 0.0f, p->thrust_max);
-    }
-
-    /* Desired attitude: body z along a, heading from yaw. a_z >= a_z_min > 0 keeps z_d away from the
-     * horizontal plane, so z_d x x_c never vanishes. */
+/* The attitude error e_R = vee(R_des^T R - R^T R_des) / 2 of the desired attitude: body z along a,
+ * heading from yaw. a_z >= a_z_min > 0 keeps z_d away from the horizontal plane, so z_d x x_c never
+ * vanishes. */
+static void attitude_error(const float R[3][3], const float a[3], float yaw, float er[3])
+{
+    float zd[3], xc[3], yd[3], xd[3], M[3][3], n;
+    int i, j, k;
     n = sqrtf(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
     for (i = 0; i < 3; i++) {
         zd[i] = a[i] / n;
     }
-    xc[0] = cosf(sp->yaw);
-    xc[1] = sinf(sp->yaw);
+    xc[0] = cosf(yaw);
+    xc[1] = sinf(yaw);
     xc[2] = 0.0f;
     cross(zd, xc, yd);
     n = sqrtf(yd[0] * yd[0] + yd[1] * yd[1] + yd[2] * yd[2]);
@@ -193,7 +178,7 @@ int controller_step(controller_t *c, uint64_t t_us, const ctl_setpoint_t *sp, co
     }
     cross(yd, zd, xd);
 
-    /* M = R_des^T R - R^T R_des (skew-symmetric); e_R = vee(M) / 2. */
+    /* M = R_des^T R - R^T R_des (skew-symmetric) */
     for (i = 0; i < 3; i++) {
         for (j = 0; j < 3; j++) {
             /* the columns of R_des are xd, yd, zd */
@@ -210,6 +195,39 @@ int controller_step(controller_t *c, uint64_t t_us, const ctl_setpoint_t *sp, co
     er[0] = 0.5f * M[2][1];
     er[1] = 0.5f * M[0][2];
     er[2] = 0.5f * M[1][0];
+}
+
+int controller_step(controller_t *c, uint64_t t_us, const ctl_setpoint_t *sp, const ctl_estimate_t *est,
+                    ctl_output_t *out)
+{
+    const ctl_params_t *p = &c->p;
+    float R[3][3], a[3], er[3];
+    float dt = 0.0f, thrust;
+    uint8_t flags;
+    int i;
+
+    if (c->has_time && t_us < c->t_us) {
+        return CTL_ERR_TIME_BACKWARDS;
+    }
+    if (c->has_time && c->was_flying) {
+        dt = (float)(t_us - c->t_us) * 1e-6f;
+    }
+    c->t_us = t_us;
+    c->has_time = 1;
+
+    if (sp->mode != CTL_MODE_POSITION || !estimate_finite(est) || !quat_to_rot(est->quat, R)) {
+        motors_off(c, CTL_MODE_OFF, out);
+        return CTL_OK;
+    }
+    flags = desired_acc(c, sp, est, dt, a);
+
+    /* Collective thrust: the desired force projected on the current body z axis. */
+    thrust = p->mass * (a[0] * R[0][2] + a[1] * R[1][2] + a[2] * R[2][2]);
+    if (thrust < 0.0f || thrust > p->thrust_max) {
+        flags |= CTL_FLAG_THRUST_SATURATED;
+        thrust = clampf(thrust, 0.0f, p->thrust_max);
+    }
+    attitude_error((const float (*)[3])R, a, sp->yaw, er);
 
     out->mode = CTL_MODE_POSITION;
     out->thrust = thrust;
