@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -106,12 +106,7 @@ def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Sampl
     xv, yv = tensors(val)
     n_in = train.x.shape[1]
     net = nn.Sequential(nn.Linear(n_in, HIDDEN), nn.ReLU(), nn.Linear(HIDDEN, HIDDEN), nn.ReLU(), nn.Linear(HIDDEN, 1))
-    if cfg.optimizer == "sgd":
-        opt: torch.optim.Optimizer = torch.optim.SGD(net.parameters(), lr=cfg.lr, momentum=cfg.momentum, nesterov=True)
-    else:
-        # The fused kernel updates each parameter in one pass: a third of the epoch time at batch 512,
-        # where per-step overhead, not arithmetic, dominates a 2x50 network.
-        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, fused=True)
+    opt = _optimizer(torch, net, cfg)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, cfg.patience // 3))
     gen = torch.Generator().manual_seed(cfg.seed)
     report = TrainReport(epochs=0, best_epoch=0, n_train=len(train), n_val=len(val))
@@ -119,21 +114,10 @@ def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Sampl
     t0 = time.perf_counter()
     since_best = 0
     for epoch in range(1, cfg.max_epochs + 1):
-        net.train()
-        perm = torch.randperm(len(xt), generator=gen)
-        xp, yp = xt[perm], yt[perm]      # one gather per epoch; batches are then contiguous views
-        total = torch.zeros((), dtype=torch.float64)
-        for k in range(0, len(xt), cfg.batch_size):
-            xb, yb = xp[k:k + cfg.batch_size], yp[k:k + cfg.batch_size]
-            opt.zero_grad(set_to_none=True)
-            loss = torch.mean((net(xb).squeeze(1) - yb) ** 2)
-            loss.backward()
-            opt.step()
-            total += loss.detach() * len(xb)
+        report.train_loss.append(_epoch(torch, net, opt, xt, yt, gen, cfg.batch_size))
         net.eval()
         with torch.no_grad():
             vloss = float(torch.mean((net(xv).squeeze(1) - yv) ** 2))
-        report.train_loss.append(float(total) / len(xt))
         report.val_loss.append(vloss)
         report.epochs = epoch
         sched.step(vloss)
@@ -162,6 +146,30 @@ def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Sampl
     report.val_rmse_before_m = float(np.sqrt(np.mean(val.bias ** 2)))
     report.val_rmse_after_m = float(np.sqrt(np.mean((val.bias - pred) ** 2)))
     return result, report
+
+
+def _optimizer(torch: Any, net: Any, cfg: TrainConfig) -> Any:
+    if cfg.optimizer == "sgd":
+        return torch.optim.SGD(net.parameters(), lr=cfg.lr, momentum=cfg.momentum, nesterov=True)
+    # The fused kernel updates each parameter in one pass: a third of the epoch time at batch 512,
+    # where per-step overhead, not arithmetic, dominates a 2x50 network.
+    return torch.optim.Adam(net.parameters(), lr=cfg.lr, fused=True)
+
+
+def _epoch(torch: Any, net: Any, opt: Any, xt: Any, yt: Any, gen: Any, batch_size: int) -> float:
+    """One pass over the shuffled training set; returns its mean training loss."""
+    net.train()
+    perm = torch.randperm(len(xt), generator=gen)
+    xp, yp = xt[perm], yt[perm]      # one gather per epoch; batches are then contiguous views
+    total = torch.zeros((), dtype=torch.float64)
+    for k in range(0, len(xt), batch_size):
+        xb, yb = xp[k:k + batch_size], yp[k:k + batch_size]
+        opt.zero_grad(set_to_none=True)
+        loss = torch.mean((net(xb).squeeze(1) - yb) ** 2)
+        loss.backward()
+        opt.step()
+        total += loss.detach() * len(xb)
+    return float(total) / len(xt)
 
 
 def to_network(net: object, layout: int, in_min: np.ndarray, in_max: np.ndarray, out_min: float,
