@@ -174,7 +174,7 @@ def stage_costs(device: Any, build_name: str, duration_s: float, seed: int) -> l
         flight = flight_for(mode, duration_s, seed)
         for preset in presets:
             cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
-            before = streamer.request_stats()        # device counters are cumulative
+            before = streamer.channel.stats(streamer.timeout_s)   # device counters are cumulative
             run = streamer.run(flight, cfg, Pacing("windowed", 16))
             res = run.results
             ok = (res["outcome"] == OUTCOME_RESULT) & (res["status"] == Status.ACCEPTED)

@@ -76,12 +76,3 @@ def model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None]
         spec = replace(spec, firmware=firmware_for(model))
     return spec, model.hash
 
-
-def hello_dict(hello: Any) -> dict[str, Any]:
-    """The device identity of a HELLO_REPLY, as the summaries and results files record it."""
-    return {"proto_version": hello.proto_version,
-            "firmware": f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}",
-            "build_id": hello.build_id.rstrip(b"\x00").decode(errors="replace"),
-            "target": hello.target.rstrip(b"\x00").decode(errors="replace"),
-            "model_hash": f"{hello.model_hash:016x}", "layout_twr": hello.layout_twr,
-            "layout_tdoa": hello.layout_tdoa, "cost_unit": hello.cost_unit}

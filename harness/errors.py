@@ -58,6 +58,7 @@ class DeviceDied(DeviceError):
 
     def __init__(self, message: str, *, exit_code: int | None = None, log_tail: str = "",
                  log_path: Path | None = None) -> None:
+        self.message = message          # without the details appended below (a wrapper names its own context)
         self.exit_code = exit_code
         self.log_tail = log_tail
         self.log_path = log_path

@@ -92,7 +92,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=30.0)
     args = ap.parse_args(argv)
     with open_device(DeviceSpec()) as device:
-        device.hello(timeout=5.0)  # type: ignore[attr-defined]
         streamer = Streamer(device, timeout_s=10.0)  # type: ignore[arg-type]
         if args.util:
             pairs = recorded(streamer, Path(args.data), args.trial)

@@ -17,7 +17,7 @@ import numpy as np
 from harness.config import PRESETS, EstimatorConfig
 from harness.device.emulator import EmulatorDevice
 from harness.flight.scenarios import scenario_flight
-from harness.link.faulty import FaultRates, FaultyDevice, FaultyLink, unwrap_seqs
+from harness.link.faulty import FaultRates, FaultyLink, unwrap_seqs
 from harness.session import DEFAULT_FIRMWARE, config_for
 from harness.stream.streamer import OUTCOME_LOST, OUTCOME_RESULT, Pacing, Streamer
 from protocol import messages as m
@@ -35,11 +35,10 @@ def fault_accounting(seconds: float, seed: int, direction: str) -> dict[str, Any
     tx, rx = (TX_RATES, FaultRates()) if direction == "tx" else (FaultRates(), RX_RATES)
     with EmulatorDevice(DEFAULT_FIRMWARE) as dev:
         dev.hello(timeout=10.0)
-        plain = Streamer(dev, timeout_s=2.0, seq0=dev.channel.next_seq)
-        s0 = plain.request_stats()
+        s0 = dev.channel.stats(timeout=2.0)
         link = FaultyLink(dev.link, tx=tx, rx=rx, seed=seed)
-        run = Streamer(FaultyDevice(dev, link), timeout_s=1.0, seq0=plain._seq).run(
-            flight, cfg, Pacing("windowed", 32))
+        with dev.channel.through(link) as channel:     # same session (seqs go on), faulty transport
+            run = Streamer(channel, timeout_s=1.0).run(flight, cfg, Pacing("windowed", 32))
     assert run.stats is not None
     d = {k: getattr(run.stats, k) - getattr(s0, k) for k, _ in m.Stats.FIELDS}
     log = link.tx_log if direction == "tx" else link.rx_log

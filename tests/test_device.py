@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.device import Device, EmulatorDevice, EmulatorOptions, FrameChannel, SerialDevice
+from harness.device import Device, DeviceChannel, EmulatorDevice, EmulatorOptions, SerialDevice
 from harness.errors import (DeviceDied, DeviceError, DeviceTimeout, LinkClosed, ModelMismatch, ProtocolMismatch,
                             UwbHilError)
 from harness.link import open_link
@@ -304,7 +304,7 @@ def test_link_closed_without_a_dead_process_stays_link_closed(fake_fw: Path) -> 
         def read(self, max_bytes: int, timeout: float) -> bytes:
             raise LinkClosed("gone")
 
-    channel = FrameChannel(Closed())  # type: ignore[arg-type]
+    channel = DeviceChannel(Closed())  # type: ignore[arg-type]
     with pytest.raises(LinkClosed):
         channel.recv(0.1)
     with pytest.raises(LinkClosed):

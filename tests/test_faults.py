@@ -20,9 +20,9 @@ import pytest
 from harness.config import PRESETS, EstimatorConfig
 from harness.device.emulator import EmulatorDevice
 from harness.flight.scenarios import scenario_flight
-from harness.link.faulty import FaultRates, FaultyDevice, FaultyLink, SeqUnwrap, unwrap_seqs
+from harness.link.faulty import FaultRates, FaultyLink, SeqUnwrap, unwrap_seqs
 from harness.session import DEFAULT_FIRMWARE, config_for
-from harness.stream.batch import encode_rows
+from protocol.batch import encode_rows
 from harness.stream.streamer import OUTCOME_LOST, OUTCOME_RESULT, Pacing, Streamer
 from protocol import encode_frame
 from protocol import messages as m
@@ -50,7 +50,7 @@ def _twr_rows(n: int, rng: np.random.Generator) -> np.ndarray:
 
 def test_crc_rejects_a_million_bit_flipped_frames() -> None:
     """10^6 frames with 1..8 flipped bits (same length): the batch decoder accepts none."""
-    from harness.stream.batch import decode_rows
+    from protocol.batch import decode_rows
     rng = np.random.default_rng(8)
     n = 1_000_000
     rows = _twr_rows(n, rng)[:, :-1].copy()            # COBS bytes without the delimiter
@@ -96,14 +96,14 @@ def test_device_resynchronises_after_garbage_and_oversize(device: EmulatorDevice
     rng = np.random.default_rng(3)
     ch = device.channel
     bursts = [rng.integers(1, 256, int(k), dtype=np.uint8).tobytes() for k in (1, 7, 250, 251, 252, 600, 5000)]
-    stats0 = Streamer(device, seq0=ch.next_seq).request_stats()
+    stats0 = ch.stats()
     for burst in bursts:
         # garbage directly followed by a frame: that frame is lost with the garbage; the next one gets through
         device.link.write(burst + encode_frame(m.Hello(nonce=1), 999) + encode_frame(m.Hello(nonce=7), 1000))
         reply = ch.expect(lambda f: isinstance(f.msg, m.HelloReply), 5.0, "HELLO after garbage")
         assert reply.msg.nonce == 7
         assert ch.recv(0.05) is None                   # and nothing for the swallowed HELLO
-    stats = Streamer(device, seq0=1001).request_stats()
+    stats = ch.stats()
     bad = (stats.crc_errors - stats0.crc_errors) + (stats.framing_errors - stats0.framing_errors)
     assert bad == len(bursts)
     assert stats.frames_ok - stats0.frames_ok == len(bursts) + 1   # the second HELLOs + this STATS_REQ
@@ -117,11 +117,11 @@ def _flight(seconds: float = 8.0, mode: str = "twr", seed: int = 5):  # noqa: AN
 def _run_faulty(device: EmulatorDevice, flight, tx: FaultRates, rx: FaultRates, seed: int,  # noqa: ANN001
                 results_path: Path | None = None, window: int = 32):  # noqa: ANN202
     cfg = config_for(flight, EstimatorConfig(), stages=PRESETS["outlier"])
-    plain = Streamer(device, timeout_s=2.0, seq0=device.channel.next_seq)
-    stats0 = plain.request_stats()
+    stats0 = device.channel.stats(timeout=2.0)
     link = FaultyLink(device.link, tx=tx, rx=rx, seed=seed)
-    run = Streamer(FaultyDevice(device, link), timeout_s=1.0, seq0=plain._seq).run(
-        flight, cfg, Pacing("windowed", window), results_path=results_path)
+    with device.channel.through(link) as channel:      # the same session (seqs go on) over a faulty link
+        run = Streamer(channel, timeout_s=1.0).run(flight, cfg, Pacing("windowed", window),
+                                                   results_path=results_path)
     return run, link, stats0
 
 

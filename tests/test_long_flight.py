@@ -36,7 +36,8 @@ from harness.report.chi2 import chi2_cdf, chi2_quantile
 from harness.report.consistency import monte_carlo_nees, position_nees
 from harness.report.health import reconvergence_s, rejection_streaks
 from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, config_for
-from harness.stream.prepare import prepare, setup_frames
+from harness.device.channel import setup_messages
+from harness.stream.prepare import prepare
 from harness.stream.chunked_run import stream_chunks
 from harness.stream.streamer import OUTCOME_RESULT, RESULTS_DTYPE, Pacing, Streamer
 from protocol import encode_frame
@@ -97,7 +98,7 @@ def long_run(request: pytest.FixtureRequest, long_flight: LongFlight,
     t0 = time.perf_counter()
     with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=log_dir) as dev:
         dev.hello(timeout=10.0)
-        streamer = Streamer(dev, timeout_s=10.0, seq0=dev.channel.next_seq)
+        streamer = Streamer(dev, timeout_s=10.0)
         out = stream_chunks(streamer, long_flight.chunks(),
                             lambda first: config_for(first, EstimatorConfig(), stages=GATES[request.param]),
                             Pacing("windowed", 64))
@@ -185,8 +186,9 @@ def test_full_covariance_stays_symmetric_positive_definite(long_run: LongRun, lo
     assert proc.stdin is not None
     seq = 0
     for i, piece in enumerate(long_flight.chunks()):
-        setup, seq = setup_frames(long_run.cfg, piece, seq, reset=(i == 0))
-        prep = prepare(piece, seq)
+        msgs = setup_messages(long_run.cfg, piece.anchors, reset=(i == 0))
+        setup = b"".join(encode_frame(msg, seq + k) for k, msg in enumerate(msgs))
+        prep = prepare(piece, seq + len(msgs))
         seq = prep.next_seq
         proc.stdin.write(setup + prep.stream)
     proc.stdin.write(encode_frame(m.StatsReq(), seq))
@@ -247,7 +249,7 @@ def test_nees_over_monte_carlo_seeds_on_the_firmware(tmp_path: Path) -> None:
     nees = []
     with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
         dev.hello(timeout=10.0)
-        streamer = Streamer(dev, seq0=dev.channel.next_seq)
+        streamer = Streamer(dev)
         for seed in range(8):
             flight = scenario_flight("circle", mode="twr", duration_s=10.0, seed=100 + seed, noise="gaussian",
                                      noise_std=0.1)

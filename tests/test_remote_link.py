@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from harness.config import EstimatorConfig
-from harness.device.base import FrameChannel
+from harness.device.channel import DeviceChannel
 from harness.errors import DeviceTimeout, LinkTimeout
 from harness.flight.scenarios import scenario_flight
 from harness.link import PtyOptions, PtyPair, SerialLink, make_raw
@@ -216,7 +216,7 @@ def test_frame_channel_timeout_holds_while_peer_floods(payload: bytes) -> None:
         child = subprocess.Popen([sys.executable, "-c", FLOOD_CHILD, pair.slave_path, payload.hex()],
                                  start_new_session=True)
         try:
-            channel = FrameChannel(pair)
+            channel = DeviceChannel(pair)
             assert pair.read(65536, 5.0)           # the flood is on
             t0 = time.monotonic()
             with pytest.raises(DeviceTimeout, match="HELLO"):
@@ -238,17 +238,11 @@ def test_streamer_timeout_holds_while_peer_floods(payload: bytes) -> None:
         slave = pair.slave_fd
         assert slave is not None
 
-        class Peer:
-            link = pair
-
-            def alive(self) -> bool:
-                return True
-
         flight = scenario_flight("hover", mode="twr", duration_s=3.0, seed=1, noise="none")
         with FloodPeer(slave, payload):
             t0 = time.monotonic()
             with pytest.raises(DeviceTimeout, match="silent|STATS"):
-                Streamer(Peer(), timeout_s=1.0).run(flight, config_for(flight, EstimatorConfig()), Pacing("windowed", 8))
+                Streamer(DeviceChannel(pair), timeout_s=1.0).run(flight, config_for(flight, EstimatorConfig()), Pacing("windowed", 8))
             took = time.monotonic() - t0
         assert took < 1.0 + 1.0 + 1.0, took
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.stream.batch import cobs_decode_rows, cobs_encode_rows, decode_rows, encode_rows
+from protocol.batch import cobs_decode_rows, cobs_encode_rows, decode_rows, encode_rows
 from protocol import FrameDecoder, encode_frame
 from protocol import messages as m
 from protocol.cobs import cobs_encode
@@ -57,7 +57,7 @@ def test_bulk_decode_flags_corruption() -> None:
 def test_small_and_large_batch_paths_agree() -> None:
     """Reads of a few RESULTs take the per-row path (crcmod, scalar COBS), big batches the column-wise one:
     same bodies, same verdicts, on clean and corrupted rows alike."""
-    from harness.stream import batch
+    from protocol import batch
     rng = np.random.default_rng(11)
     n = 3 * batch.SMALL_BATCH
     rows = encode_rows(m.Tdoa, {"t_us": rng.integers(0, 2**40, n), "anchor_a": rng.integers(0, 8, n),

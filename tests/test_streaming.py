@@ -76,7 +76,7 @@ def test_streaming_in_slices_gives_the_same_estimates_and_summary(tmp_path: Path
     cfg = config_for(flight, EstimatorConfig(), stages=PRESETS["outlier+nn"])
     with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
         dev.hello(timeout=10.0)
-        streamer = Streamer(dev, seq0=dev.channel.next_seq)
+        streamer = Streamer(dev)
         whole = streamer.run(flight, cfg, Pacing("windowed", 64))
         path = tmp_path / "r.jsonl"
         sliced = stream_plan(streamer, plan, lambda first: config_for(first, EstimatorConfig(),

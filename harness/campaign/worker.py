@@ -95,15 +95,6 @@ def flight_meta(spec: FlightSpec, flight: Flight) -> dict[str, Any]:
     return meta
 
 
-def _hello_dict(hello: Any) -> dict[str, Any]:
-    return {"proto_version": hello.proto_version,
-            "firmware": f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}",
-            "build_id": hello.build_id.rstrip(b"\x00").decode(errors="replace"),
-            "target": hello.target.rstrip(b"\x00").decode(errors="replace"),
-            "model_hash": f"{hello.model_hash:016x}", "layout_twr": hello.layout_twr,
-            "layout_tdoa": hello.layout_tdoa, "cost_unit": hello.cost_unit}
-
-
 def _failure(run: RunSpec, exc: BaseException, started: float) -> dict[str, Any]:
     return {"status": STATUS_FAILED, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
             "error_type": type(exc).__name__, "error": str(exc) or repr(exc),
@@ -129,7 +120,7 @@ def run_group(job: WorkerJob) -> int:
     failed = 0
     device_cm = None
     device = None
-    hello = None
+    ident = None
     try:
         for run in job.runs:
             started = time.time()
@@ -140,12 +131,12 @@ def run_group(job: WorkerJob) -> int:
                     want = int(run.model_hash, 16) if run.model_hash else None
                     device_cm = open_device(spec, expected_model_hash=want)
                     device = device_cm.__enter__()
-                    hello = device.last_hello or device.hello(timeout=job.timeout_s)  # type: ignore[attr-defined]
+                    ident = device.identity
                 cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[run.config], uwb_only=run.flight.uwb_only)
                 streamer = Streamer(device, timeout_s=job.timeout_s)  # type: ignore[arg-type]
                 radio = run.role == ROLE_RADIO
                 result = streamer.run(flight, cfg, pacing, results_path=cdir.results_path(run.run_id), radio=radio)
-                summary = run_summary(result, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+                summary = run_summary(result, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
                 if radio:
                     from harness.report.radio import query_clocks, radio_summary
                     summary["radio"] = radio_summary(result, flight, query_clocks(streamer, flight))
@@ -154,7 +145,7 @@ def run_group(job: WorkerJob) -> int:
                 write_json_atomic(cdir.summary_path(run.run_id), {
                     "status": STATUS_OK, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
                     "firmware_sha256": job.firmware_sha256,
-                    "flight": meta, "device": _hello_dict(hello), "pacing": asdict(pacing),
+                    "flight": meta, "device": ident.as_dict(), "pacing": asdict(pacing),
                     "estimator_config": asdict(cfg), "summary": summary,
                     "divergences": sum(1 for e in result.errors if e.code == m.ErrorCode.DIVERGED),
                     "device_errors": len(result.errors), "wall_s": time.time() - started,

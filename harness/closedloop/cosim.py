@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable, Protocol
+from typing import Any, Callable
 
 import numpy as np
 
@@ -30,26 +30,13 @@ from harness.closedloop.mission import MissionPlan
 from harness.closedloop.sensors import Sensors, SensorConfig
 from harness.closedloop.vehicle import Vehicle, VehicleParams
 from harness.config import MODE_IMU, EstimatorConfig
-from harness.errors import DeviceDied, DeviceError, DeviceTimeout, LinkClosed
+from harness.device.channel import DeviceChannel, as_channel
+from harness.errors import DeviceError, DeviceTimeout
 from harness.flight.arena import Arena
 from harness.flight.measurement_errors import SimConfig
-from protocol import encode_frame
-from protocol.framing import FrameDecoder
 from protocol import messages as m
 
 PACINGS = ("lockstep", "realtime")
-
-
-class LinkLike(Protocol):
-    def write(self, data: bytes) -> None: ...
-    def read(self, max_bytes: int, timeout: float) -> bytes: ...
-
-
-class DeviceLike(Protocol):
-    @property
-    def link(self) -> LinkLike: ...
-    def alive(self) -> bool: ...
-
 
 @dataclass(frozen=True)
 class LoopConfig:
@@ -111,37 +98,18 @@ class FlightLog:
         return int(self.t.shape[0])
 
 
-def _config_msg(cfg: EstimatorConfig) -> m.Config:
-    cfg.validate()
-    d = asdict(cfg)
-    return m.Config(reset=1, reserved=0, **{name: d[name] for name, _ in m.Config.FIELDS
-                                            if name not in ("reset", "reserved")})
-
-
 class ClosedLoop:
-    """Flies missions through one started device (HELLO already checked)."""
+    """Flies missions through one started device (HELLO already checked): the physics, the pacing and the
+    flight log; the frames go through the device's DeviceChannel."""
 
-    def __init__(self, device: DeviceLike, loop: LoopConfig = LoopConfig(), seq0: int = 0) -> None:
+    def __init__(self, device: Any, loop: LoopConfig = LoopConfig()) -> None:
+        """`device`: a DeviceChannel, or a started device (its `channel` is used)."""
         loop.validate()
-        self.device = device
+        self.channel: DeviceChannel = as_channel(device)
         self.loop = loop
-        self._seq = seq0 & 0xFFFF
-        self._decoder = FrameDecoder()
 
-    # ---------------------------------------------------------------------------------- plumbing
     def _frame(self, msg: Any) -> tuple[bytes, int]:
-        seq = self._seq
-        self._seq = (seq + 1) & 0xFFFF
-        return encode_frame(msg, seq), seq
-
-    def _write(self, data: bytes) -> None:
-        try:
-            self.device.link.write(data)
-        except LinkClosed as exc:
-            raise self._died("link closed while writing") from exc
-
-    def _died(self, what: str) -> Exception:
-        return DeviceDied(f"device died: {what}") if not self.device.alive() else LinkClosed(what)
+        return self.channel.frame(msg)
 
     def _await_control(self, seq: int, statuses: dict[str, int], errors: list[m.Error]) -> m.Control | None:
         """Read until the CONTROL for `seq` (returned) or an ERROR refusing it (None)."""
@@ -149,25 +117,16 @@ class ClosedLoop:
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
-                if not self.device.alive():
-                    raise DeviceDied("device died waiting for CONTROL")
                 raise DeviceTimeout.for_request("SETPOINT", self.loop.timeout_s,
-                                                f"seq {seq}; host decoder errors {self._decoder.errors}")
-            try:
-                data = self.device.link.read(65536, min(left, 0.1))
-            except LinkClosed as exc:
-                raise self._died("link closed while reading") from exc
-            if not data:
-                if not self.device.alive():
-                    raise DeviceDied("device died waiting for CONTROL")
-                continue
+                                                f"seq {seq}; host decoder errors {self.channel.errors}")
+            got = self.channel.read(min(left, 0.1))      # DeviceDied when the device is gone
+            for status in got.results["status"].tolist():
+                key = _STATUS_NAMES.get(status, f"status_{status}")
+                statuses[key] = statuses.get(key, 0) + 1
             found: m.Control | None = None
             done = False
-            for f in self._decoder.feed(data):
-                if isinstance(f.msg, m.Result):
-                    key = _STATUS_NAMES.get(f.msg.status, f"status_{f.msg.status}")
-                    statuses[key] = statuses.get(key, 0) + 1
-                elif isinstance(f.msg, m.Control) and f.msg.setpoint_seq == seq:
+            for f in got.frames:
+                if isinstance(f.msg, m.Control) and f.msg.setpoint_seq == seq:
                     found, done = f.msg, True
                 elif isinstance(f.msg, m.Error):
                     errors.append(f.msg)
@@ -196,10 +155,7 @@ class ClosedLoop:
         sub = ctrl_us // phys_us
         lo, hi = np.asarray(arena.lo) - lp.abort_margin_m, np.asarray(arena.hi) + lp.abort_margin_m
         thrust, rates = 0.0, (0.0, 0.0, 0.0)
-        setup = b"".join(self._frame(msg)[0] for msg in [_config_msg(cfg)] + [
-            m.Anchor(anchor_id=int(i), x=float(p[0]), y=float(p[1]), z=float(p[2]))
-            for i, p in zip(arena.anchors.ids, arena.anchors.positions)])
-        self._write(setup)
+        self.channel.configure(cfg, arena.anchors, reset=True)
         wall0 = time.perf_counter()
         late = 0
         aborted: str | None = None
@@ -248,7 +204,7 @@ class ClosedLoop:
                 wait = due - time.perf_counter()
                 if wait > 0:
                     time.sleep(wait)
-            self._write(b"".join(chunks))
+            self.channel.write(b"".join(chunks))
             ctl = self._await_control(seq, statuses, errors)
             if lp.pacing == "realtime" and time.perf_counter() > wall0 + (t_us * 1e-6 + lp.control_dt) / lp.speed:
                 late += 1

@@ -78,9 +78,8 @@ def fly_on_device(device_spec: DeviceSpec, want_hash: int | None, spec: FlySpec,
                   progress: Progress | None = None) -> dict[str, Any]:
     """fly_cells on the device `device_spec` describes (which must carry the model `want_hash` when given);
     the result's `device` is its identity."""
-    from harness.device_args import hello_dict
     with open_device(device_spec, expected_model_hash=want_hash) as device:
-        hello = hello_dict(device.last_hello or device.hello(timeout=spec.loop.timeout_s))
+        hello = device.identity.as_dict()
         result = fly_cells(device, spec, progress)
     result["device"] = hello
     return result

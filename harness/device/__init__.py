@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
-from harness.device.base import Device, FrameChannel
+from harness.device.base import Device
+from harness.device.channel import DeviceChannel
+from harness.device.identity import DeviceIdentity
 from harness.device.emulator import EmulatorDevice, EmulatorOptions
 from harness.device.serial_device import SerialDevice, SerialDeviceOptions
 
-__all__ = ["Device", "EmulatorDevice", "EmulatorOptions", "FrameChannel", "SerialDevice", "SerialDeviceOptions"]
+__all__ = ["Device", "DeviceChannel", "DeviceIdentity", "EmulatorDevice", "EmulatorOptions", "SerialDevice",
+           "SerialDeviceOptions"]

@@ -1,121 +1,23 @@
-"""`Device`: the lifecycle of a device under test (start, stop, alive) on top of a `Link`, plus the
-HELLO handshake every device answers. `FrameChannel`: frames over a link with a tx seq counter.
+"""`Device`: the lifecycle of a device under test (start, stop, alive) on top of a `Link`, and its protocol
+session (`channel`, a DeviceChannel: harness/device/channel.py) with the HELLO handshake every device answers.
 
-The link only moves bytes; the device knows whether the thing on the other end is still running.
-FrameChannel asks it (through `died`) whenever a read times out or the link closes, so a crashed
-emulator surfaces as DeviceDied (exit code + log tail) rather than as a silent timeout.
+The link only moves bytes; the device knows whether the thing on the other end is still running. The
+channel asks it (through `died`) whenever a read finds no input or the link closes, so a crashed emulator
+surfaces as DeviceDied (exit code + log tail) rather than as a silent timeout.
 """
 
 from __future__ import annotations
 
-import secrets
-import time
 from abc import ABC, abstractmethod
-from collections import deque
 from types import TracebackType
-from typing import Any, Callable
+from typing import Any
 
-from harness.errors import DeviceDied, DeviceTimeout, LinkClosed, ModelMismatch, ProtocolMismatch
-from harness.link.base import DEFAULT_READ_SIZE, Link
+from harness.device.channel import DeviceChannel
+from harness.device.identity import DeviceIdentity
+from harness.errors import DeviceDied, DeviceError, DeviceTimeout, ModelMismatch, ProtocolMismatch
+from harness.link.base import Link
 from protocol import PROTOCOL_VERSION
-from protocol.framing import Frame, FrameDecoder, encode_frame
-from protocol.messages import Hello, HelloReply
-
-DeathCheck = Callable[[float], "DeviceDied | None"]
-
-
-def _never_died(grace_s: float) -> DeviceDied | None:  # noqa: ARG001 - a board we cannot observe
-    return None
-
-
-class FrameChannel:
-    """Protocol frames over a link: encodes with a running seq, decodes with a FrameDecoder.
-
-    `died(grace_s)` returns a DeviceDied if the device has exited (waiting up to `grace_s` for the
-    exit to become visible), else None.
-    """
-
-    def __init__(self, link: Link, died: DeathCheck = _never_died, seq0: int = 0,
-                 poll_s: float = 0.1, death_grace_s: float = 0.5) -> None:
-        self.link = link
-        self.decoder = FrameDecoder()
-        self._died = died
-        self._seq = seq0 & 0xFFFF
-        self._pending: deque[Frame] = deque()
-        self._poll_s = poll_s
-        self._death_grace_s = death_grace_s
-        self._resynced = False
-        self.skipped = 0    # frames expect() read past while waiting for another one
-
-    @property
-    def next_seq(self) -> int:
-        """The seq the next send() will use (hand it on when another writer takes over the link)."""
-        return self._seq
-
-    @property
-    def errors(self) -> Any:
-        return self.decoder.errors
-
-    def send(self, msg: Any) -> int:
-        """Send one message; returns its seq."""
-        seq = self._seq
-        data = encode_frame(msg, seq)
-        if not self._resynced:
-            # A leading delimiter ends whatever half frame the device may hold (line noise, a
-            # previous session); empty frames are ignored by both sides.
-            data = b"\x00" + data
-        try:
-            self.link.write(data)
-        except LinkClosed as exc:
-            raise self._death_or(exc) from exc
-        self._resynced = True
-        self._seq = (seq + 1) & 0xFFFF
-        return seq
-
-    def recv(self, timeout: float) -> Frame | None:
-        """The next frame, or None after `timeout` s. DeviceDied if the device exited meanwhile."""
-        deadline = time.monotonic() + max(0.0, timeout)
-        while not self._pending:
-            left = deadline - time.monotonic()
-            try:
-                data = self.link.read(DEFAULT_READ_SIZE, max(0.0, min(left, self._poll_s)))
-            except LinkClosed as exc:
-                raise self._death_or(exc) from exc
-            if data:
-                self._pending.extend(self.decoder.feed(data))
-                if not self._pending and deadline - time.monotonic() <= 0:
-                    return None    # a peer that floods bytes without a frame must not hold us past the deadline
-                continue
-            dead = self._died(0.0)  # input is drained: a dead device has nothing more to say
-            if dead is not None:
-                raise dead
-            if left <= 0:
-                return None
-        return self._pending.popleft()
-
-    def expect(self, match: Callable[[Frame], bool], timeout: float, request: str) -> Frame:
-        """The first frame for which `match` is true; other frames are skipped (and counted)."""
-        start = time.monotonic()
-        deadline = start + max(0.0, timeout)
-        while True:
-            frame = self.recv(max(0.0, deadline - time.monotonic()))
-            if frame is not None and match(frame):
-                return frame
-            if frame is not None:
-                self.skipped += 1
-            # checked after every frame too: a peer sending other frames back to back must not hold us
-            if time.monotonic() >= deadline:
-                raise DeviceTimeout.for_request(request, time.monotonic() - start, self.diagnosis())
-
-    def _death_or(self, exc: LinkClosed) -> Exception:
-        dead = self._died(self._death_grace_s)
-        return dead if dead is not None else exc
-
-    def diagnosis(self) -> str:
-        errs = self.decoder.errors
-        total = errs.total() if hasattr(errs, "total") else errs
-        return f"link {self.link.name}, {self.decoder.frames_ok} frames decoded, {self.skipped} skipped, " \
-               f"decoder errors {total}"
+from protocol.messages import HelloReply
 
 
 class Device(ABC):
@@ -124,8 +26,8 @@ class Device(ABC):
     hello_resend_s: float = 1.0   # HELLO is repeated this often while waiting (a board may be booting)
 
     def __init__(self) -> None:
-        self._channel: FrameChannel | None = None
-        self._last_hello: HelloReply | None = None
+        self._channel: DeviceChannel | None = None
+        self._channel_link: Link | None = None
 
     # -------------------------------------------------------------------------- to implement
     @property
@@ -153,49 +55,45 @@ class Device(ABC):
 
     # ----------------------------------------------------------------------------- protocol
     @property
-    def channel(self) -> FrameChannel:
-        """Frame channel over the current link (a new one after every start)."""
+    def channel(self) -> DeviceChannel:
+        """The protocol session over the current link (a new one after every start)."""
         link = self.link
-        if self._channel is None or self._channel.link is not link:
+        if self._channel is None or self._channel_link is not link:
             self._channel = self._new_channel(link)
+            self._channel_link = link
         return self._channel
 
-    def _new_channel(self, link: Link) -> FrameChannel:
-        return FrameChannel(link, self.died)
+    #: on a closed link, how long the channel waits for the device's exit to become visible
+    death_grace_s: float = 0.5
+
+    def _new_channel(self, link: Link) -> DeviceChannel:
+        return DeviceChannel(link, self.died, death_grace_s=self.death_grace_s)
+
+    @property
+    def identity(self) -> DeviceIdentity:
+        """Who the device said it is in the current session's HELLO (DeviceError before one)."""
+        identity = self._channel.identity if self._channel is not None else None
+        if identity is None:
+            raise DeviceError(f"{self.name}: no HELLO answered in this session")
+        return identity
 
     @property
     def last_hello(self) -> HelloReply | None:
-        return self._last_hello
+        return self._channel.identity.reply if self._channel is not None and self._channel.identity else None
 
     def hello(self, timeout: float = 5.0) -> HelloReply:
-        """Send HELLO with a random nonce; wait for the HELLO_REPLY carrying it."""
-        nonce = secrets.randbits(32)
-        channel = self.channel
-        start = time.monotonic()
-        deadline = start + max(0.0, timeout)
-        sent = 0
-        while True:
-            channel.send(Hello(nonce=nonce))
-            sent += 1
-            wait = min(self.hello_resend_s, max(0.0, deadline - time.monotonic()))
-            try:
-                frame = channel.expect(lambda f: isinstance(f.msg, HelloReply) and f.msg.nonce == nonce,
-                                       wait, "HELLO")
-            except DeviceTimeout:
-                if time.monotonic() < deadline:
-                    continue
-                raise DeviceTimeout.for_request(
-                    "HELLO", time.monotonic() - start,
-                    f"{self.name}: nonce {nonce:#010x}, sent {sent}x; {channel.diagnosis()}") from None
-            reply: HelloReply = frame.msg
-            self._last_hello = reply
-            return reply
+        """Send HELLO with a random nonce; wait for the HELLO_REPLY carrying it (repeated every
+        `hello_resend_s`). The identity stays available as `identity`."""
+        try:
+            return self.channel.hello(timeout, self.hello_resend_s).reply
+        except DeviceTimeout as exc:
+            raise DeviceTimeout(f"{exc} [{self.name}]", request=exc.request, waited_s=exc.waited_s) from None
 
     def check(self, expected_model_hash: int | str | None = None, expected_proto: int = PROTOCOL_VERSION,
               expected_layouts: tuple[int, int] | None = None) -> HelloReply:
         """Raise ProtocolMismatch / ModelMismatch unless the device is the expected firmware.
-        Uses the last HELLO_REPLY (sends HELLO first if there was none)."""
-        reply = self._last_hello or self.hello()
+        Uses the session's HELLO (sends one first if there was none)."""
+        reply = self.last_hello or self.hello()
         if reply.proto_version != expected_proto:
             raise ProtocolMismatch.versions(expected_proto, reply.proto_version)
         want = _as_hash(expected_model_hash)
@@ -212,13 +110,8 @@ class Device(ABC):
             out["link"] = self.link.info()
         except Exception:  # noqa: BLE001 - not started: no link to describe
             pass
-        reply = self._last_hello
-        if reply is not None:
-            out.update(proto_version=reply.proto_version,
-                       firmware=f"{reply.fw_major}.{reply.fw_minor}.{reply.fw_patch}",
-                       build_id=_ascii(reply.build_id), target=_ascii(reply.target),
-                       model_hash=f"{reply.model_hash:#018x}", cost_unit=reply.cost_unit,
-                       layout_twr=reply.layout_twr, layout_tdoa=reply.layout_tdoa)
+        if self._channel is not None and self._channel.identity is not None:
+            out.update(self._channel.identity.describe())
         return out
 
     # ------------------------------------------------------------------------ context manager
@@ -238,7 +131,3 @@ def _as_hash(value: int | str | None) -> int | None:
     if value is None or isinstance(value, int):
         return value
     return int(value, 16)
-
-
-def _ascii(raw: bytes) -> str:
-    return raw.rstrip(b"\x00").decode("ascii", errors="replace")

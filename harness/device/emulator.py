@@ -27,7 +27,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.device.base import Device, FrameChannel
+from harness.device.base import Device
 from harness.errors import DeviceDied, DeviceError
 from harness.link.base import Link
 from harness.link.pty_link import PtyOptions, PtyPair
@@ -81,8 +81,9 @@ class EmulatorDevice(Device):
             raise DeviceError(f"{self.name} is not started")
         return self._pty
 
-    def _new_channel(self, link: Link) -> FrameChannel:
-        return FrameChannel(link, self.died, death_grace_s=self.options.death_grace_s)
+    @property
+    def death_grace_s(self) -> float:  # type: ignore[override]
+        return self.options.death_grace_s
 
     def command(self, tty_path: str) -> list[str]:
         return [*self.wrapper, str(self.binary), "--tty", tty_path, *self.args]

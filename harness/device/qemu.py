@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from harness.device.base import Device, FrameChannel
+from harness.device.base import Device
 from harness.device.qemu_link import QemuPtyLink
 from harness.errors import DeviceDied, DeviceError
 from harness.link.base import Link
@@ -343,9 +343,6 @@ class QemuDevice(Device):
         if self._link is None:
             raise DeviceError(f"{self.name} is not started")
         return self._link
-
-    def _new_channel(self, link: Link) -> FrameChannel:
-        return FrameChannel(link, self.died, death_grace_s=0.5)
 
     def start(self) -> None:
         if self._proc is not None:

@@ -274,16 +274,3 @@ class FaultyLink(Link):
     def close(self) -> None:
         self.inner.close()
 
-
-class FaultyDevice:
-    """A started device seen through a FaultyLink (what the Streamer needs: `link` and `alive()`)."""
-
-    def __init__(self, device: Any, link: FaultyLink) -> None:
-        self.device = device
-        self.link = link
-
-    def alive(self) -> bool:
-        return bool(self.device.alive())
-
-    def died(self, grace_s: float = 0.0) -> Any:
-        return self.device.died(grace_s)

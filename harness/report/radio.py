@@ -21,7 +21,7 @@ def radio_senders(flight: Flight) -> list[int]:
 
 def query_clocks(streamer: Streamer, flight: Flight) -> dict[int, m.Clock]:
     """Ask the device for its clock correction of every anchor the flight's packets came from."""
-    return {a: streamer.request_clock(a) for a in radio_senders(flight)}
+    return {a: streamer.channel.clock(a, streamer.timeout_s) for a in radio_senders(flight)}
 
 
 def radio_summary(run: RunResult, flight: Flight, clocks: dict[int, m.Clock]) -> dict[str, Any]:

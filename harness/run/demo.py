@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.device_args import hello_dict
 from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.run.single import radio_section
@@ -36,13 +35,13 @@ def run_demo(spec: DeviceSpec, flights: DemoFlights, pacing: Pacing,
     from harness.flight.scenarios import scenario_flight
     rows = []
     with open_device(spec) as device:
-        hello = device.hello(timeout=timeout_s)
+        ident = device.identity
         streamer = Streamer(device, timeout_s=timeout_s)
 
         def fly(flight: Flight, preset: str, mode: str, radio: bool = False) -> dict[str, Any]:
             cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
             run = streamer.run(flight, cfg, pacing, radio=radio)
-            s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+            s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
             s["mode"], s["config"] = mode, preset
             if radio:
                 s["radio"] = radio_section(streamer, run, flight)
@@ -56,4 +55,4 @@ def run_demo(spec: DeviceSpec, flights: DemoFlights, pacing: Pacing,
         for protocol in RADIO_PROTOCOLS:
             flight = radio_level(base, protocol, seed=flights.seed)
             rows += [fly(flight, preset, f"{protocol} radio", radio=True) for preset in RADIO_PRESETS]
-    return hello_dict(hello), rows
+    return ident.as_dict(), rows

@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from harness.config import EstimatorConfig
-from harness.device_args import hello_dict
 from harness.errors import ResultsFileError
 from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
@@ -64,8 +63,8 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
     plan = None if (src.radio or src.height) else long_simulation(src)
     flight = make_run_flight(src) if plan is None else None
     with open_device(spec, expected_model_hash=want_hash) as device:
-        hello = device.hello(timeout=timeout_s)
-        layouts = (hello.layout_twr, hello.layout_tdoa)
+        ident = device.identity
+        layouts = ident.layouts
 
         def checked_config(first: Flight) -> EstimatorConfig:
             cfg = run_config(src, first)
@@ -73,7 +72,7 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
                 check_network_inputs(first, cfg, layouts)
             return cfg
 
-        header = {"source": src.as_header(), "device": hello_dict(hello)}
+        header = {"source": src.as_header(), "device": ident.as_dict()}
         streamer = Streamer(device, timeout_s=timeout_s)
         with _shown(progress, f"{flight.name if flight is not None else plan.name} ({src.stages})") as update:
             if plan is not None:
@@ -89,9 +88,9 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
                 run = streamer.run(flight, cfg, pacing, results_path=results, progress=update,
                                    header_extra=header, overwrite=overwrite, radio=bool(src.radio))
         radio = radio_section(streamer, run, flight) if src.radio else None
-    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
     summary["config"] = src.stages
-    summary["device"] = hello_dict(hello)
+    summary["device"] = ident.as_dict()
     if radio is not None:
         summary["radio"] = radio
     return summary
@@ -119,15 +118,15 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
         cfg = run_config(src, flight)
         spec, want_hash = device_spec(src)
         with open_device(spec, expected_model_hash=want_hash) as device:
-            hello = device.hello(timeout=timeout_s)
-            check_resumable(rec, flight, cfg, hello_dict(hello))
+            ident = device.identity
+            check_resumable(rec, flight, cfg, ident.as_dict())
             with _shown(progress, f"{flight.name} (resume at {rec.next_index})") as update:
                 run, info = resume_run(device, rec, flight, locked, timeout_s=timeout_s, progress=update)
     finally:
         locked.close()
-    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=hello.cost_unit)
+    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
     summary["config"] = header_src.get("stages")
-    summary["device"] = hello_dict(hello)
+    summary["device"] = ident.as_dict()
     summary["resume"] = info
     return summary
 

@@ -6,10 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.config import EstimatorConfig
 from harness.flight.data import KIND_TWR, Flight
-from harness.stream.batch import encode_rows
-from protocol import encode_frame
+from protocol.batch import encode_rows
 from protocol import messages as m
 
 
@@ -26,16 +24,15 @@ class PreparedFlight:
     next_seq: int             # first seq after the stream
 
 
-def setup_frames(config: EstimatorConfig, flight: Flight, seq0: int, reset: bool = True,
-                 anchors: bool = True) -> tuple[bytes, int]:
-    """CONFIG (with reset) and one ANCHOR per anchor (unless `anchors` is False: at radio level the
-    positions come over the air, in the packets' LPP), ahead of the sensor stream."""
-    config.validate()
-    msgs: list[object] = [config.to_message(reset=int(reset))]
-    for aid, pos in zip(flight.anchors.ids, flight.anchors.positions) if anchors else ():
-        msgs.append(m.Anchor(anchor_id=int(aid), x=float(pos[0]), y=float(pos[1]), z=float(pos[2])))
-    out = b"".join(encode_frame(msg, seq0 + i) for i, msg in enumerate(msgs))
-    return out, seq0 + len(msgs)
+def frame_count(flight: Flight, include_imu: bool = True, radio: bool = False) -> int:
+    """How many frames `prepare` makes of the flight (the seqs to reserve); refuses a flight that cannot
+    be streamed so."""
+    flight.validate()
+    if radio and flight.radio is None:
+        raise ValueError(f"{flight.name}: no radio-level stream (simulate_radio / radio_from_recording)")
+    n_imu = len(flight.imu) if (include_imu and flight.has_imu and flight.imu is not None) else 0
+    n_uwb = len(flight.radio.t_us) if (radio and flight.radio is not None) else len(flight.uwb)
+    return n_imu + n_uwb + (len(flight.height) if flight.height is not None else 0)
 
 
 def _radio_rows(flight: Flight, seqs: np.ndarray) -> np.ndarray:
@@ -50,9 +47,7 @@ def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = F
     """Encode every IMU sample, HEIGHT pseudo-measurement and UWB measurement of the flight, merged in time
     order (IMU, then HEIGHT, then UWB at equal times, as Flight.events()). radio: the flight's radio
     packets (RADIO frames) take the place of its measurements."""
-    flight.validate()
-    if radio and flight.radio is None:
-        raise ValueError(f"{flight.name}: no radio-level stream (simulate_radio / radio_from_recording)")
+    n_frames = frame_count(flight, include_imu, radio)
     u = flight.uwb
     imu = flight.imu if (include_imu and flight.has_imu) else None
     hgt = flight.height
@@ -64,6 +59,7 @@ def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = F
                         hgt.t_us if hgt is not None else np.zeros(0, np.int64)]).astype(np.int64)
     rank = np.concatenate([np.zeros(n_imu, np.int8), np.full(n_uwb, 2, np.int8), np.ones(n_h, np.int8)])
     order = np.lexsort((rank, t))
+    assert len(order) == n_frames
     pos_of = np.empty_like(order)
     pos_of[order] = np.arange(len(order))          # stream position of each source row
     seqs = (seq0 + pos_of) & 0xFFFF

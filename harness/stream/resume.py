@@ -259,7 +259,7 @@ def resume_run(device: Any, rec: RecordedRun, flight: Flight, locked: LockedResu
         info["note"] = "nothing to resume: every measurement has a result"
         return run_from_file(rec.path, flight), info
     prefix, suffix = split_flight(flight, k0)
-    streamer = Streamer(device, timeout_s=timeout_s, seq0=_next_seq(device))
+    streamer = Streamer(device, timeout_s=timeout_s)
     t0 = time.perf_counter()
     if prefix is not None:
         window = pacing.window if pacing.mode != "lockstep" else 64
@@ -278,11 +278,6 @@ def resume_run(device: Any, rec: RecordedRun, flight: Flight, locked: LockedResu
     streamer.run(suffix, cfg, pacing, writer=writer, reset=prefix is None, progress=progress)
     info["appended"] = len(suffix.uwb)
     return run_from_file(rec.path, flight), info
-
-
-def _next_seq(device: Any) -> int:
-    channel = getattr(device, "channel", None)
-    return int(channel.next_seq) if channel is not None else 0
 
 
 def run_from_file(path: Path, flight: Flight) -> RunResult:

@@ -14,46 +14,34 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import Any, Callable
 
 import numpy as np
 
 from harness.config import EstimatorConfig
-from harness.errors import DeviceDied, DeviceTimeout, LinkClosed
+from harness.device.channel import DeviceChannel, Replies, as_channel
+from harness.errors import DeviceTimeout
 from harness.flight.data import Flight
-from harness.stream.batch import body_dtype, decode_rows
-from harness.stream.prepare import PreparedFlight, prepare, setup_frames
+from harness.stream.prepare import PreparedFlight, frame_count, prepare
 from harness.stream.results_file import LockedResults
-from protocol import encode_frame
 from protocol import messages as m
-from protocol.framing import DecoderErrors, Frame, FrameDecoder
+from protocol.batch import RESULT_DTYPE
+from protocol.framing import DecoderErrors
 
 OUTCOME_PENDING, OUTCOME_RESULT, OUTCOME_ERROR, OUTCOME_LOST = 0, 1, 2, 3
 #: a RADIO packet the device used but that formed no measurement (RADIO_DROP; error_code = drop_reason)
 OUTCOME_NO_MEAS = 4
 PACING_MODES = ("lockstep", "windowed", "realtime")
 
-_RESULT_DT = body_dtype(m.Result)
-_RESULT_ENC_LEN = _RESULT_DT.itemsize + 1
+_RESULT_DT = RESULT_DTYPE
 RESULT_FIELDS = [name for name, _ in m.Result.FIELDS]
 RESULTS_DTYPE = np.dtype([(name, _RESULT_DT[name]) for name in RESULT_FIELDS]
                          + [("t_send_ns", "<i8"), ("t_recv_ns", "<i8"), ("outcome", "i1"), ("error_code", "u1")])
 _FIELDS_OFFSET = _RESULT_DT.fields[RESULT_FIELDS[0]][1]
 _FIELDS_NBYTES = sum(RESULTS_DTYPE[name].itemsize for name in RESULT_FIELDS)
 assert all(RESULTS_DTYPE.fields[n][1] + _FIELDS_OFFSET == _RESULT_DT.fields[n][1] for n in RESULT_FIELDS)
-
-
-class LinkLike(Protocol):
-    def write(self, data: bytes) -> None: ...
-    def read(self, max_bytes: int, timeout: float) -> bytes: ...
-
-
-class DeviceLike(Protocol):
-    @property
-    def link(self) -> LinkLike: ...
-    def alive(self) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -99,45 +87,6 @@ class RunResult:
     def realtime_factor(self) -> float:
         """Simulated over wall time; NaN when the wall time is unknown (a resumed run): not infinite."""
         return self.sim_s / self.wall_s if self.wall_s > 0 else float("nan")
-
-
-class ReplyReader:
-    """Splits device output into frames; RESULT frames are decoded in bulk with numpy."""
-
-    def __init__(self) -> None:
-        self._buf = b""
-        self.decoder = FrameDecoder()
-
-    @property
-    def errors(self) -> DecoderErrors:
-        return self.decoder.errors
-
-    def feed(self, data: bytes) -> tuple[np.ndarray, list[Frame]]:
-        buf = self._buf + data
-        cut = buf.rfind(b"\x00")
-        if cut < 0:
-            self._buf = buf
-            if len(buf) > 4096:  # no delimiter for this long: garbage, let the decoder count it
-                self.decoder.feed(buf)
-                self._buf = b""
-            return np.zeros(0, _RESULT_DT), []
-        self._buf = buf[cut + 1:]
-        chunks = buf[:cut].split(b"\x00")
-        # In a COBS frame the type byte (non-zero) sits unchanged right after the first code byte.
-        res = [c for c in chunks if len(c) == _RESULT_ENC_LEN and c[1] == m.Result.MSG_ID]
-        others = [c for c in chunks if c and not (len(c) == _RESULT_ENC_LEN and c[1] == m.Result.MSG_ID)]
-        results = np.zeros(0, _RESULT_DT)
-        if res:
-            rows = np.frombuffer(b"".join(res), dtype=np.uint8).reshape(len(res), _RESULT_ENC_LEN)
-            arr, valid = decode_rows(m.Result, rows)
-            bad = int(np.count_nonzero(~valid))
-            if bad:
-                # corrupted on the way: let the scalar decoder classify and count each one
-                others += [res[i] for i in np.nonzero(~valid)[0]]
-            results = arr[valid]
-            self.decoder.frames_ok += len(results)
-        frames = self.decoder.feed(b"".join(c + b"\x00" for c in others)) if others else []
-        return results, frames
 
 
 @dataclass
@@ -196,81 +145,17 @@ class ResultsWriter:
 
 
 class Streamer:
-    """Drives one device through flights. The device must be started (and HELLO-checked) already."""
+    """Drives one device through flights: pacing and bookkeeping. The frames go through the device's
+    DeviceChannel (seq, decoder, link and device errors); the device must be started and HELLO-checked."""
 
-    def __init__(self, device: DeviceLike, timeout_s: float = 5.0, seq0: int = 0) -> None:
-        self.device = device
+    def __init__(self, device: Any, timeout_s: float = 5.0) -> None:
+        """`device`: a DeviceChannel, or a started device (its `channel` is used)."""
+        self.channel: DeviceChannel = as_channel(device)
         self.timeout_s = timeout_s
-        self._seq = seq0 & 0xFFFF
-        self._reader = ReplyReader()
         self._sent_bytes = 0
 
-    # -------------------------------------------------------------------------------- plumbing
-    def _write(self, data: bytes) -> None:
-        try:
-            self.device.link.write(data)
-        except LinkClosed as exc:
-            raise self._died("link closed while writing") from exc
-
-    #: bytes per write between reads. The device answers a 21-byte TWR with a ~115-byte RESULT; if the
-    #: harness wrote a long burst without reading, the device's replies could fill the pty while it is
-    #: still being written to, both sides would block in write() and the run would fail after the write
-    #: timeout with a false "device stopped reading" (seen under load in realtime pacing).
-    WRITE_SLICE = 2048
-
     def _write_stream(self, data: bytes, state: _State, writer: ResultsWriter) -> None:
-        for off in range(0, len(data), self.WRITE_SLICE):
-            self._write(data[off:off + self.WRITE_SLICE])
-            if off + self.WRITE_SLICE < len(data):
-                got, frames = self._read(0.0)
-                if len(got) or frames:
-                    self._absorb(got, frames, state, writer, time.perf_counter_ns())
-
-    def _died(self, what: str) -> Exception:
-        if not self.device.alive():
-            return DeviceDied(f"device died: {what}")
-        return LinkClosed(what)
-
-    def _read(self, timeout: float) -> tuple[np.ndarray, list[Frame]]:
-        try:
-            data = self.device.link.read(65536, timeout)
-        except LinkClosed as exc:
-            raise self._died("link closed while reading") from exc
-        if not data:
-            return np.zeros(0, _RESULT_DT), []
-        return self._reader.feed(data)
-
-    def _next_seq(self) -> int:
-        s = self._seq
-        self._seq = (self._seq + 1) & 0xFFFF
-        return s
-
-    def request_stats(self, timeout: float | None = None) -> m.Stats:
-        """Ask for the device counters; also the liveness probe after a silence."""
-        self._write(encode_frame(m.StatsReq(), self._next_seq()))
-        deadline = time.monotonic() + (self.timeout_s if timeout is None else timeout)
-        while time.monotonic() < deadline:
-            _, frames = self._read(min(0.05, max(0.0, deadline - time.monotonic())))
-            for f in frames:
-                if isinstance(f.msg, m.Stats):
-                    return f.msg
-            if not self.device.alive():
-                raise DeviceDied("device died while waiting for STATS")
-        raise DeviceTimeout(f"no STATS reply within {self.timeout_s if timeout is None else timeout:.1f} s")
-
-    def request_clock(self, anchor_id: int, timeout: float | None = None) -> m.Clock:
-        """The TDoA engine's clock correction of one anchor (CLOCK_REQ -> CLOCK)."""
-        self._write(encode_frame(m.ClockReq(anchor_id=anchor_id), self._next_seq()))
-        wait = self.timeout_s if timeout is None else timeout
-        deadline = time.monotonic() + wait
-        while time.monotonic() < deadline:
-            _, frames = self._read(min(0.05, max(0.0, deadline - time.monotonic())))
-            for f in frames:
-                if isinstance(f.msg, m.Clock) and f.msg.anchor_id == anchor_id:
-                    return f.msg
-            if not self.device.alive():
-                raise DeviceDied("device died while waiting for CLOCK")
-        raise DeviceTimeout(f"no CLOCK reply within {wait:.1f} s")
+        self.channel.write_stream(data, lambda got: self._absorb(got, state, writer))
 
     # ------------------------------------------------------------------------------ the run
     def run(self, flight: Flight, config: EstimatorConfig, pacing: Pacing = Pacing(),
@@ -283,10 +168,10 @@ class Streamer:
         filter state (the CONFIG is sent without reset: a resumed run continues a replayed prefix).
         `radio`: stream the flight's radio packets (one row per packet; OUTCOME_NO_MEAS for those that
         formed no measurement) instead of its measurements; anchor positions then come from their LPP."""
-        setup, self._seq = setup_frames(config, flight, self._seq, reset=reset, anchors=not radio)
-        prep = prepare(flight, self._seq, include_imu=include_imu, radio=radio)
-        self._seq = prep.next_seq
-        n = len(prep.meas_end)
+        config.validate()
+        ch = self.channel
+        n_frames = frame_count(flight, include_imu, radio)     # refuses a flight it cannot stream
+        n = len(flight.radio.t_us if (radio and flight.radio is not None) else flight.uwb.t_us)
         results = np.zeros(n, RESULTS_DTYPE)
         state = _State(results=results, seq_to_meas={})
         if writer is None:
@@ -295,33 +180,25 @@ class Streamer:
                                                   **(header_extra or {})}, overwrite=overwrite)
         t_start = time.perf_counter()
         try:
-            self._write(setup)
-            self._drain_setup(state)
+            ch.configure(config, None if radio else flight.anchors, reset=reset)
+            prep = prepare(flight, ch.reserve(n_frames), include_imu=include_imu, radio=radio)
+            assert len(prep.meas_end) == n
             if pacing.mode == "realtime":
                 self._run_realtime(prep, pacing, state, writer, progress)
             else:
                 self._run_windowed(prep, pacing.in_flight, state, writer, progress)
             self._finish(prep, state, writer)
-            state.stats = self.request_stats()
-            writer.write_record({"type": "stats", **asdict(state.stats),
-                                 "host_decoder": asdict(self._reader.errors)})
+            state.stats = ch.stats(self.timeout_s)
+            writer.write_record({"type": "stats", **asdict(state.stats), "host_decoder": asdict(ch.errors)})
         finally:
             writer.close()
         wall = time.perf_counter() - t_start
         sim = (int(flight.uwb.t_us[-1]) - int(flight.uwb.t_us[0])) * 1e-6 if n else 0.0
         return RunResult(flight=flight.name, config=config, pacing=pacing, results=results, stats=state.stats,
-                         decoder_errors=self._reader.errors, errors=state.errors, wall_s=wall, sim_s=sim)
+                         decoder_errors=replace(ch.errors), errors=state.errors, wall_s=wall, sim_s=sim)
 
-    def _drain_setup(self, state: _State) -> None:
-        """CONFIG/ANCHOR produce no reply unless refused: give the device a moment to refuse."""
-        _, frames = self._read(0.0)
-        for f in frames:
-            if isinstance(f.msg, m.Error):
-                from harness.errors import DeviceError
-                raise DeviceError(f"device refused the setup: {f.msg}")
-
-    def _absorb(self, got: np.ndarray, frames: list[Frame], state: _State, writer: ResultsWriter,
-                now_ns: int) -> None:
+    def _absorb(self, replies: Replies, state: _State, writer: ResultsWriter) -> None:
+        got, frames, now_ns = replies.results, replies.frames, replies.t_ns
         res = state.results
         answered: list[int] = []
         if len(got):
@@ -374,19 +251,18 @@ class Streamer:
             state.last_rx = time.monotonic()
 
     def _wait_progress(self, state: _State, writer: ResultsWriter, wait_s: float) -> None:
-        got, frames = self._read(wait_s)
-        if len(got) or frames:
-            self._absorb(got, frames, state, writer, time.perf_counter_ns())
+        got = self.channel.read(wait_s)
+        if got:
+            self._absorb(got, state, writer)
         # only answers to our measurements reset last_rx: other frames or bytes (a flooding peer) do not
         if time.monotonic() - state.last_rx > self.timeout_s:
             self._probe(state, writer)
 
     def _probe(self, state: _State, writer: ResultsWriter) -> None:
-        """Silence: a dead device raises; a live one that answers STATS lost our frames."""
-        if not self.device.alive():
-            raise DeviceDied(f"device died after {state.resolved_upto} measurements")
+        """Silence: a dead device raises (DeviceDied from the channel); a live one that answers STATS lost
+        our frames."""
         try:
-            stats = self.request_stats(timeout=min(2.0, self.timeout_s))
+            stats = self.channel.stats(timeout=min(2.0, self.timeout_s))
         except DeviceTimeout:
             raise DeviceTimeout(f"device silent for {self.timeout_s:.1f} s after {state.resolved_upto} "
                                 f"measurements (no RESULT, no STATS)") from None

@@ -2,8 +2,9 @@
 
 A replay at hundreds of times real time cannot afford a Python loop per frame, so the streamer encodes a
 flight once into one byte string with numpy (struct layout from the generated message classes, CRC-32C
-and COBS done column-wise). The scalar codec in protocol.framing stays the reference: tests check that
-both produce identical bytes.
+and COBS done column-wise), and `ReplyDecoder` splits the device's output with the RESULT frames decoded
+in bulk. The scalar codec in protocol.framing stays the reference: tests check that both produce
+identical bytes and frames.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from protocol import messages as m
 from protocol._generated import CRC_SIZE, HEADER_SIZE, MAX_BODY
-from protocol.framing import crc32c
+from protocol.framing import DecoderErrors, Frame, FrameDecoder, crc32c
 from protocol.spec import SCALARS
 
 _POLY = 0x82F63B78
@@ -159,3 +161,59 @@ def decode_rows(cls: Any, enc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     valid &= crc32c_rows(body[:, :-CRC_SIZE]) == arr["_crc"]
     valid &= arr["_type"] == cls.MSG_ID
     return arr, valid
+
+
+RESULT_DTYPE = body_dtype(m.Result)
+_RESULT_ENC_LEN = RESULT_DTYPE.itemsize + 1
+#: a reply stream without a delimiter for this long is garbage: the scalar decoder counts it
+_MAX_UNDELIMITED = 4096
+
+
+def result_message(row: np.void) -> Frame:
+    """One bulk-decoded RESULT row as the scalar decoder's Frame (same values: both read the same bytes)."""
+    return Frame(int(row["_seq"]), m.Result(*(row[name].item() for name, _ in m.Result.FIELDS)))
+
+
+class ReplyDecoder:
+    """Splits device output into frames; RESULT frames (most of the traffic) are decoded in bulk with
+    numpy, every other frame (and every RESULT the bulk path finds invalid) by the scalar FrameDecoder,
+    which counts the errors."""
+
+    def __init__(self) -> None:
+        self._buf = b""
+        self.decoder = FrameDecoder()
+
+    @property
+    def errors(self) -> DecoderErrors:
+        return self.decoder.errors
+
+    @property
+    def frames_ok(self) -> int:
+        return self.decoder.frames_ok
+
+    def feed(self, data: bytes) -> tuple[np.ndarray, list[Frame]]:
+        """(RESULT rows as RESULT_DTYPE, the other frames in order)."""
+        buf = self._buf + data
+        cut = buf.rfind(b"\x00")
+        if cut < 0:
+            self._buf = buf
+            if len(buf) > _MAX_UNDELIMITED:  # no delimiter for this long: garbage, let the decoder count it
+                self.decoder.feed(buf)
+                self._buf = b""
+            return np.zeros(0, RESULT_DTYPE), []
+        self._buf = buf[cut + 1:]
+        chunks = buf[:cut].split(b"\x00")
+        # In a COBS frame the type byte (non-zero) sits unchanged right after the first code byte.
+        res = [c for c in chunks if len(c) == _RESULT_ENC_LEN and c[1] == m.Result.MSG_ID]
+        others = [c for c in chunks if c and not (len(c) == _RESULT_ENC_LEN and c[1] == m.Result.MSG_ID)]
+        results = np.zeros(0, RESULT_DTYPE)
+        if res:
+            rows = np.frombuffer(b"".join(res), dtype=np.uint8).reshape(len(res), _RESULT_ENC_LEN)
+            arr, valid = decode_rows(m.Result, rows)
+            if not valid.all():
+                # corrupted on the way: let the scalar decoder classify and count each one
+                others += [res[i] for i in np.nonzero(~valid)[0]]
+            results = arr[valid]
+            self.decoder.frames_ok += len(results)
+        frames = self.decoder.feed(b"".join(c + b"\x00" for c in others)) if others else []
+        return results, frames
