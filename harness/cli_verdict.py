@@ -95,7 +95,9 @@ def print_health(summary: dict[str, Any]) -> None:
              if axes else ""))
     print(f"  filter health: {h.get('divergences', 0)} supervisor resets"
           + (f" ({h['divergence_reasons']})" if h.get("divergence_reasons") else "")
-          + f", {h.get('non_finite', 0)} non-finite, {h.get('not_pd', 0)} not positive definite")
+          + f", {h.get('non_finite', 0)} non-finite, {h.get('not_pd', 0)} not positive definite"
+          + (f"; {h['gap_restarts']} restarts after measurement gaps (longest {_g(h.get('longest_gap_s'))} s, "
+             "not divergences)" if h.get("gap_restarts") else ""))
 
 
 def rtt_misses_text(rtt: dict[str, Any]) -> str:

@@ -8,7 +8,7 @@ from typing import ClassVar
 
 from protocol.config_check import ConfigError, ConfigField, check_field  # noqa: F401
 
-PROTOCOL_VERSION = 5
+PROTOCOL_VERSION = 6
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -76,6 +76,7 @@ class ResultFlag(enum.IntEnum):
     COVARIANCE = 16
     HEIGHT_FUSED = 32
     NN_PAIR_OFF = 64
+    GAP_RESTART = 128
 
 
 class DropReason(enum.IntEnum):

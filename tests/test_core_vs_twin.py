@@ -18,8 +18,8 @@ import pytest
 from harness.config import (MODE_IMU, MODE_UWB_ONLY, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, STAGES_OUTLIER,
                             EstimatorConfig)
 from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStream, ImuStream, Truth, UwbStream
-from harness.twin.estimator import (ACCEPTED, FLAG_DIVERGED, FLAG_HEIGHT_FUSED, FLAG_OUT_OF_BOX, FLAG_SPEED,
-                                    REJECTED_CHI2, REJECTED_KINEMATIC, TwinResult, run_flight)
+from harness.twin.estimator import (ACCEPTED, FLAG_COVARIANCE, FLAG_DIVERGED, FLAG_GAP_RESTART, FLAG_HEIGHT_FUSED,
+                                    FLAG_OUT_OF_BOX, FLAG_SPEED, REJECTED_CHI2, REJECTED_KINEMATIC, TwinResult, run_flight)
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware_sim"
@@ -241,6 +241,50 @@ def test_supervisor_matches_twin(replay_core: Path, mode: int) -> None:
     assert np.all(events & (FLAG_OUT_OF_BOX | FLAG_SPEED))      # the 40 m jump: outside the box, or too fast
     assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-3
     assert rmse(c.pos[450:], replace(flight, truth=replace(flight.truth, pos=flight.truth.pos[450:]))) < 0.15
+
+
+def _uwb_where(flight: Flight, keep: np.ndarray) -> Flight:
+    u = flight.uwb
+    return replace(flight, uwb=replace(u, t_us=u.t_us[keep], anchor_a=u.anchor_a[keep], anchor_b=u.anchor_b[keep],
+                                       value=u.value[keep], true_value=u.true_value[keep]))
+
+
+@pytest.mark.parametrize("mode", [MODE_IMU, MODE_UWB_ONLY], ids=["imu", "uwb_only"])
+def test_measurement_gap_is_not_a_divergence_in_core_and_twin(replay_core: Path, mode: int) -> None:
+    """A 5 s gap without measurements (rcv_twr sequences have 4-14 s on the ground): in UWB-only mode the
+    prediction grows P past sup_max_var; C and twin restart from the last fix and report GAP_RESTART, not
+    DIVERGED. With the IMU the variance stays under the bound over 5 s: nothing to report."""
+    flight = synthetic_flight(KIND_TWR, noise=0.05, duration_s=12.0, seed=11)
+    t = flight.uwb.t_us
+    flight = _uwb_where(flight, (t < 3_000_000) | (t >= 8_000_000))
+    cfg = base_config(flight, mode)
+    twin = run_flight(flight, cfg)
+    c = run_c(replay_core, flight, cfg)
+    t_flags = np.array([r.flags for r in twin])
+    np.testing.assert_array_equal(c.flags, t_flags)
+    assert c.divergences == 0 and not np.any(t_flags & FLAG_DIVERGED)
+    after = int(np.searchsorted(flight.uwb.t_us, 8_000_000))
+    if mode == MODE_UWB_ONLY:
+        assert t_flags[after] == FLAG_GAP_RESTART and np.count_nonzero(t_flags) == 1
+    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-3
+    err = c.pos[after + 200:] - flight.truth.position_at(flight.uwb.t_us[after + 200:])
+    assert float(np.sqrt(np.mean(np.sum(err ** 2, axis=1)))) < 0.15     # converged again 1 s after the gap
+
+
+def test_variance_growing_while_measurements_arrive_is_a_divergence(replay_core: Path) -> None:
+    """Measurements that arrive but cannot bound P (5 s of ranges to anchor 0 only, 25 Hz: the directions
+    across it are unobserved; their variance passes 10 m^2 within 2 s) still make the covariance bound a
+    divergence, in C and twin alike."""
+    flight = synthetic_flight(KIND_TWR, noise=0.05, duration_s=12.0, seed=11)
+    u = flight.uwb
+    flight = _uwb_where(flight, (u.t_us < 3_000_000) | (u.t_us >= 8_000_000) | (u.anchor_a == 0))
+    cfg = replace(base_config(flight, MODE_UWB_ONLY), sup_max_var=10.0)
+    twin = run_flight(flight, cfg)
+    c = run_c(replay_core, flight, cfg)
+    t_flags = np.array([r.flags for r in twin])
+    np.testing.assert_array_equal(c.flags, t_flags)
+    assert c.divergences >= 1 and np.any(t_flags == FLAG_DIVERGED | FLAG_COVARIANCE)
+    assert not np.any(t_flags & FLAG_GAP_RESTART)
 
 
 def test_height_pseudo_measurements_match_twin(replay_core: Path) -> None:

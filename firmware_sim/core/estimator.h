@@ -30,7 +30,8 @@ enum {
     EST_FLAG_SPEED = 8,
     EST_FLAG_COVARIANCE = 16,
     EST_FLAG_HEIGHT_FUSED = 32,
-    EST_FLAG_NN_PAIR_OFF = 64 /* the pair monitor switched the correction off for this pair */
+    EST_FLAG_NN_PAIR_OFF = 64, /* the pair monitor switched the correction off for this pair */
+    EST_FLAG_GAP_RESTART = 128 /* restart after a measurement gap: not a divergence (estimator.c) */
 };
 
 /* Measurement statuses (= protocol enum status). */
@@ -93,7 +94,8 @@ typedef struct {
     uint32_t cost_predict;            /* cost of the predictions since the last measurement */
     uint32_t predictions;             /* IMU or CV predictions since power-up */
     uint32_t imu_ignored;             /* IMU samples counted and ignored in UWB-only mode */
-    uint32_t divergences;             /* times the supervisor re-initialised the filter */
+    uint32_t divergences;             /* times the supervisor re-initialised the filter (not after gaps) */
+    uint32_t gap_restarts;            /* restarts after a measurement gap (EST_FLAG_GAP_RESTART) */
     uint32_t heights;                 /* HEIGHT pseudo-measurements fused */
 } estimator_t;
 

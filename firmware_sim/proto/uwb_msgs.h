@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 5u
+#define UWB_PROTO_VERSION 6u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -66,6 +66,7 @@ enum {
     UWB_RESULT_FLAG_COVARIANCE = 16,
     UWB_RESULT_FLAG_HEIGHT_FUSED = 32,
     UWB_RESULT_FLAG_NN_PAIR_OFF = 64,
+    UWB_RESULT_FLAG_GAP_RESTART = 128,
 };
 
 /* RADIO_DROP.reason: why a radio packet produced no measurement (each has a STATS counter) */

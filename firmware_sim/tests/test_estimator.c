@@ -605,12 +605,36 @@ static void test_supervisor_bounds(void)
     }
     CHECK(est.divergences == 1);
     CHECK(r.flags == (EST_FLAG_DIVERGED | EST_FLAG_SPEED));
-    /* covariance: a 10 s outage in UWB-only mode (q = 2 m/s^2: var_p grows to the clamp) */
+    /* covariance while measurements arrive: ranges to one anchor only every 10 ms leave the directions
+     * across it unobserved, their variance grows (q = 2 m/s^2) past the bound: a divergence */
+    setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], p0[2]);
+    for (t = 0; t <= 20000000 && est.divergences == 0; t += 10000) {
+        CHECK(estimator_on_twr(&est, t, 0, range_to(&est, 0, p0), &r) == EST_OK);
+    }
+    CHECK(est.divergences == 1 && est.gap_restarts == 0);
+    CHECK(r.flags == (EST_FLAG_DIVERGED | EST_FLAG_COVARIANCE));
+    /* the same bound after a 10 s outage (var_p grows to the clamp without a measurement): a restart
+     * from the last fix, reported as a gap, not a divergence */
     setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], p0[2]);
     CHECK(estimator_on_twr(&est, 0, 0, range_to(&est, 0, p0), &r) == EST_OK);
-    CHECK(estimator_on_twr(&est, 10000000, 1, range_to(&est, 1, p0), &r) == EST_OK);
-    CHECK(r.flags & EST_FLAG_COVARIANCE);
-    CHECK(est.divergences == 1);
+    CHECK(estimator_on_twr(&est, 999000, 1, range_to(&est, 1, p0), &r) == EST_OK);
+    CHECK(r.flags == 0); /* under a second: no gap, and the bound holds */
+    CHECK(estimator_on_twr(&est, 10999000, 1, range_to(&est, 1, p0), &r) == EST_OK);
+    CHECK(r.flags == EST_FLAG_GAP_RESTART);
+    CHECK(est.divergences == 0 && est.gap_restarts == 1);
+    estimator_state(&est, pos, vel, NULL, var);
+    CHECK_NEAR(pos[0], p0[0], 0.05);
+    /* restarted with half the bound (50) as position variance, this range fused along one direction */
+    CHECK(vel[0] == 0.0f && var[0] <= 25.0f && var[1] <= 25.0f && var[2] <= 25.0f);
+    CHECK(var[0] + var[1] + var[2] > 40.0f);
+    /* IMU mode: the covariance grows from IMU predictions during an outage: a gap too */
+    setup(EST_MODE_IMU, 0, p0[0], p0[1], p0[2]);
+    est.cfg.sup_max_var = 2.0f; /* twice the initial variance: reached within seconds */
+    CHECK(estimator_on_twr(&est, 0, 0, range_to(&est, 0, p0), &r) == EST_OK);
+    for (t = 1000; t <= 30000000 && est.gap_restarts == 0; t += 1000) {
+        CHECK(estimator_on_imu(&est, t, still_acc, no_gyro) == EST_OK);
+    }
+    CHECK(est.gap_restarts >= 1 && est.divergences == 0);
     /* a huge initial std is valid and does not trip the covariance bound by itself */
     setup(EST_MODE_UWB_ONLY, 0, p0[0], p0[1], p0[2]);
     est.cfg.init_std_xy = 1e20f;

@@ -107,6 +107,7 @@ def accuracy_summary(run: RunResult, flight: Flight) -> AccuracySummary:
 
 def health_summary(run: RunResult) -> dict[str, object]:
     """The filter's own health from its answers: supervisor resets (RESULT.flags, ERROR DIVERGED, STATS),
+    restarts after measurement gaps (RESULT.flags GAP_RESTART, not divergences) and the longest gap,
     non-finite estimates, and signs that P is not positive definite (a variance <= 0, or S below R: the
     wire carries only P's diagonal, and S = H P H^T + R < R means H P H^T < 0)."""
     res = run.results[run.results["outcome"] == OUTCOME_RESULT]
@@ -126,8 +127,12 @@ def health_summary(run: RunResult) -> dict[str, object]:
                for name, bit in (("non_finite", ResultFlag.NON_FINITE), ("out_of_box", ResultFlag.OUT_OF_BOX),
                                  ("speed", ResultFlag.SPEED), ("covariance", ResultFlag.COVARIANCE))
                if np.any(flags & bit)}
+    t_all = np.sort(run.results["t_us"].astype(np.int64))
     return {"divergences": max(from_errors, from_stats, int(np.count_nonzero(flags & ResultFlag.DIVERGED))),
             "divergence_reasons": ", ".join(f"{k} {v}" for k, v in reasons.items()),
+            # restarts after a measurement gap (GAP_RESTART): reported, not divergences
+            "gap_restarts": int(np.count_nonzero(flags & ResultFlag.GAP_RESTART)),
+            "longest_gap_s": float(np.max(np.diff(t_all))) / 1e6 if len(t_all) > 1 else 0.0,
             "non_finite": int(np.count_nonzero(~finite)), "not_pd": int(np.count_nonzero(not_pd)),
             "height_fused": int(np.count_nonzero(flags & ResultFlag.HEIGHT_FUSED))}
 

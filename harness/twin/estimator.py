@@ -39,6 +39,10 @@ FLAG_SPEED = int(ResultFlag.SPEED)
 FLAG_COVARIANCE = int(ResultFlag.COVARIANCE)
 FLAG_HEIGHT_FUSED = int(ResultFlag.HEIGHT_FUSED)
 FLAG_NN_PAIR_OFF = int(ResultFlag.NN_PAIR_OFF)
+FLAG_GAP_RESTART = int(ResultFlag.GAP_RESTART)
+
+#: No UWB measurement for this long [us] is a measurement gap (estimator.c EST_GAP_US)
+GAP_US = 1_000_000
 
 # protocol enum status
 ACCEPTED = int(Status.ACCEPTED)
@@ -144,6 +148,7 @@ class TwinEstimator:
         self.predictions = 0
         self.imu_ignored = 0
         self.divergences = 0
+        self.gap_restarts = 0   # restarts after a measurement gap (not divergences)
         self.nnmon = NnMonitor()
         self.heights = 0
         self._reset_filter()
@@ -234,21 +239,42 @@ class TwinEstimator:
                 return FLAG_OUT_OF_BOX
         if float(np.sum(e.x[3:6] ** 2)) > c.sup_max_speed ** 2:
             return FLAG_SPEED
-        bound = np.maximum([c.init_std_xy ** 2, c.init_std_xy ** 2, c.init_std_z ** 2], c.sup_max_var)
-        if bool(np.any(np.diagonal(e.P)[:3] > bound)):
-            return FLAG_COVARIANCE
+        if bool(np.any(np.diagonal(e.P)[:3] > self._variance_bounds())):
+            # a divergence only while measurements arrive: without any, P grows by construction
+            return FLAG_GAP_RESTART if self._measurement_gap() else FLAG_COVARIANCE
         return 0
 
+    def _variance_bounds(self) -> np.ndarray:
+        """The supervisor's bounds on the position variances: sup_max_var, never below the initial ones."""
+        c = self.config
+        return np.maximum([c.init_std_xy ** 2, c.init_std_xy ** 2, c.init_std_z ** 2], c.sup_max_var)
+
+    def _measurement_gap(self) -> bool:
+        """No UWB measurement for GAP_US up to the state's time, or none yet (estimator.c measurement_gap)."""
+        if self.t_uwb_us is None:
+            return True
+        return self.ekf.t_us is not None and self.ekf.t_us - self.t_uwb_us >= GAP_US
+
     def _supervise(self) -> None:
-        """Restart at the last position that passed, with the initial covariance, if the state is not sane."""
+        """Restart at the last position that passed, with the initial covariance, if the state is not sane;
+        after a measurement gap with half the bound as position variance (estimator.c supervise)."""
         reason = self._supervisor_reason()
         if reason == 0:
             self.last_good_pos = self.ekf.x[POS].copy()
             return
         t_us = self.ekf.t_us
         c = self.config
-        self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
+        if reason == FLAG_GAP_RESTART:
+            bound = self._variance_bounds()
+            self.ekf = ErrorStateEkf.initial(self.last_good_pos, float(np.sqrt(0.5 * bound[0])),
+                                             float(np.sqrt(0.5 * bound[2])))
+        else:
+            self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
         self.ekf.t_us = t_us
+        if reason == FLAG_GAP_RESTART:   # the same restart, reported as a gap, not a divergence
+            self.gap_restarts += 1
+            self.flags |= FLAG_GAP_RESTART
+            return
         self.divergences += 1
         self.flags |= FLAG_DIVERGED | reason
 
@@ -307,9 +333,9 @@ class TwinEstimator:
                  z: float) -> TwinResult:
         c, ekf = self.config, self.ekf
         tdoa = anchor_b is not None
-        self.t_uwb_us = t_us
         t_ref = ekf.t_us  # IMU mode: last prediction; UWB-only: state time before this prediction
-        self._predict_cv_to(t_us)
+        self._predict_cv_to(t_us)  # its supervisor check still sees the previous measurement's time (gap)
+        self.t_uwb_us = t_us
         ekf = self.ekf
         # time this link's anchors had been rejected up to their previous measurement (estimator.c)
         rejected = max((self.t_anchor_seen_us[i] - self.t_anchor_fused_us[i]
