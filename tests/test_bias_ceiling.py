@@ -89,7 +89,7 @@ def test_window_option_and_degenerate_cases() -> None:
 
 
 def test_report_table_quotes_the_share_of_ceiling() -> None:
-    from harness.biasnet.report_section import _heldout_rows
+    from harness.report.bias_section import _heldout_rows
     methods = {"network": {"n": 10, "rmse_raw": 0.09, "reduction": 0.3, "share_of_ceiling": 0.814},
                "pair-constant": {"reduction": 0.25}, "voxel-table": {"reduction": 0.31}}
     rows = _heldout_rows({"util_tdoa_pos": {"heldout": {"t5": methods}}})

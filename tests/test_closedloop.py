@@ -347,7 +347,7 @@ def test_nlos_profile_blocked_links_are_delayed() -> None:
 
 def test_report_section_from_a_fly_result(tmp_path) -> None:  # noqa: ANN001
     from harness.closedloop.cli import markdown_table
-    from harness.closedloop.report import RESULT_NAME, closed_loop_section
+    from harness.report.closed_loop import RESULT_NAME, closed_loop_section
     climb = lambda t: 0.05 if t < 2.0 else min(1.2, 0.05 + 0.5 * (t - 2.0))   # noqa: E731
     logs = [_synthetic_log(climb, drift=d) for d in (0.03, 0.05)]
     per = [flight_metrics(lg) for lg in logs]

@@ -1,6 +1,6 @@
 """What a report section receives (the campaign's data, its summary, where figures go) and the section
-signature. Its own module so that sections living elsewhere (harness/biasnet/report_section.py,
-harness/closedloop/report.py) depend on this type, not on the list of sections that calls them."""
+signature. Its own module so that the sections in their own modules (report/bias_section.py,
+report/closed_loop.py) depend on this type, not on the list of sections that calls them."""
 
 from __future__ import annotations
 

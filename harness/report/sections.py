@@ -199,8 +199,8 @@ def provenance(ctx: ReportContext) -> Section | None:
 
 
 def bias_network(ctx: ReportContext) -> Section | None:
-    """Paper Fig. 5 and the shipped networks' held-out figures (harness/biasnet/report_section.py)."""
-    from harness.biasnet.report_section import bias_section
+    """Paper Fig. 5 and the shipped networks' held-out figures (harness/report/bias_section.py)."""
+    from harness.report.bias_section import bias_section
     return bias_section(ctx)
 
 
@@ -286,8 +286,8 @@ def consistency(ctx: ReportContext) -> Section | None:
 
 
 def closed_loop(ctx: ReportContext) -> Section | None:
-    """RUN_DIR/closed_loop.json written by `uwb-hil fly --out` (harness/closedloop/report.py)."""
-    from harness.closedloop.report import closed_loop_section
+    """RUN_DIR/closed_loop.json written by `uwb-hil fly --out` (harness/report/closed_loop.py)."""
+    from harness.report.closed_loop import closed_loop_section
     return closed_loop_section(ctx)
 
 
