@@ -197,6 +197,25 @@ def test_gates_at_their_boundaries() -> None:
     assert not gates.chi2_pass(float("nan"), 1.0, 4.0)
 
 
+def test_kinematic_gate_window_state() -> None:
+    """The same sequence as test_window_state in firmware_sim/tests/test_gates.c."""
+    g = gates.KinematicGate()
+    assert g.window(1000, (0, 0), None, 0.01) == 0.01                       # no reference time
+    assert g.window(20000, (1, 1), 15000, 0.01) == 0.01                     # 5 ms, floored
+    g.fused(20000, (1, 1))                                                   # every anchor's clock starts
+    assert g.t_anchor_fused_us[7] == 20000
+    assert g.window(1020000, (1, 1), 1015000, 0.01) == pytest.approx(1.0)   # from the last fusion
+    g.fused(1020000, (2, 2))
+    assert g.window(1030000, (2, 2), 1025000, 0.01) == 0.01
+    assert g.window(1040000, (1, 1), 1035000, 0.01) == pytest.approx(1.02)  # + 1 s anchor 1 was rejected
+    assert g.window(1050000, (2, 1), 1045000, 0.01) == pytest.approx(1.05)  # TDoA: the longer of the two
+    g.fused(1050000, (2, 1))
+    assert g.window(1060000, (1, 1), 1055000, 0.01) == 0.01                 # nominal again
+    assert g.window(1070000, (200, 3), 1065000, 0.01) == pytest.approx(0.02)
+    g.reset()
+    assert g.t_fused_us is None and g.t_anchor_seen_us[1] == 0 and g.t_anchor_fused_us[1] == 0
+
+
 # -------------------------------------------------------------------------------- features
 def test_features_layouts() -> None:
     tag, rpy = np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.2, 0.3])

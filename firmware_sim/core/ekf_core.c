@@ -119,9 +119,9 @@ void ekf_init(ekf_t *ekf, const float pos[3], float std_xy, float std_z)
 {
     int i;
     memset(ekf, 0, sizeof *ekf);
-    ekf->S[EKF_X] = pos[0];
-    ekf->S[EKF_Y] = pos[1];
-    ekf->S[EKF_Z] = pos[2];
+    ekf->x[EKF_X] = pos[0];
+    ekf->x[EKF_Y] = pos[1];
+    ekf->x[EKF_Z] = pos[2];
     ekf->q[0] = 1.0f;
     quat_to_rot(ekf->q, ekf->R);
     /* Within the covariance bounds from the start: a huge (valid) init std would otherwise square
@@ -147,8 +147,8 @@ void ekf_predict_imu(ekf_t *ekf, const ekf_noise_t *noise, const float acc[3], c
     float A[EKF_N][EKF_N];
     float AP[EKF_N][EKF_N];
     float (*R)[3] = ekf->R;
-    float *S = ekf->S;
-    const float px = S[EKF_PX], py = S[EKF_PY], pz = S[EKF_PZ];
+    float *x = ekf->x;
+    const float px = x[EKF_PX], py = x[EKF_PY], pz = x[EKF_PZ];
     const float wx = gyro[0], wy = gyro[1], wz = gyro[2];
     const float gdt = EKF_GRAVITY * dt, dt2 = dt * dt;
     float d[3], G[3][3], Sa[3], dpos[3], rot[3];
@@ -238,12 +238,12 @@ void ekf_predict_imu(ekf_t *ekf, const ekf_noise_t *noise, const float acc[3], c
     dpos[1] = py * dt + acc[1] * dt2 * 0.5f;
     dpos[2] = pz * dt + acc[2] * dt2 * 0.5f;
     for (i = 0; i < 3; i++) {
-        S[EKF_X + i] += R[i][0] * dpos[0] + R[i][1] * dpos[1] + R[i][2] * dpos[2];
+        x[EKF_X + i] += R[i][0] * dpos[0] + R[i][1] * dpos[1] + R[i][2] * dpos[2];
     }
-    S[EKF_Z] -= EKF_GRAVITY * dt2 * 0.5f;
-    S[EKF_PX] = px + dt * (acc[0] + wz * py - wy * pz - EKF_GRAVITY * R[2][0]);
-    S[EKF_PY] = py + dt * (acc[1] - wz * px + wx * pz - EKF_GRAVITY * R[2][1]);
-    S[EKF_PZ] = pz + dt * (acc[2] + wy * px - wx * py - EKF_GRAVITY * R[2][2]);
+    x[EKF_Z] -= EKF_GRAVITY * dt2 * 0.5f;
+    x[EKF_PX] = px + dt * (acc[0] + wz * py - wy * pz - EKF_GRAVITY * R[2][0]);
+    x[EKF_PY] = py + dt * (acc[1] - wz * px + wx * pz - EKF_GRAVITY * R[2][1]);
+    x[EKF_PZ] = pz + dt * (acc[2] + wy * px - wx * py - EKF_GRAVITY * R[2][2]);
     rot[0] = wx * dt;
     rot[1] = wy * dt;
     rot[2] = wz * dt;
@@ -292,7 +292,7 @@ void ekf_predict_cv(ekf_t *ekf, float q_acc, float dt)
     /* A = I + dt E, E mapping velocity into position. In place: row i (< 3) only reads row i+3,
      * column j (< 3) only reads column j+3, neither of which is written in its pass. */
     for (i = 0; i < 3; i++) {
-        ekf->S[EKF_X + i] += ekf->S[EKF_PX + i] * dt;
+        ekf->x[EKF_X + i] += ekf->x[EKF_PX + i] * dt;
         for (j = 0; j < EKF_N; j++) {
             ekf->P[i][j] += dt * ekf->P[EKF_PX + i][j];
         }
@@ -338,7 +338,7 @@ void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
     int i, j;
     for (i = 0; i < EKF_N; i++) {
         m->K[i] = m->ph[i] * inv_s;
-        ekf->S[i] += m->K[i] * m->innovation;
+        ekf->x[i] += m->K[i] * m->innovation;
     }
     /* Joseph form P = (I - K H) P (I - K H)^T + K R K^T, evaluated as two rank-one corrections
      * because H = [h 0]: first P <- (I - K H) P = P - K (H P) (H P = (P H^T)^T, P symmetric),
@@ -369,7 +369,7 @@ void ekf_scalar_update(ekf_t *ekf, ekf_scalar_t *m, const float h[3], float inno
 
 void ekf_finalize(ekf_t *ekf)
 {
-    const float v[3] = {ekf->S[EKF_D0], ekf->S[EKF_D1], ekf->S[EKF_D2]};
+    const float v[3] = {ekf->x[EKF_D0], ekf->x[EKF_D1], ekf->x[EKF_D2]};
     const int small = fabsf(v[0]) < EKF_ATT_ERR_MAX && fabsf(v[1]) < EKF_ATT_ERR_MAX &&
                       fabsf(v[2]) < EKF_ATT_ERR_MAX;
     if (small && (v[0] != 0.0f || v[1] != 0.0f || v[2] != 0.0f)) {
@@ -406,16 +406,16 @@ void ekf_finalize(ekf_t *ekf)
         }
         sym_clamp_flat(&ekf->P[0][0]);
     }
-    ekf->S[EKF_D0] = 0.0f;
-    ekf->S[EKF_D1] = 0.0f;
-    ekf->S[EKF_D2] = 0.0f;
+    ekf->x[EKF_D0] = 0.0f;
+    ekf->x[EKF_D1] = 0.0f;
+    ekf->x[EKF_D2] = 0.0f;
 }
 
 int ekf_is_finite(const ekf_t *ekf)
 {
     int i;
     for (i = 0; i < EKF_N; i++) {
-        if (!isfinite(ekf->S[i]) || !isfinite(ekf->P[i][i])) {
+        if (!isfinite(ekf->x[i]) || !isfinite(ekf->P[i][i])) {
             return 0;
         }
     }
@@ -441,9 +441,9 @@ void ekf_externalize(const ekf_t *ekf, ekf_state_t *out)
 {
     int i;
     for (i = 0; i < 3; i++) {
-        out->pos[i] = ekf->S[EKF_X + i];
-        out->vel_world[i] = ekf->R[i][0] * ekf->S[EKF_PX] + ekf->R[i][1] * ekf->S[EKF_PY] +
-                            ekf->R[i][2] * ekf->S[EKF_PZ];
+        out->pos[i] = ekf->x[EKF_X + i];
+        out->vel_world[i] = ekf->R[i][0] * ekf->x[EKF_PX] + ekf->R[i][1] * ekf->x[EKF_PY] +
+                            ekf->R[i][2] * ekf->x[EKF_PZ];
     }
     for (i = 0; i < 4; i++) {
         out->quat[i] = ekf->q[i];

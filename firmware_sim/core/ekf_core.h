@@ -19,7 +19,7 @@ enum { EKF_X = 0, EKF_Y, EKF_Z, EKF_PX, EKF_PY, EKF_PZ, EKF_D0, EKF_D1, EKF_D2 }
 #define EKF_INIT_STD_ATT 0.01f           /* rad: initial roll/pitch/yaw std */
 
 typedef struct {
-    float S[EKF_N];          /* error state; S[D0..D2] is zero outside an update */
+    float x[EKF_N];          /* error state (EKF_X..EKF_D2); x[D0..D2] is zero outside an update */
     float q[4];              /* attitude (w, x, y, z), body -> world */
     float R[3][3];           /* rotation matrix of q, body -> world */
     float P[EKF_N][EKF_N];   /* covariance of the error state */

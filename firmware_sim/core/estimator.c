@@ -11,6 +11,10 @@
 #include "platform.h"
 #include "robust_update.h"
 
+/* The gate and the pair monitor hold per-anchor state for every anchor the estimator holds. */
+typedef char est_check_anchors[(GATE_KIN_ANCHORS == ESTIMATOR_MAX_ANCHORS && NN_MON_ANCHORS == ESTIMATOR_MAX_ANCHORS)
+                               ? 1 : -1];
+
 /* Filter at the configured init position; time references forgotten. */
 static void reset_filter(estimator_t *est)
 {
@@ -24,10 +28,7 @@ static void reset_filter(estimator_t *est)
     est->t_height_us = 0;
     est->t_imu_us = 0;
     est->t_uwb_us = 0;
-    est->has_fused = 0;
-    est->t_fused_us = 0;
-    memset(est->t_anchor_seen_us, 0, sizeof est->t_anchor_seen_us);
-    memset(est->t_anchor_fused_us, 0, sizeof est->t_anchor_fused_us);
+    gate_kinematic_reset(&est->kin);
     est->cost_predict = 0;
     est->flags = 0;
 }
@@ -111,7 +112,7 @@ static uint8_t supervisor_reason(const estimator_t *est)
 {
     const ekf_t *ekf = &est->ekf;
     const estimator_config_t *cfg = &est->cfg;
-    const float *p = &ekf->S[EKF_X], *v = &ekf->S[EKF_PX];
+    const float *p = &ekf->x[EKF_X], *v = &ekf->x[EKF_PX];
     float var_xy, var_z;
     unsigned k;
     if (!ekf_is_finite(ekf)) {
@@ -151,7 +152,7 @@ static void supervise(estimator_t *est)
     uint8_t has_time;
     const uint8_t reason = supervisor_reason(est);
     if (reason == 0) {
-        memcpy(est->last_good_pos, &ekf->S[EKF_X], sizeof est->last_good_pos);
+        memcpy(est->last_good_pos, &ekf->x[EKF_X], sizeof est->last_good_pos);
         return;
     }
     t_us = ekf->t_us;
@@ -208,11 +209,11 @@ static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *
 {
     float rpy[3], feat[BIAS_NN_MAX_IN], fade, bias;
     *std_out = 0.0f;
-    if (!(est->cfg.stages & EST_STAGE_BIAS_NN) || net == NULL || !(est->ekf.S[EKF_Z] > est->cfg.nn_min_z)) {
+    if (!(est->cfg.stages & EST_STAGE_BIAS_NN) || net == NULL || !(est->ekf.x[EKF_Z] > est->cfg.nn_min_z)) {
         return 0.0f;
     }
     ekf_quat_to_rpy(est->ekf.q, rpy);
-    if (bias_nn_features(net->layout, &est->ekf.S[EKF_X], rpy, anchor_a, anchor_b, feat) == 0) {
+    if (bias_nn_features(net->layout, &est->ekf.x[EKF_X], rpy, anchor_a, anchor_b, feat) == 0) {
         return 0.0f;
     }
     fade = bias_nn_ood_fade(bias_nn_ood_excess(net, feat));
@@ -224,29 +225,6 @@ static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *
         *std_out = fade * *std_out + (1.0f - fade) * cfg_std;
     }
     return fade * bias;
-}
-
-/* How long the links of anchor id had been rejected up to its previous measurement (0 if that one
- * was fused, or before the first fusion). */
-static int64_t anchor_rejected_us(const estimator_t *est, uint8_t id)
-{
-    const uint64_t seen = est->t_anchor_seen_us[id], fused = est->t_anchor_fused_us[id];
-    return (est->has_fused && seen > fused) ? diff_us(seen, fused) : 0;
-}
-
-static void mark_fused(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b)
-{
-    unsigned i;
-    if (!est->has_fused) {
-        /* The first fusion starts every anchor's clock: one rejected from then on accrues time. */
-        for (i = 0; i < ESTIMATOR_MAX_ANCHORS; i++) {
-            est->t_anchor_fused_us[i] = t_us;
-        }
-        est->has_fused = 1;
-    }
-    est->t_fused_us = t_us;
-    est->t_anchor_fused_us[id_a] = t_us;
-    est->t_anchor_fused_us[id_b] = t_us;
 }
 
 /* UWB-only: constant-velocity prediction to t_us (the first measurement only sets the state time, so
@@ -285,7 +263,6 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     float h, H[3], dt, y, bias, std_nn, std;
     ekf_scalar_t m;
     uint32_t c0, c1, c2, c3;
-    int64_t since_us, rej_a, rej_b;
     int rc;
 
     memset(out, 0, sizeof *out);
@@ -297,30 +274,12 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
 
     /* d_max is reported whatever happens next (plots), so compute it first. The velocity norm is
      * frame independent and the CV prediction does not change the velocity. */
-    /* The gate's dt also counts from the last fused UWB measurement: while measurements are being
-     * rejected (an outage, a run of outliers) the bound widens, so the filter cannot lock itself out
-     * after drifting more than d_max away. At the nominal rate both references are a few ms old. */
-    /* It also widens by the time this link's anchors have been rejected while others were fused: with
-     * the estimate off along their direction they alone disagree, and the filter-wide reference above,
-     * kept fresh by the others, would hold them out for hundreds of seconds (the hour-long flight). An
-     * isolated outlier (the anchor's previous measurement fused) meets the nominal bound. */
-    rej_a = anchor_rejected_us(est, id_a);
-    rej_b = anchor_rejected_us(est, id_b);
-    est->t_anchor_seen_us[id_a] = t_us;
-    est->t_anchor_seen_us[id_b] = t_us;
-    since_us = diff_us(t_us, t_ref);
-    if (have_ref && est->has_fused && diff_us(t_us, est->t_fused_us) > since_us) {
-        since_us = diff_us(t_us, est->t_fused_us);
-    }
-    if (have_ref) {
-        since_us += rej_a > rej_b ? rej_a : rej_b;
-    }
-    dt = gate_kinematic_dt(since_us, have_ref, cfg->gate_dt_min);
-    out->d_max = gate_kinematic_dmax(&ekf->S[EKF_PX], dt, tdoa ? cfg->a_max_tdoa : cfg->a_max_twr);
+    dt = gate_kinematic_window(&est->kin, t_us, id_a, id_b, t_ref, have_ref, cfg->gate_dt_min);
+    out->d_max = gate_kinematic_dmax(&ekf->x[EKF_PX], dt, tdoa ? cfg->a_max_tdoa : cfg->a_max_twr);
 
     /* 1. measurement model */
     c0 = platform_cost_now();
-    rc = tdoa ? mm_tdoa(&ekf->S[EKF_X], anchor_a, anchor_b, &h, H) : mm_twr(&ekf->S[EKF_X], anchor_a, &h, H);
+    rc = tdoa ? mm_tdoa(&ekf->x[EKF_X], anchor_a, anchor_b, &h, H) : mm_twr(&ekf->x[EKF_X], anchor_a, &h, H);
     c1 = platform_cost_now();
     if (rc != MM_OK) {
         out->status = EST_REJECTED_GEOMETRY;
@@ -372,7 +331,7 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
         }
         ekf_scalar_apply(ekf, &m);
         ekf_finalize(ekf);
-        mark_fused(est, t_us, id_a, id_b);
+        gate_kinematic_fused(&est->kin, t_us, id_a, id_b);
         supervise(est);
         out->gain[0] = m.K[EKF_X];
         out->gain[1] = m.K[EKF_Y];
@@ -431,7 +390,7 @@ int estimator_on_height(estimator_t *est, uint64_t t_us, float z, float std)
     est->t_height_us = t_us;
     est->has_height_time = 1;
     predict_cv_to(est, t_us);
-    ekf_scalar_update(ekf, &m, h, z - ekf->S[EKF_Z], std * std);
+    ekf_scalar_update(ekf, &m, h, z - ekf->x[EKF_Z], std * std);
     ekf_finalize(ekf);
     est->heights++;
     est->flags = (uint8_t)(est->flags | EST_FLAG_HEIGHT_FUSED);

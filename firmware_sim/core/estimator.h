@@ -9,6 +9,7 @@
 #include "bias_nn.h"
 #include "ekf_core.h"
 #include "estimator_config.h" /* estimator_config_t, its defaults and checks: generated from messages.toml */
+#include "gate_kinematic.h"
 #include "nn_monitor.h"
 
 #define ESTIMATOR_MAX_ANCHORS 16
@@ -79,12 +80,7 @@ typedef struct {
     const bias_model_t *model;        /* may be NULL, or have NULL networks */
     uint64_t t_imu_us, t_uwb_us;      /* last accepted IMU / UWB timestamps (time rule) */
     uint8_t has_imu_time, has_uwb_time;
-    uint64_t t_fused_us;              /* last UWB measurement fused into the filter (kinematic gate) */
-    uint8_t has_fused;
-    /* Per anchor: when it was last measured and last took part in a fused measurement. Their gap is
-     * how long its links have been rejected; the kinematic gate widens by it (estimator.c). */
-    uint64_t t_anchor_seen_us[ESTIMATOR_MAX_ANCHORS];
-    uint64_t t_anchor_fused_us[ESTIMATOR_MAX_ANCHORS];
+    gate_kinematic_t kin;             /* the kinematic gate's state (reset with the filter) */
     float box_min[3], box_max[3];     /* bounding box of the known anchors (supervisor) */
     uint64_t t_height_us;             /* last HEIGHT pseudo-measurement (time rule) */
     uint8_t has_height_time;

@@ -2,6 +2,70 @@
 #include "gate_kinematic.h"
 
 #include <math.h>
+#include <string.h>
+
+/* Signed t1 - t0 in microseconds without relying on unsigned -> signed wrap-around. */
+static int64_t diff_us(uint64_t t1, uint64_t t0)
+{
+    return t1 >= t0 ? (int64_t)(t1 - t0) : -(int64_t)(t0 - t1);
+}
+
+void gate_kinematic_reset(gate_kinematic_t *g)
+{
+    memset(g, 0, sizeof *g);
+}
+
+/* How long the links of anchor id had been rejected up to its previous measurement (0 if that one
+ * was fused, or before the first fusion). */
+static int64_t anchor_rejected_us(const gate_kinematic_t *g, uint8_t id)
+{
+    const uint64_t seen = g->t_anchor_seen_us[id], fused = g->t_anchor_fused_us[id];
+    return (g->has_fused && seen > fused) ? diff_us(seen, fused) : 0;
+}
+
+float gate_kinematic_window(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint8_t id_b, uint64_t t_ref,
+                            int have_ref, float dt_min)
+{
+    int64_t since_us, rej_a = 0, rej_b = 0;
+    if (id_a < GATE_KIN_ANCHORS && id_b < GATE_KIN_ANCHORS) {
+        rej_a = anchor_rejected_us(g, id_a);
+        rej_b = anchor_rejected_us(g, id_b);
+        g->t_anchor_seen_us[id_a] = t_us;
+        g->t_anchor_seen_us[id_b] = t_us;
+    }
+    /* dt also counts from the last fused UWB measurement: while measurements are being rejected (an
+     * outage, a run of outliers) the bound widens, so the filter cannot lock itself out after drifting
+     * more than d_max away. At the nominal rate both references are a few ms old. */
+    since_us = diff_us(t_us, t_ref);
+    if (have_ref && g->has_fused && diff_us(t_us, g->t_fused_us) > since_us) {
+        since_us = diff_us(t_us, g->t_fused_us);
+    }
+    /* It also widens by the time this link's anchors have been rejected while others were fused: with
+     * the estimate off along their direction they alone disagree, and the filter-wide reference above,
+     * kept fresh by the others, would hold them out for hundreds of seconds (the hour-long flight). An
+     * isolated outlier (the anchor's previous measurement fused) meets the nominal bound. */
+    if (have_ref) {
+        since_us += rej_a > rej_b ? rej_a : rej_b;
+    }
+    return gate_kinematic_dt(since_us, have_ref, dt_min);
+}
+
+void gate_kinematic_fused(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint8_t id_b)
+{
+    unsigned i;
+    if (!g->has_fused) {
+        /* The first fusion starts every anchor's clock: one rejected from then on accrues time. */
+        for (i = 0; i < GATE_KIN_ANCHORS; i++) {
+            g->t_anchor_fused_us[i] = t_us;
+        }
+        g->has_fused = 1;
+    }
+    g->t_fused_us = t_us;
+    if (id_a < GATE_KIN_ANCHORS && id_b < GATE_KIN_ANCHORS) {
+        g->t_anchor_fused_us[id_a] = t_us;
+        g->t_anchor_fused_us[id_b] = t_us;
+    }
+}
 
 float gate_kinematic_dt(int64_t dt_us, int have_ref, float dt_min)
 {

@@ -1,9 +1,35 @@
 /* Kinematic ("model-based") outlier gate of the paper: the innovation cannot exceed how far the
- * tag can have moved since the state time, d_max = |v| dt + a_max dt^2 / 2. */
+ * tag can have moved since the reference time, d_max = |v| dt + a_max dt^2 / 2. The gate keeps its own
+ * state (gate_kinematic_t): when measurements were last fused, so that its window widens while they are
+ * rejected (docs/ARCHITECTURE.md, pipeline step 3). harness/twin/gates.py KinematicGate is the twin. */
 #ifndef UWB_GATE_KINEMATIC_H
 #define UWB_GATE_KINEMATIC_H
 
 #include <stdint.h>
+
+#define GATE_KIN_ANCHORS 16 /* = ESTIMATOR_MAX_ANCHORS */
+
+typedef struct {
+    uint64_t t_fused_us; /* last UWB measurement fused into the filter */
+    uint8_t has_fused;   /* 0 until the first fusion after a reset */
+    /* Per anchor: when it was last measured and last took part in a fused measurement. Their gap is
+     * how long its links have been rejected; the window widens by it. */
+    uint64_t t_anchor_seen_us[GATE_KIN_ANCHORS];
+    uint64_t t_anchor_fused_us[GATE_KIN_ANCHORS];
+} gate_kinematic_t;
+
+/* Nothing fused yet (a new flight: the filter was reset). */
+void gate_kinematic_reset(gate_kinematic_t *g);
+
+/* The gate's dt [s] for a measurement at t_us between anchors id_a and id_b (TWR: id_b = id_a; ids <
+ * GATE_KIN_ANCHORS): from the filter's reference time t_ref (have_ref = 0: none yet, then dt_min) or the
+ * last fusion, whichever is older, plus how long these anchors had been rejected; at least dt_min. Marks
+ * the anchors as measured at t_us. */
+float gate_kinematic_window(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint8_t id_b, uint64_t t_ref,
+                            int have_ref, float dt_min);
+
+/* The measurement at t_us between id_a and id_b was fused into the filter. */
+void gate_kinematic_fused(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint8_t id_b);
 
 /* dt [s] = max(t_meas - t_ref, dt_min); have_ref = 0 (no reference time yet) gives dt_min. */
 float gate_kinematic_dt(int64_t dt_us, int have_ref, float dt_min);

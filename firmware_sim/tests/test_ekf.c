@@ -145,9 +145,9 @@ static void test_scalar_update_hand_computed(void)
     CHECK_NEAR(m.K[1], 1.6 / 1.89, 1e-6);
     CHECK_NEAR(m.K[2], 0.0, 1e-9);
     CHECK_NEAR(m.K[3], 0.12 / 1.89, 1e-6);
-    CHECK_NEAR(e.S[0], 0.5 * 0.6 / 1.89, 1e-6);
-    CHECK_NEAR(e.S[1], 0.5 * 1.6 / 1.89, 1e-6);
-    CHECK_NEAR(e.S[EKF_PX], 0.5 * 0.12 / 1.89, 1e-6);
+    CHECK_NEAR(e.x[0], 0.5 * 0.6 / 1.89, 1e-6);
+    CHECK_NEAR(e.x[1], 0.5 * 1.6 / 1.89, 1e-6);
+    CHECK_NEAR(e.x[EKF_PX], 0.5 * 0.12 / 1.89, 1e-6);
     /* optimal gain: Joseph == P - P H^T H P / S */
     CHECK_NEAR(e.P[0][0], 1.0 - 0.36 / 1.89, 1e-6);
     CHECK_NEAR(e.P[0][1], -0.96 / 1.89, 1e-6);
@@ -173,7 +173,7 @@ static void test_scalar_update_matches_full_joseph(void)
         joseph_reference(e.P, h, y, r, x_ref, P_ref);
         ekf_scalar_update(&e, &m, h, y, r);
         for (i = 0; i < EKF_N; i++) {
-            err = fmax(err, fabs(e.S[i] - x_ref[i]));
+            err = fmax(err, fabs(e.x[i] - x_ref[i]));
             for (j = 0; j < EKF_N; j++) {
                 err = fmax(err, fabs(e.P[i][j] - P_ref[i][j]));
             }
@@ -283,9 +283,9 @@ static void test_imu_prediction_covariance(void)
     const double g = EKF_GRAVITY;
     ekf_init(&e, origin, 1.0f, 2.0f);
     ekf_predict_imu(&e, &noise, acc, gyro, (float)dt);
-    CHECK_NEAR(e.S[0], 0.0, 1e-7);
-    CHECK_NEAR(e.S[2], 0.0, 1e-6);
-    CHECK_NEAR(e.S[EKF_PZ], 0.0, 1e-6);
+    CHECK_NEAR(e.x[0], 0.0, 1e-7);
+    CHECK_NEAR(e.x[2], 0.0, 1e-6);
+    CHECK_NEAR(e.x[EKF_PZ], 0.0, 1e-6);
     /* P_xx = 1 + dt^2 v + q^2 dt^3/3;  P_x,vx = dt v + q^2 dt^2/2;  P_vx = v + g^2 dt^2 a + q^2 dt */
     CHECK_NEAR(e.P[0][0], 1.0 + dt * dt * v + 0.25 * dt * dt * dt / 3.0, 1e-6);
     CHECK_NEAR(e.P[2][2], 4.0 + dt * dt * v + 1.0 * dt * dt * dt / 3.0, 1e-6);
@@ -308,9 +308,9 @@ static void test_imu_integration_exact_for_constant_acceleration(void)
     for (k = 0; k < 100; k++) {
         ekf_predict_imu(&e, &no_noise, acc, gyro, 0.01f);
     }
-    CHECK_NEAR(e.S[EKF_PX], 1.0, 1e-5);
-    CHECK_NEAR(e.S[0], 0.5, 1e-5);
-    CHECK_NEAR(e.S[2], 0.0, 1e-5);
+    CHECK_NEAR(e.x[EKF_PX], 1.0, 1e-5);
+    CHECK_NEAR(e.x[0], 0.5, 1e-5);
+    CHECK_NEAR(e.x[2], 0.0, 1e-5);
 }
 
 static void test_imu_rotation(void)
@@ -338,12 +338,12 @@ static void test_cv_prediction(void)
     const double dt = 0.1, q2 = 4.0, v = EKF_INIT_STD_VEL * EKF_INIT_STD_VEL;
     const float p0[3] = {1.0f, 2.0f, 3.0f};
     ekf_init(&e, p0, 1.0f, 1.0f);
-    e.S[EKF_PX] = 1.0f;
-    e.S[EKF_PZ] = -2.0f;
+    e.x[EKF_PX] = 1.0f;
+    e.x[EKF_PZ] = -2.0f;
     ekf_predict_cv(&e, 2.0f, (float)dt);
-    CHECK_NEAR(e.S[0], 1.1, 1e-6);
-    CHECK_NEAR(e.S[1], 2.0, 1e-6);
-    CHECK_NEAR(e.S[2], 2.8, 1e-6);
+    CHECK_NEAR(e.x[0], 1.1, 1e-6);
+    CHECK_NEAR(e.x[1], 2.0, 1e-6);
+    CHECK_NEAR(e.x[2], 2.8, 1e-6);
     CHECK_NEAR(e.P[0][0], 1.0 + dt * dt * v + q2 * dt * dt * dt / 3.0, 1e-6);
     CHECK_NEAR(e.P[0][EKF_PX], dt * v + q2 * dt * dt / 2.0, 1e-6);
     CHECK_NEAR(e.P[EKF_PX][0], e.P[0][EKF_PX], 0.0);
@@ -359,10 +359,10 @@ static void test_finalize_moves_attitude_error_into_q(void)
     const float p0[3] = {0.0f, 0.0f, 1.0f};
     ekf_init(&e, p0, 1.0f, 1.0f);
     e.P[EKF_PX][EKF_D2] = e.P[EKF_D2][EKF_PX] = 1e-5f;
-    e.S[EKF_D2] = 0.1f;
+    e.x[EKF_D2] = 0.1f;
     ekf_finalize(&e);
     ekf_externalize(&e, &s);
-    CHECK(e.S[EKF_D0] == 0.0f && e.S[EKF_D1] == 0.0f && e.S[EKF_D2] == 0.0f);
+    CHECK(e.x[EKF_D0] == 0.0f && e.x[EKF_D1] == 0.0f && e.x[EKF_D2] == 0.0f);
     CHECK_NEAR(s.rpy[2], 0.1, 1e-6);
     CHECK_NEAR(s.quat[0] * s.quat[0] + s.quat[3] * s.quat[3], 1.0, 1e-6);
     /* G for d = (0, 0, 0.05): rows D0/D1 rotate by +-0.05, D2 keeps 1 - 0 */
@@ -370,11 +370,11 @@ static void test_finalize_moves_attitude_error_into_q(void)
     CHECK_NEAR(e.P[EKF_D0][EKF_D0], 1e-4 * ((1 - 0.05 * 0.05 / 2) * (1 - 0.05 * 0.05 / 2) + 0.05 * 0.05), 1e-9);
     CHECK(is_symmetric(e.P));
     /* an absurd attitude error is dropped, not applied */
-    e.S[EKF_D0] = 20.0f;
+    e.x[EKF_D0] = 20.0f;
     ekf_finalize(&e);
     ekf_externalize(&e, &s);
     CHECK_NEAR(s.rpy[2], 0.1, 1e-6);
-    CHECK(e.S[EKF_D0] == 0.0f);
+    CHECK(e.x[EKF_D0] == 0.0f);
 }
 
 static void test_externalize_world_velocity_and_rpy(void)
@@ -384,7 +384,7 @@ static void test_externalize_world_velocity_and_rpy(void)
     const float acc[3] = {0.0f, 0.0f, EKF_GRAVITY}, spin[3] = {0.0f, 0.0f, 50.0f};
     ekf_init(&e, origin, 1.0f, 1.0f);
     ekf_predict_imu(&e, &no_noise, acc, spin, 0.01f); /* yaw 0.5 rad, still at rest */
-    e.S[EKF_PX] = 1.0f;
+    e.x[EKF_PX] = 1.0f;
     ekf_externalize(&e, &s);
     CHECK_NEAR(s.vel_world[0], cos(0.5), 1e-5);
     CHECK_NEAR(s.vel_world[1], sin(0.5), 1e-5);
@@ -407,9 +407,9 @@ static void test_is_finite(void)
     ekf_t e;
     ekf_init(&e, origin, 1.0f, 1.0f);
     CHECK(ekf_is_finite(&e));
-    e.S[4] = NAN;
+    e.x[4] = NAN;
     CHECK(!ekf_is_finite(&e));
-    e.S[4] = 0.0f;
+    e.x[4] = 0.0f;
     e.q[2] = INFINITY;
     CHECK(!ekf_is_finite(&e));
 }

@@ -150,6 +150,7 @@ class TwinEstimator:
         self.divergences = 0
         self.gap_restarts = 0   # restarts after a measurement gap (not divergences)
         self.nnmon = NnMonitor()
+        self.kin = gates.KinematicGate()
         self.heights = 0
         self._reset_filter()
 
@@ -163,10 +164,7 @@ class TwinEstimator:
         self.t_uwb_us: int | None = None
         self.t_height_us: int | None = None
         self.flags = 0
-        self.t_fused_us: int | None = None  # last UWB measurement fused (kinematic gate reference)
-        # per anchor, as the firmware: last measured / last part of a fused measurement (0 = never)
-        self.t_anchor_seen_us = [0] * MAX_ANCHORS
-        self.t_anchor_fused_us = [0] * MAX_ANCHORS
+        self.kin.reset()
 
     def configure(self, config: EstimatorConfig, reset: bool = True) -> None:
         """Apply ``config``; ``reset`` re-initialises the filter and forgets the time references."""
@@ -337,18 +335,7 @@ class TwinEstimator:
         self._predict_cv_to(t_us)  # its supervisor check still sees the previous measurement's time (gap)
         self.t_uwb_us = t_us
         ekf = self.ekf
-        # time this link's anchors had been rejected up to their previous measurement (estimator.c)
-        rejected = max((self.t_anchor_seen_us[i] - self.t_anchor_fused_us[i]
-                        if self.t_fused_us is not None and self.t_anchor_seen_us[i] > self.t_anchor_fused_us[i]
-                        else 0) for i in ids)
-        for i in ids:
-            self.t_anchor_seen_us[i] = t_us
-        since = None if t_ref is None else t_us - t_ref
-        if since is not None and self.t_fused_us is not None:
-            since = max(since, t_us - self.t_fused_us)  # widens while measurements are rejected
-        if since is not None:
-            since += rejected
-        dt = gates.kinematic_dt(since, c.gate_dt_min)
+        dt = self.kin.window(t_us, ids, t_ref, c.gate_dt_min)
         d_max = gates.kinematic_dmax(ekf.x[3:6], dt, c.a_max_tdoa if tdoa else c.a_max_twr)
 
         model = (measurements.tdoa(ekf.x[POS], anchor_a, anchor_b) if anchor_b is not None
@@ -383,11 +370,7 @@ class TwinEstimator:
                     upd = ekf.prepare(H3, y, r_w)
             ekf.apply(upd)
             ekf.finalize()
-            if self.t_fused_us is None:
-                self.t_anchor_fused_us = [t_us] * MAX_ANCHORS
-            self.t_fused_us = t_us
-            for i in ids:
-                self.t_anchor_fused_us[i] = t_us
+            self.kin.fused(t_us, ids)
             gain = upd.K[POS].copy()
             self._supervise()
         return self._result(status, y, upd.S, bias, d_max, gain, upd.mahalanobis)

@@ -2,7 +2,56 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
+
+from protocol.messages import MAX_ANCHORS
+
+
+@dataclass
+class KinematicGate:
+    """The kinematic gate's state (twin of gate_kinematic_t): when measurements were last fused, so that
+    the window widens while they are rejected (docs/ARCHITECTURE.md, pipeline step 3)."""
+
+    t_fused_us: int | None = None    # last UWB measurement fused (None: none since the reset)
+    # per anchor: when last measured / last part of a fused measurement (0 = never)
+    t_anchor_seen_us: list[int] = field(default_factory=lambda: [0] * MAX_ANCHORS)
+    t_anchor_fused_us: list[int] = field(default_factory=lambda: [0] * MAX_ANCHORS)
+
+    def reset(self) -> None:
+        """Nothing fused yet (a new flight)."""
+        self.t_fused_us = None
+        self.t_anchor_seen_us = [0] * MAX_ANCHORS
+        self.t_anchor_fused_us = [0] * MAX_ANCHORS
+
+    def _rejected_us(self, i: int) -> int:
+        """How long anchor i's links had been rejected up to its previous measurement."""
+        seen, fused = self.t_anchor_seen_us[i], self.t_anchor_fused_us[i]
+        return seen - fused if self.t_fused_us is not None and seen > fused else 0
+
+    def window(self, t_us: int, ids: tuple[int, int], t_ref: int | None, dt_min: float) -> float:
+        """The gate's dt [s] for a measurement at t_us between anchors ids (TWR: the same twice), t_ref the
+        filter's reference time (None: none yet); marks the anchors as measured (gate_kinematic_window)."""
+        valid = all(0 <= i < MAX_ANCHORS for i in ids)
+        rejected = max(self._rejected_us(i) for i in ids) if valid else 0
+        for i in ids if valid else ():
+            self.t_anchor_seen_us[i] = t_us
+        if t_ref is None:
+            return kinematic_dt(None, dt_min)
+        since = t_us - t_ref
+        if self.t_fused_us is not None:
+            since = max(since, t_us - self.t_fused_us)  # widens while measurements are rejected
+        return kinematic_dt(since + rejected, dt_min)
+
+    def fused(self, t_us: int, ids: tuple[int, int]) -> None:
+        """The measurement at t_us between ids was fused (gate_kinematic_fused)."""
+        if self.t_fused_us is None:
+            self.t_anchor_fused_us = [t_us] * MAX_ANCHORS   # the first fusion starts every anchor's clock
+        self.t_fused_us = t_us
+        for i in ids:
+            if 0 <= i < MAX_ANCHORS:
+                self.t_anchor_fused_us[i] = t_us
 
 
 def kinematic_dt(dt_us: int | None, dt_min: float) -> float:
