@@ -72,7 +72,7 @@ def model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None]
     from harness.biasnet.network import BiasModel
     model = BiasModel.load(Path(args.model))
     if spec.resolved_target() == "emulator" and spec.firmware_path() == DEFAULT_FIRMWARE:
-        from harness.biasnet.cbuild import firmware_for
+        from harness.firmware_build import firmware_for
         spec = replace(spec, firmware=firmware_for(model))
     return spec, model.hash
 

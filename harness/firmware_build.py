@@ -81,3 +81,19 @@ def build_firmware(target: str, model: BiasModel | None = None, build_dir: Path 
     run_make(["-C", str(STM32_DIR), *make_targets, f"NN_IMPL={nn_impl}", f"BUILD={build_dir}", *header,
               *make_vars], timeout_s)
     return build_dir
+
+
+def firmware_for(model: BiasModel, build_root: Path | None = None, timeout_s: float = 300.0) -> Path:
+    """The host firmware binary carrying ``model``: built once into build_root/<hash> (default
+    firmware_sim/build/models/<hash>), later calls reuse it."""
+    out = (build_root or FIRMWARE_BUILD_DIR / "models") / model.hash_hex
+    return build_firmware("host", model, out, timeout_s=timeout_s)
+
+
+def build_nn_eval(header: Path, out: Path, timeout_s: float = 120.0) -> Path:
+    """firmware_sim/tools/nn_eval (the network alone, not a firmware) compiled against ``header`` (an exported
+    model) by the Makefile's nn_eval target."""
+    out = Path(out).resolve()
+    run_make(["-C", str(FIRMWARE_DIR), f"MODEL_HEADER={Path(header).resolve()}", f"NN_EVAL={out}", str(out)],
+             timeout_s)
+    return out

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from harness.biasnet.baselines import PairConstant, VoxelTable
-from harness.biasnet.cbuild import build_nn_eval, firmware_for
+from harness.firmware_build import build_nn_eval, firmware_for
 from harness.biasnet.dataset import Samples, build_samples, flight_samples, split_by_flight
 from harness.biasnet.evaluate import evaluate
 from harness.biasnet.export import DEFAULT_NPZ, export_c, header_text

@@ -15,19 +15,17 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_one_build_error_class_that_the_cli_reports() -> None:
-    from harness.biasnet import cbuild
     from harness import stm32_build
-    assert cbuild.BuildError is stm32_build.BuildError is BuildError
+    assert stm32_build.BuildError is BuildError
     assert issubclass(BuildError, UwbHilError) and issubclass(BuildError, RuntimeError)
 
 
 def test_only_firmware_build_passes_a_model_header_to_make() -> None:
-    """The model header reaches make (MODEL_HEADER) or the compiler (-DBIAS_MODEL_HEADER) from one module;
-    cbuild.build_nn_eval builds the nn_eval tool (not a firmware) by the Makefile's nn_eval target."""
+    """The model header reaches make (MODEL_HEADER) or the compiler (-DBIAS_MODEL_HEADER) from one module
+    (which also builds the nn_eval tool, not a firmware, by the Makefile's nn_eval target)."""
     users = sorted(str(f.relative_to(ROOT)) for f in (ROOT / "harness").rglob("*.py")
                    if any(s in f.read_text() for s in ("MODEL_HEADER=", "EXTRA_CFLAGS", "[\"CFLAGS\"]")))
-    assert users == ["harness/biasnet/cbuild.py", "harness/firmware_build.py"]
-    assert "MODEL_HEADER=" not in (ROOT / "harness" / "biasnet" / "cbuild.py").read_text().split("def build_nn_eval")[0]
+    assert users == ["harness/firmware_build.py"]
 
 
 def test_bad_requests_are_refused_before_make(tmp_path: Path) -> None:

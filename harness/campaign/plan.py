@@ -327,8 +327,8 @@ def group_by_flight(runs: list[RunSpec]) -> list[list[RunSpec]]:
 
 def attach_firmware(runs: list[RunSpec], build_root: Path | None = None) -> list[RunSpec]:
     """Point every run that names a model at a firmware carrying it (built once per model, cached by hash:
-    harness.biasnet.cbuild.firmware_for) and record the hash the device must report."""
-    from harness.biasnet.cbuild import firmware_for
+    harness.firmware_build.firmware_for) and record the hash the device must report."""
+    from harness.firmware_build import firmware_for
     from harness.biasnet.network import BiasModel
 
     built: dict[str, tuple[str, str]] = {}
