@@ -22,7 +22,6 @@ STAGE_ROBUST_UPDATE = int(Stage.ROBUST_UPDATE)  # M-estimation weights on the up
 STAGE_NN_MONITOR = int(Stage.NN_MONITOR)        # per-pair monitor switching a harmful correction off (nn_monitor.c)
 STAGES_ALL = STAGE_BIAS_NN | STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE  # the paper's outlier rejection + network
 STAGES_OUTLIER = STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
-STAGES_VALID = STAGES_ALL | STAGE_NN_STD | STAGE_ROBUST_UPDATE | STAGE_NN_MONITOR  # every bit CONFIG may set
 
 #: The three configurations of the paper's experiments, then the alternatives of issue 14: the network's
 #: std as the measurement std, and the robust update in place of the chi-square gate.

@@ -55,8 +55,6 @@ enum {
 };
 /* The paper's outlier rejection + network (the power-up default). */
 #define EST_STAGES_ALL (EST_STAGE_BIAS_NN | EST_STAGE_KINEMATIC_GATE | EST_STAGE_CHI2_GATE)
-/* Every bit CONFIG may set. */
-#define EST_STAGES_VALID (EST_STAGES_ALL | EST_STAGE_NN_STD | EST_STAGE_ROBUST_UPDATE | EST_STAGE_NN_MONITOR)
 
 typedef struct {
     uint8_t status;        /* EST_ACCEPTED / EST_REJECTED_* */
