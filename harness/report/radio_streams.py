@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.config import STAGE_ROBUST_UPDATE
-from harness.flight.model import Flight
+from harness.flight.data import Flight
 from harness.stream.streamer import OUTCOME_RESULT, RunResult
 from harness.twin.tdoa_engine import MEASUREMENT, Measurement, replay
 from protocol._generated import DropReason, ResultFlag
@@ -100,7 +100,7 @@ def compare_streams(flight: Flight, twin: TwinStream | None = None) -> StreamCom
 def firmware_values(run: RunResult, flight: Flight, anchor_a: np.ndarray, anchor_b: np.ndarray) -> np.ndarray:
     """The measurement value behind each RESULT of a radio-level run: innovation + bias + h(x before the
     update) under the given pairs (one per RESULT, in order). x before = x after - K innovation: the scalar
-    update; the robust update iterates its weights, so it is refused. NaN where the supervisor reset."""
+    update; the robust update iterates its weights, so it is refused. NaN where the supervisor restarted the filter."""
     if run.config.stages & STAGE_ROBUST_UPDATE:
         raise ValueError("the robust update iterates: its state before the update is not in the RESULT")
     res = run.results[run.results["outcome"] == OUTCOME_RESULT]
@@ -115,7 +115,7 @@ def firmware_values(run: RunResult, flight: Flight, anchor_a: np.ndarray, anchor
     pb = np.array([pos[int(i)] for i in anchor_b]).reshape(-1, 3)
     h = np.linalg.norm(before - pb, axis=1) - np.linalg.norm(before - pa, axis=1)
     z = innov + res["bias"].astype(np.float64) + h
-    z[(res["flags"] & int(ResultFlag.DIVERGED)) != 0] = np.nan
+    z[(res["flags"] & int(ResultFlag.DIVERGED | ResultFlag.GAP_RESTART)) != 0] = np.nan   # estimate after a restart
     return z
 
 
