@@ -1,4 +1,5 @@
-"""The harness and protocol packages have no import cycles, and no library module imports a CLI module.
+"""The harness and protocol packages have no import cycles, no library module imports a CLI module, and every
+import (Python) and include (C) is one that the folder table of docs/ARCHITECTURE.md allows.
 
 The graph is built statically (ast) over harness/ and protocol/: every `import` and `from ... import` counts,
 at module level, inside functions and under `if TYPE_CHECKING:` alike, because each is a dependency of the
@@ -10,6 +11,7 @@ may import from them. The console-script entry (pyproject.toml) is not an import
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -161,3 +163,83 @@ def test_only_harness_paths_knows_the_repository_root() -> None:
             if "__file__" in line and ("parents[" in line or ".parent.parent" in line):
                 offenders.append(f"{f.relative_to(ROOT)}:{lineno}")
     assert not offenders, "use harness.paths: " + ", ".join(offenders)
+
+
+# ------------------------------------------------------------------------- the folder table of the docs
+ARCHITECTURE = ROOT / "docs" / "ARCHITECTURE.md"
+#: the modules that make up the `base` row (beside them, harness/ holds single-module rows like session.py)
+BASE = {"harness.config", "harness.errors", "harness.optional", "harness.options", "harness.paths",
+        "harness.flight.data"}
+
+
+def folder_rules(text: str) -> dict[str, set[str] | None]:
+    """The rows of the table under '## Folders': folder -> what it may import (None: anything)."""
+    rules: dict[str, set[str] | None] = {}
+    section = text.split("\n## Folders", 1)[1].split("\n## ", 1)[0]
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) != 3 or not cells[0].startswith("`"):
+            continue
+        key = re.findall(r"`([^`]+)`", cells[0])[0]
+        rules[key] = None if cells[2] == "anything" else set(re.findall(r"`([^`]+)`", cells[2]))
+    return rules
+
+
+def unit_of(module: str, root: Path = ROOT) -> str:
+    """The table row a Python module belongs to."""
+    parts = module.split(".")
+    if parts[0] == "protocol":
+        return "protocol/"
+    if module in BASE:
+        return "base"
+    if is_cli(module) or module == "harness.cli_verdict":
+        return "cli"
+    if len(parts) == 1:
+        return "harness"
+    if (root / "harness" / parts[1]).is_dir():
+        return parts[1] + "/"
+    return "bench*.py" if parts[1].startswith("bench") else parts[1] + ".py"
+
+
+def test_the_folder_table_is_read() -> None:
+    rules = folder_rules(ARCHITECTURE.read_text())
+    assert rules["protocol/"] == set() and rules["cli"] is None
+    assert rules["base"] == {"protocol/"} and "firmware_sim/core/" in rules
+
+
+def test_every_import_is_one_the_folder_table_allows() -> None:
+    rules = folder_rules(ARCHITECTURE.read_text())
+    graph = import_graph()
+    units = {unit_of(m) for m in graph} - {"harness"}
+    assert not units - set(rules), f"add a row to docs/ARCHITECTURE.md for: {sorted(units - set(rules))}"
+    bad = sorted(f"{a} -> {b} ({unit_of(a)} -> {unit_of(b)})" for a, targets in graph.items() for b in targets
+                 if unit_of(a) not in ("harness", unit_of(b)) and rules[unit_of(a)] is not None
+                 and unit_of(b) not in rules[unit_of(a)])  # type: ignore[operator]
+    assert not bad, "imports the folder table of docs/ARCHITECTURE.md does not allow:\n  " + "\n  ".join(bad)
+
+
+def c_includes(root: Path = ROOT) -> list[tuple[str, str, str]]:
+    """(file, its folder, the folder of the header it includes) for every quoted #include of firmware_sim/
+    whose header is in the tree (generated headers outside it, like the build's model header, are skipped)."""
+    fw = root / "firmware_sim"
+    sources = [f for f in fw.rglob("*") if f.suffix in (".c", ".h", ".S") and "build" not in f.parts]
+    where = {f.name: f"firmware_sim/{f.parent.relative_to(fw).parts[0]}/" for f in sources if f.suffix == ".h"}
+    out = []
+    for f in sources:
+        folder = f"firmware_sim/{f.parent.relative_to(fw).parts[0]}/"
+        for name in re.findall(r'^\s*#\s*include\s+"([^"]+)"', f.read_text(errors="replace"), re.M):
+            if Path(name).name in where:
+                out.append((str(f.relative_to(root)), folder, where[Path(name).name]))
+    return out
+
+
+def test_every_c_include_is_one_the_folder_table_allows() -> None:
+    rules = folder_rules(ARCHITECTURE.read_text())
+    includes = c_includes()
+    assert len(includes) > 50
+    folders = {folder for _, folder, _ in includes}
+    assert not folders - set(rules), f"add a row to docs/ARCHITECTURE.md for: {sorted(folders - set(rules))}"
+    bad = sorted(f"{f} includes a header of {h}" for f, folder, h in includes
+                 if rules[folder] is not None and h not in rules[folder])  # type: ignore[operator]
+    assert not bad, "includes the folder table of docs/ARCHITECTURE.md does not allow:\n  " + "\n  ".join(bad)
+
