@@ -66,6 +66,13 @@ def print_run(summary: dict[str, Any]) -> None:
     print(f"  round trip [us]: n {rtt['n']}  p50 {_fmt(rtt['p50'], 1)}  p90 {_fmt(rtt['p90'], 1)}  "
           f"p99 {_fmt(rtt['p99'], 1)}  max {_fmt(rtt['max'], 1)}  " + cli_verdict.rtt_misses_text(rtt))
     cli_verdict.print_health(summary)
+    cal = summary.get("range_offset")
+    if cal:
+        print(f"  range offset: {cal['offset_m']:+.3f} m subtracted"
+              + (f" (per anchor: {', '.join(f'{k} {v:+.3f}' for k, v in cal['per_anchor_m'].items())})"
+                 if cal.get("per_anchor_m") else "")
+              + f", fitted on {len(cal['fitted_on'])} flight(s) "
+              + ("without this one (held out)" if cal.get("held_out") else "INCLUDING this one (not held out)"))
     if summary.get("radio"):
         from harness.report.radio import format_radio
         print(format_radio(summary["radio"]))
@@ -172,6 +179,9 @@ def _add_flight_options(p: argparse.ArgumentParser, recorded: bool = True) -> No
         return
     g.add_argument("--recording", help="replay a recorded flight instead (UTIL CSV, rcv_twr sequence, .npz)")
     g.add_argument("--anchors", help="anchor file for the recording (UTIL anchors.csv, YAML)")
+    g.add_argument("--range-offset", metavar="FILE.json",
+                   help="TWR range-offset calibration (antenna delay) subtracted from the ranges before they are "
+                        "streamed; fit one on recordings with ground truth: `uwb-hil range-offset`")
     g.add_argument("--constellation", type=options.non_negative_int, metavar="N",
                    help="constellation of a multi-constellation anchors.csv (default: constN in the file name)")
     g.add_argument("--force", action="store_true",
@@ -234,6 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_fly_parser(sub)
     from harness.calibrate.cli import add_parser as add_calibrate_parser
     add_calibrate_parser(sub)
+    from harness.calibrate.range_offset_cli import add_parser as add_range_offset_parser
+    add_range_offset_parser(sub)
     from harness.campaign import cli as campaign_cli
     from harness.report import cli as report_cli
     campaign_cli.add_parser(sub)

@@ -2,11 +2,13 @@
 issue-13 contract: each run either meets `--max-rmse 2` (exit 0) or exits non-zero naming why; none exits
 0 with an RMSE above 2 m.
 
-    python -m harness.report.replay_all [--only rcv|util] [--jobs N]    # make replay-all (Markdown table)
+    python -m harness.report.replay_all [--only rcv|util] [--jobs N] [--per-anchor]   # make replay-all
 
 Configurations: none, outlier, outlier+nn (UTIL: the position-only network util_tdoa_pos.npz when built;
 rcv_twr has no network usable without attitude, see below), and for rcv_twr the planar mode
-(`--height truth`). Exit status 1 if any run broke the contract.
+(`--height truth`) and a range-offset calibration (`--range-offset`, antenna delay) fitted
+leave-one-sequence-out: for each sequence on the four others only (`--per-anchor`: per anchor too).
+Exit status 1 if any run broke the contract.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import argparse
 import json
 import subprocess
 import sys
+import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +46,7 @@ class Row:
     z_observable: bool | None
     judged: float | None        # the value the rmse check judged (xy when z is not observable)
     reason: str                 # the stderr line of a non-zero exit
+    note: str = ""              # restarts after measurement gaps (reported, not failures)
 
     @property
     def broke_contract(self) -> bool:
@@ -51,7 +55,22 @@ class Row:
         return not self.reason.startswith("uwb-hil:")
 
 
-def plan(data: Path, only: str | None = None) -> list[Job]:
+def held_out_offsets(sequences: list[Path], out_dir: Path, per_anchor: bool = False) -> dict[str, Path]:
+    """For each rcv_twr sequence, a range-offset calibration fitted on the OTHER sequences, written to
+    out_dir; {sequence name: file}."""
+    from harness.flight.loaders import load_recording
+    from harness.flight.range_offset import fit_range_offset, save_range_offset
+    flights = {seq.name: load_recording(seq) for seq in sequences}
+    files: dict[str, Path] = {}
+    for name in flights:
+        cal = fit_range_offset([f for other, f in flights.items() if other != name], per_anchor=per_anchor)
+        files[name] = out_dir / f"range_offset_without_{name}.json"
+        save_range_offset(cal, files[name])
+    return files
+
+
+def plan(data: Path, only: str | None = None, offsets: dict[str, Path] | None = None) -> list[Job]:
+    """The runs; `offsets` (held_out_offsets) adds the rcv_twr runs with a held-out range offset."""
     jobs: list[Job] = []
     if only in (None, "rcv"):
         for seq in sorted((data / "rcv_twr").glob("sequence*")):
@@ -59,6 +78,11 @@ def plan(data: Path, only: str | None = None) -> list[Job]:
             jobs += [Job(seq.name, "none", (rec, "--stages", "none")),
                      Job(seq.name, "outlier", (rec, "--stages", "outlier")),
                      Job(seq.name, "outlier, planar", (rec, "--stages", "outlier", "--height", "truth"))]
+            if offsets and seq.name in offsets:
+                cal = ("--range-offset", str(offsets[seq.name]))
+                jobs += [Job(seq.name, "outlier, offset", (rec, "--stages", "outlier", *cal)),
+                         Job(seq.name, "outlier, planar, offset", (rec, "--stages", "outlier", "--height", "truth",
+                                                                   *cal))]
     if only in (None, "util"):
         anchors = str(data / "util" / "anchors.csv")
         for csv in sorted((data / "util").glob("const*/*.csv")):
@@ -80,13 +104,19 @@ def run_job(job: Job, timeout_s: float = 600.0) -> Row:
         return Row(job, p.returncode, None, None, None, None, None, reason)
     acc, geo = out["accuracy"], out.get("geometry") or {}
     judged = next((c["value"] for c in out["verdict"]["checks"] if c["name"] == "rmse"), None)
+    h = out.get("health") or {}
+    note = (f"{h['gap_restarts']} restarts after gaps, longest {h.get('longest_gap_s', 0):.1f} s"
+            if h.get("gap_restarts") else "")
     return Row(job, p.returncode, acc["rmse"], acc["rmse_xy"], acc["rmse_z"], geo.get("z_observable"), judged,
-               reason if p.returncode else "")
+               reason if p.returncode else "", note)
 
 
-def replay_all(data: Path, only: str | None = None, jobs: int = 2) -> list[Row]:
-    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        return list(pool.map(run_job, plan(data, only)))
+def replay_all(data: Path, only: str | None = None, jobs: int = 2, per_anchor: bool = False) -> list[Row]:
+    with tempfile.TemporaryDirectory(prefix="replay_all_") as tmp:
+        sequences = sorted((data / "rcv_twr").glob("sequence*")) if only in (None, "rcv") else []
+        offsets = held_out_offsets(sequences, Path(tmp), per_anchor) if len(sequences) > 1 else None
+        with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+            return list(pool.map(run_job, plan(data, only, offsets)))
 
 
 def _f(x: float | None) -> str:
@@ -97,7 +127,8 @@ def markdown(rows: list[Row]) -> str:
     lines = ["| recording | config | exit | RMSE 3-D | xy | z | z observable | outcome |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         outcome = ("CONTRACT BROKEN: " if r.broke_contract else "") + (
-            f"pass (judged {_f(r.judged)} m)" if r.exit_code == 0 else r.reason.replace("|", "/"))
+            f"pass (judged {_f(r.judged)} m)" if r.exit_code == 0 else r.reason.replace("|", "/")) + (
+            f"; {r.note}" if r.note else "")
         lines.append(f"| {r.job.recording} | {r.job.config} | {r.exit_code} | {_f(r.rmse)} | {_f(r.rmse_xy)} | "
                      f"{_f(r.rmse_z)} | {'-' if r.z_observable is None else ('yes' if r.z_observable else 'no')} | "
                      f"{outcome} |")
@@ -109,12 +140,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data-dir", type=Path, default=None, help="shared recordings (default ../shared/data)")
     ap.add_argument("--only", choices=("rcv", "util"), help="only the rcv_twr sequences or the UTIL flights")
     ap.add_argument("--jobs", type=int, default=2, help="runs in parallel")
+    ap.add_argument("--per-anchor", action="store_true",
+                    help="rcv_twr held-out range offsets per anchor (default: one offset for every range)")
     args = ap.parse_args(argv)
     data = args.data_dir or shared_data_dir()
     if not data.is_dir():
         print(f"replay_all: error: data folder {data} not found", file=sys.stderr)
         return 2
-    rows = replay_all(data, args.only, args.jobs)
+    rows = replay_all(data, args.only, args.jobs, args.per_anchor)
     print(markdown(rows))
     broken = [r for r in rows if r.broke_contract]
     print(f"\n{len(rows)} runs, {sum(r.exit_code == 0 for r in rows)} passed, "

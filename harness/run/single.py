@@ -91,6 +91,8 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
     summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
     summary["config"] = src.stages
     summary["device"] = ident.as_dict()
+    if "range_offset" in flight.meta:
+        summary["range_offset"] = flight.meta["range_offset"]
     if radio is not None:
         summary["radio"] = radio
     return summary
@@ -127,6 +129,8 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
     summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
     summary["config"] = header_src.get("stages")
     summary["device"] = ident.as_dict()
+    if "range_offset" in flight.meta:
+        summary["range_offset"] = flight.meta["range_offset"]
     summary["resume"] = info
     return summary
 

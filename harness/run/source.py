@@ -35,6 +35,7 @@ class RunSource:
     radio_loss: float = 0.0
     height: str | None = None
     height_std: float = 0.05
+    range_offset: str | None = None     # a range-offset calibration file (harness/flight/range_offset.py)
 
     @classmethod
     def keys(cls) -> tuple[str, ...]:
@@ -51,14 +52,15 @@ class RunSource:
         """For the results header: file paths made absolute, so a resume works from any directory."""
         src = asdict(self)
         src["set"] = list(self.set)
-        for k in ("recording", "anchors", "model"):
+        for k in ("recording", "anchors", "model", "range_offset"):
             if src[k]:
                 src[k] = str(Path(src[k]).resolve())
         return src
 
 
 def make_flight(src: RunSource) -> Flight:
-    """The flight (measurement level), with HEIGHT pseudo-measurements when `height` is given."""
+    """The flight (measurement level): its ranges calibrated when `range_offset` is given, with HEIGHT
+    pseudo-measurements when `height` is given."""
     if src.recording:
         from harness.flight.loaders import load_recording
         flight = load_recording(Path(src.recording), anchors=Path(src.anchors) if src.anchors else None,
@@ -66,6 +68,9 @@ def make_flight(src: RunSource) -> Flight:
     else:
         from harness.flight.scenarios import scenario_flight
         flight = scenario_flight(src.scenario, mode=src.mode, duration_s=src.duration, seed=src.seed)
+    if src.range_offset:
+        from harness.flight.range_offset import apply_range_offset, load_range_offset
+        flight = apply_range_offset(flight, load_range_offset(Path(src.range_offset)))
     if not src.height:
         return flight
     from harness.flight.planar import parse_height, with_height
@@ -86,7 +91,7 @@ def make_run_flight(src: RunSource) -> Flight:
 def long_simulation(src: RunSource) -> Any:
     """The SimPlan of a simulated flight long enough to be streamed in slices, else None."""
     from harness.stream.chunked_run import STREAM_ABOVE_S
-    if src.recording or src.duration <= STREAM_ABOVE_S:
+    if src.recording or src.range_offset or src.duration <= STREAM_ABOVE_S:
         return None
     from harness.flight.scenarios import plan_scenario
     return plan_scenario(src.scenario, mode=src.mode, duration_s=src.duration, seed=src.seed)
