@@ -91,8 +91,10 @@ def print_health(summary: dict[str, Any]) -> None:
     axes = [a for a, ok in (("xy", geo.get("xy_observable", True)), ("z", geo.get("z_observable", True))) if not ok]
     print(f"  geometry: HDOP p50 {_g(geo.get('hdop_p50'))}, VDOP p50 {_g(geo.get('vdop_p50'))}"
           + (" (height pseudo-measurements fused)" if geo.get("height_fused") else "")
-          + (f"; NOT OBSERVABLE: {', '.join(axes)} (DOP above {_g(geo.get('vdop_threshold'))} for most of the flight)"
-             if axes else ""))
+          + (f"; NOT OBSERVABLE: {', '.join(axes)} (DOP above {_g(geo.get('vdop_threshold'))}"
+             + (f", or the anchors on one plane ({100 * geo['mirror_share']:.0f} % of epochs: a mirror image "
+                f"across it along {geo['mirror_axis']})" if geo.get("mirror_axis") else "")
+             + " for most of the flight)" if axes else ""))
     print(f"  filter health: {h.get('divergences', 0)} supervisor resets"
           + (f" ({h['divergence_reasons']})" if h.get("divergence_reasons") else "")
           + f", {h.get('non_finite', 0)} non-finite, {h.get('not_pd', 0)} not positive definite"

@@ -135,6 +135,23 @@ def test_dop_flags_coplanar_anchors() -> None:
     assert box.z_observable and box.vdop_p50 < 2
 
 
+def test_coplanar_anchors_leave_a_mirror_image_the_dop_does_not_see() -> None:
+    """Four anchors at one height, the tag 2 m above them: VDOP is fine (about 1.7), but the tag's reflection
+    across the anchors' plane has exactly the same ranges, so z is not observable. A fused height removes
+    the ambiguity; anchors at two heights have none; anchors on a line are left to the DOP."""
+    above = geometry_summary(_flight([1.0, 1.0, 1.0, 1.0], 3.0))
+    assert above.vdop_p50 < 5 and above.mirror_share == 1.0 and above.mirror_axis == "z"
+    assert not above.z_observable and above.xy_observable
+    from harness.flight.planar import with_height
+    assert geometry_summary(with_height(_flight([1.0, 1.0, 1.0, 1.0], 3.0), "truth")).z_observable
+    box = geometry_summary(_flight([0.0, 0.0, 0.0, 0.0, 3.0, 3.0, 3.0, 3.0], 3.0))
+    assert box.mirror_share == 0.0 and box.z_observable
+    s = summary(geometry={"z_observable": False, "xy_observable": True, "vdop_p50": 1.7, "mirror_share": 0.98,
+                          "mirror_axis": "z"})
+    check = {c.name: c for c in evaluate(s, Criteria(max_rmse=0.3)).checks}["rmse"]
+    assert check.value == 0.1 and "anchors on one plane in 98 % of epochs: the mirror image" in check.detail
+
+
 @needs_rcv
 def test_rcv_twr_geometry() -> None:
     from harness.flight.loaders import load_recording
@@ -142,6 +159,9 @@ def test_rcv_twr_geometry() -> None:
     assert not seq3.z_observable and seq3.xy_observable          # four anchors at 0.6-1.1 m
     seq5 = geometry_summary(load_recording(RCV / "sequence5"))
     assert not seq5.xy_observable and not seq5.z_observable      # four anchors on a line
+    for seq in ("sequence1", "sequence4"):                        # VDOP p50 3.3 / 1.7, anchors on one plane
+        g = geometry_summary(load_recording(RCV / seq))
+        assert g.vdop_p50 < 5 and g.mirror_axis == "z" and not g.z_observable and g.xy_observable
 
 
 # -------------------------------------------------------------------------------- the CLI end to end

@@ -168,9 +168,11 @@ def evaluate(summary: Mapping[str, Any], criteria: Criteria = Criteria()) -> Ver
         elif geo.get("z_observable", True):
             checks.append(_at_most("rmse", acc.get("rmse"), criteria.max_rmse))
         else:
+            mirror = (f"; anchors on one plane in {100 * geo['mirror_share']:.0f} % of epochs: the mirror image "
+                      "has the same ranges" if geo.get("mirror_axis") == "z" else "")
             checks.append(_at_most("rmse", acc.get("rmse_xy"), criteria.max_rmse,
-                                   f"z not observable (VDOP p50 {_fmt(geo.get('vdop_p50'))}): horizontal RMSE; "
-                                   f"z RMSE {_fmt(acc.get('rmse_z'))} reported, not judged"))
+                                   f"z not observable (VDOP p50 {_fmt(geo.get('vdop_p50'))}{mirror}): horizontal "
+                                   f"RMSE; z RMSE {_fmt(acc.get('rmse_z'))} reported, not judged"))
     if criteria.max_rmse_xy is not None:
         checks.append(_at_most("rmse_xy", acc.get("rmse_xy"), criteria.max_rmse_xy))
     if criteria.max_p99_compute_us is not None:
