@@ -2,7 +2,7 @@
 the bias network and the EKF update, counted in guest instructions on the STM32F405 under QEMU.
 
 RESULT.compute of a RADIO frame spans parsing, the engine, the network, the gates and the update
-(firmware.c on_radio); the median over packets that formed a measurement the network corrected and the
+(app/fw_radio.c fw_on_radio); the median over packets that formed a measurement the network corrected and the
 filter accepted is the figure (goal <= 25,000 instructions).
 """
 

@@ -193,11 +193,12 @@ def test_adding_a_field_is_one_edit_in_messages_toml(tmp_path: Path) -> None:
     assert _c_valid(exe, [{"gate_test_k": v} for v in (0.0, 1e-3, 4.0, 4.001, math.inf)]) == \
         [False, True, True, False, False]
 
-    # ... and the firmware (untouched app/firmware.c) refuses a CONFIG whose new field is out of range.
+    # ... and the firmware (untouched app/) refuses a CONFIG whose new field is out of range.
     fw_exe = tmp_path / "uwb-fw-extra"
     subprocess.run([_cc(), *CFLAGS, "-o", str(fw_exe), *sorted(str(p) for p in fw.glob("core/*.c")),
-                    *sorted(str(p) for p in fw.glob("proto/*.c")), "app/firmware.c", "host/main_host.c",
-                    "host/platform_host.c", "-lm"], cwd=fw, check=True, capture_output=True, text=True)
+                    *sorted(str(p) for p in fw.glob("proto/*.c")), *sorted(str(p) for p in fw.glob("app/*.c")),
+                    "host/main_host.c", "host/platform_host.c", "-lm"], cwd=fw, check=True, capture_output=True,
+                   text=True)
     frames = (encode_frame(cfg.to_message(), 0) + encode_frame(replace(cfg, gate_test_k=9.0).to_message(), 1)
               + encode_frame(m.StatsReq(), 2))
     out = subprocess.run([str(fw_exe), "--stdio"], input=frames, capture_output=True, timeout=30).stdout

@@ -4,6 +4,7 @@
 #include "cobs.h"
 #include "config_msg.h" /* CONFIG message -> estimator_config_t (generated) */
 #include "firmware.h"
+#include "fw_internal.h"
 #include "platform.h"
 #include "proto_checks.h"
 
@@ -11,7 +12,7 @@
 #define UWB_BUILD_ID "dev"
 #endif
 
-static void send_msg(firmware_t *fw, uwb_msg_t *msg)
+void fw_send_msg(firmware_t *fw, uwb_msg_t *msg)
 {
     uint8_t body[UWB_MAX_BODY];
     uint8_t enc[UWB_MAX_ENCODED + 1];
@@ -23,7 +24,7 @@ static void send_msg(firmware_t *fw, uwb_msg_t *msg)
     fw->write(fw->write_ctx, enc, m);
 }
 
-static void send_error(firmware_t *fw, uint8_t code, const uwb_msg_t *bad, uint32_t detail)
+void fw_send_error(firmware_t *fw, uint8_t code, const uwb_msg_t *bad, uint32_t detail)
 {
     uwb_msg_t msg;
     memset(&msg, 0, sizeof msg);
@@ -32,7 +33,7 @@ static void send_error(firmware_t *fw, uint8_t code, const uwb_msg_t *bad, uint3
     msg.u.error.msg_type = bad->type;
     msg.u.error.msg_seq = bad->seq;
     msg.u.error.detail = detail;
-    send_msg(fw, &msg);
+    fw_send_msg(fw, &msg);
 }
 
 static void copy_str(uint8_t *dst, size_t cap, const char *src)
@@ -82,7 +83,7 @@ static void on_hello(firmware_t *fw, const uwb_msg_t *in)
     msg.u.hello_reply.model_hash = model->hash;
     copy_str(msg.u.hello_reply.build_id, sizeof msg.u.hello_reply.build_id, UWB_BUILD_ID);
     memcpy(msg.u.hello_reply.target, fw->target, sizeof msg.u.hello_reply.target);
-    send_msg(fw, &msg);
+    fw_send_msg(fw, &msg);
 }
 
 static void on_stats_req(firmware_t *fw)
@@ -119,7 +120,7 @@ static void on_stats_req(firmware_t *fw)
     msg.u.stats.nn_pairs_disabled = fw->est.nnmon.disabled;
     msg.u.stats.heights = fw->est.heights;
     msg.u.stats.bad_values = s->bad_values;
-    send_msg(fw, &msg);
+    fw_send_msg(fw, &msg);
 }
 
 static void on_config(firmware_t *fw, const uwb_msg_t *in)
@@ -130,7 +131,7 @@ static void on_config(firmware_t *fw, const uwb_msg_t *in)
     /* Refuse the whole message: a half-applied configuration would be worse than none. */
     if (!config_msg_control_valid(c) || !estimator_config_valid(&cfg)) {
         fw->stats.bad_configs++;
-        send_error(fw, UWB_ERROR_CODE_BAD_CONFIG, in, 0);
+        fw_send_error(fw, UWB_ERROR_CODE_BAD_CONFIG, in, 0);
         return;
     }
     estimator_configure(&fw->est, &cfg, c->reset);
@@ -180,7 +181,22 @@ static void fill_result(firmware_t *fw, uwb_result_t *r, const estimator_result_
     r->flags = er->flags;
 }
 
-static void refuse_measurement(firmware_t *fw, const uwb_msg_t *in, int rc, uint32_t detail)
+void fw_send_result(firmware_t *fw, const uwb_msg_t *in, uint8_t kind, uint64_t t_us, const estimator_result_t *er,
+                    uint32_t compute)
+{
+    uwb_msg_t out;
+    memset(&out, 0, sizeof out);
+    out.type = UWB_MSG_RESULT;
+    out.u.result.meas_seq = in->seq;
+    out.u.result.kind = kind;
+    out.u.result.t_us = t_us;
+    fill_result(fw, &out.u.result, er);
+    out.u.result.compute = compute;
+    fw->stats.results++;
+    fw_send_msg(fw, &out);
+}
+
+void fw_refuse_measurement(firmware_t *fw, const uwb_msg_t *in, int rc, uint32_t detail)
 {
     fw->stats.dropped_meas++;
     if (rc == EST_ERR_UNKNOWN_ANCHOR) {
@@ -188,13 +204,12 @@ static void refuse_measurement(firmware_t *fw, const uwb_msg_t *in, int rc, uint
     } else if (rc == EST_ERR_TIME_BACKWARDS) {
         fw->stats.time_backwards++;
     }
-    send_error(fw, (uint8_t)rc, in, detail);
+    fw_send_error(fw, (uint8_t)rc, in, detail);
 }
 
 static void on_measurement(firmware_t *fw, const uwb_msg_t *in)
 {
     estimator_result_t er;
-    uwb_msg_t out;
     uint32_t t0, t1;
     int rc;
     memset(&er, 0, sizeof er);
@@ -211,197 +226,11 @@ static void on_measurement(firmware_t *fw, const uwb_msg_t *in)
     if (rc != EST_OK) {
         uint32_t detail = in->type == UWB_MSG_TWR ? in->u.twr.anchor_id
                                                   : ((uint32_t)in->u.tdoa.anchor_a | ((uint32_t)in->u.tdoa.anchor_b << 8));
-        refuse_measurement(fw, in, rc, detail);
+        fw_refuse_measurement(fw, in, rc, detail);
         return;
     }
-    memset(&out, 0, sizeof out);
-    out.type = UWB_MSG_RESULT;
-    out.u.result.meas_seq = in->seq;
-    out.u.result.kind = in->type == UWB_MSG_TWR ? UWB_MEAS_KIND_TWR : UWB_MEAS_KIND_TDOA;
-    out.u.result.t_us = in->type == UWB_MSG_TWR ? in->u.twr.t_us : in->u.tdoa.t_us;
-    fill_result(fw, &out.u.result, &er);
-    out.u.result.compute = t1 - t0;
-    fw->stats.results++;
-    send_msg(fw, &out);
-}
-
-static void radio_drop(firmware_t *fw, const uwb_msg_t *in, uint8_t reason)
-{
-    uwb_msg_t out;
-    fw_stats_t *s = &fw->stats;
-    switch (reason) {
-    case UWB_DROP_REASON_NO_REFERENCE:
-        s->radio_no_reference++;
-        break;
-    case UWB_DROP_REASON_CLOCK_UNRELIABLE:
-        s->radio_clock++;
-        break;
-    case UWB_DROP_REASON_EXPIRED:
-        s->radio_expired++;
-        break;
-    case UWB_DROP_REASON_MALFORMED:
-        s->radio_malformed++;
-        break;
-    case UWB_DROP_REASON_UNKNOWN_TYPE:
-        s->radio_unknown_type++;
-        break;
-    default:
-        s->radio_no_position++;
-        break;
-    }
-    memset(&out, 0, sizeof out);
-    out.type = UWB_MSG_RADIO_DROP;
-    out.u.radio_drop.meas_seq = in->seq;
-    out.u.radio_drop.reason = reason;
-    out.u.radio_drop.anchor_id = (uint8_t)(in->u.radio.src_addr & 0xFFu);
-    send_msg(fw, &out);
-}
-
-/* Checks the frame itself: length, 40-bit timestamp, zero padding. */
-static int radio_frame_ok(const uwb_radio_t *r)
-{
-    size_t i;
-    if (r->length > sizeof r->payload || (r->rx_ts >> 40) != 0) {
-        return 0;
-    }
-    for (i = r->length; i < sizeof r->payload; i++) {
-        if (r->payload[i] != 0) {
-            return 0;
-        }
-    }
-    return 1;
-}
-
-/* One anchor packet: parse, LPP position into the anchor table, TDoA engine, then (if it formed a
- * measurement) the same pipeline as a TDOA frame. Answered by RESULT, RADIO_DROP or ERROR. */
-static void on_radio(firmware_t *fw, const uwb_msg_t *in)
-{
-    const uwb_radio_t *r = &in->u.radio;
-    const uint8_t sender = (uint8_t)(r->src_addr & 0xFFu);
-    lps_packet_t pkt;
-    tdoa_meas_t meas;
-    estimator_result_t er;
-    uwb_msg_t out;
-    uint32_t t0, t1;
-    int rc;
-    t0 = platform_cost_now();
-    fw->stats.radio_packets++;
-    if (!radio_frame_ok(r)) {
-        radio_drop(fw, in, UWB_DROP_REASON_MALFORMED);
-        return;
-    }
-    rc = lps_parse(r->payload, r->length, sender, &pkt);
-    if (rc != LPS_OK) {
-        radio_drop(fw, in, rc == LPS_ERR_UNKNOWN_TYPE ? UWB_DROP_REASON_UNKNOWN_TYPE : UWB_DROP_REASON_MALFORMED);
-        return;
-    }
-    if (pkt.has_pos && sender < ESTIMATOR_MAX_ANCHORS) {
-        (void)estimator_set_anchor(&fw->est, sender, pkt.pos);
-    }
-    rc = tdoa_engine_process(&fw->tdoa, &pkt, sender, r->rx_ts, r->t_us, &meas);
-    if (rc != TDOA_MEASUREMENT) {
-        radio_drop(fw, in, (uint8_t)rc);
-        return;
-    }
-    if (meas.anchor_a >= ESTIMATOR_MAX_ANCHORS || meas.anchor_b >= ESTIMATOR_MAX_ANCHORS) {
-        radio_drop(fw, in, UWB_DROP_REASON_BAD_ANCHOR);
-        return;
-    }
-    if (!((fw->est.anchor_known >> meas.anchor_a) & 1u) || !((fw->est.anchor_known >> meas.anchor_b) & 1u)) {
-        radio_drop(fw, in, UWB_DROP_REASON_NO_POSITION);
-        return;
-    }
-    fw->stats.radio_meas++;
-    memset(&er, 0, sizeof er);
-    rc = estimator_on_tdoa(&fw->est, r->t_us, meas.anchor_a, meas.anchor_b, (float)meas.diff, &er);
-    t1 = platform_cost_now();
-    if (rc != EST_OK) {
-        refuse_measurement(fw, in, rc, (uint32_t)meas.anchor_a | ((uint32_t)meas.anchor_b << 8));
-        return;
-    }
-    memset(&out, 0, sizeof out);
-    out.type = UWB_MSG_RESULT;
-    out.u.result.meas_seq = in->seq;
-    out.u.result.kind = UWB_MEAS_KIND_TDOA;
-    out.u.result.t_us = r->t_us;
-    fill_result(fw, &out.u.result, &er);
-    out.u.result.compute = t1 - t0;
-    fw->stats.results++;
-    send_msg(fw, &out);
-}
-
-static void on_clock_req(firmware_t *fw, const uwb_msg_t *in)
-{
-    const tdoa_anchor_t *a = tdoa_engine_anchor(&fw->tdoa, in->u.clock_req.anchor_id);
-    uwb_msg_t out;
-    memset(&out, 0, sizeof out);
-    out.type = UWB_MSG_CLOCK;
-    out.u.clock.anchor_id = in->u.clock_req.anchor_id;
-    if (a != NULL) {
-        out.u.clock.known = 1;
-        out.u.clock.bucket = a->bucket;
-        out.u.clock.skew_ppm = a->cc > 0.0 ? (float)((a->cc - 1.0) * 1e6) : 0.0f;
-        out.u.clock.packets = a->packets;
-    }
-    send_msg(fw, &out);
-}
-
-/* One control step on the current estimate; answered by CONTROL (or ERROR). */
-static void on_setpoint(firmware_t *fw, const uwb_msg_t *in)
-{
-    const uwb_setpoint_t *s = &in->u.setpoint;
-    ctl_setpoint_t sp;
-    ctl_estimate_t est;
-    ctl_output_t co;
-    uwb_msg_t out;
-    uint32_t t0, t1;
-    int rc;
-    if (s->mode > UWB_CONTROL_MODE_POSITION || s->reserved != 0) {
-        send_error(fw, UWB_ERROR_CODE_BAD_SETPOINT, in, s->mode);
-        return;
-    }
-    sp.mode = s->mode;
-    sp.pos[0] = s->x;
-    sp.pos[1] = s->y;
-    sp.pos[2] = s->z;
-    sp.vel[0] = s->vx;
-    sp.vel[1] = s->vy;
-    sp.vel[2] = s->vz;
-    sp.acc[0] = s->ax;
-    sp.acc[1] = s->ay;
-    sp.acc[2] = s->az;
-    sp.yaw = s->yaw;
-    t0 = platform_cost_now();
-    estimator_state(&fw->est, est.pos, est.vel, est.quat, NULL);
-    rc = controller_step(&fw->ctl, s->t_us, &sp, &est, &co);
-    t1 = platform_cost_now();
-    if (rc != CTL_OK) {
-        fw->stats.time_backwards++;
-        send_error(fw, (uint8_t)rc, in, 0);
-        return;
-    }
-    memset(&out, 0, sizeof out);
-    out.type = UWB_MSG_CONTROL;
-    out.u.control.setpoint_seq = in->seq;
-    out.u.control.mode = co.mode;
-    out.u.control.flags = co.flags;
-    out.u.control.t_us = s->t_us;
-    out.u.control.thrust = co.thrust;
-    out.u.control.rate_x = co.rate[0];
-    out.u.control.rate_y = co.rate[1];
-    out.u.control.rate_z = co.rate[2];
-    out.u.control.px = est.pos[0];
-    out.u.control.py = est.pos[1];
-    out.u.control.pz = est.pos[2];
-    out.u.control.vx = est.vel[0];
-    out.u.control.vy = est.vel[1];
-    out.u.control.vz = est.vel[2];
-    out.u.control.qw = est.quat[0];
-    out.u.control.qx = est.quat[1];
-    out.u.control.qy = est.quat[2];
-    out.u.control.qz = est.quat[3];
-    out.u.control.compute = t1 - t0;
-    send_msg(fw, &out);
+    fw_send_result(fw, in, in->type == UWB_MSG_TWR ? UWB_MEAS_KIND_TWR : UWB_MEAS_KIND_TDOA,
+                   in->type == UWB_MSG_TWR ? in->u.twr.t_us : in->u.tdoa.t_us, &er, t1 - t0);
 }
 
 static void track_seq(firmware_t *fw, uint16_t seq)
@@ -426,7 +255,7 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
         if (in->type == UWB_MSG_TWR || in->type == UWB_MSG_TDOA) {
             fw->stats.dropped_meas++;
         }
-        send_error(fw, UWB_ERROR_CODE_NON_FINITE, in, 0);
+        fw_send_error(fw, UWB_ERROR_CODE_NON_FINITE, in, 0);
         return;
     }
     switch (in->type) {
@@ -442,7 +271,7 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
         if (rc != EST_OK) {
             /* STATS accounts for every frame not used: an anchor the device cannot hold is unknown. */
             fw->stats.unknown_anchors++;
-            send_error(fw, (uint8_t)rc, in, in->u.anchor.anchor_id);
+            fw_send_error(fw, (uint8_t)rc, in, in->u.anchor.anchor_id);
         }
         break;
     }
@@ -454,7 +283,7 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
             fw->stats.imu_samples++;
         } else {
             fw->stats.time_backwards += rc == EST_ERR_TIME_BACKWARDS;
-            send_error(fw, (uint8_t)rc, in, 0);
+            fw_send_error(fw, (uint8_t)rc, in, 0);
         }
         break;
     }
@@ -467,31 +296,31 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
         if (rc != EST_OK) {
             fw->stats.time_backwards += rc == EST_ERR_TIME_BACKWARDS;
             fw->stats.bad_values += rc == EST_ERR_BAD_VALUE;
-            send_error(fw, (uint8_t)rc, in, 0);
+            fw_send_error(fw, (uint8_t)rc, in, 0);
         }
         break;
     case UWB_MSG_STATS_REQ:
         on_stats_req(fw);
         break;
     case UWB_MSG_SETPOINT:
-        on_setpoint(fw, in);
+        fw_on_setpoint(fw, in);
         break;
     case UWB_MSG_RADIO:
-        on_radio(fw, in);
+        fw_on_radio(fw, in);
         break;
     case UWB_MSG_CLOCK_REQ:
-        on_clock_req(fw, in);
+        fw_on_clock_req(fw, in);
         break;
     default:
         /* A device -> host type arriving at the device. */
         fw->stats.unknown_types++;
-        send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, in, 0);
+        fw_send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, in, 0);
         break;
     }
     /* The supervisor re-initialised the filter: say so (after the frame's RESULT) rather than carry on
      * silently; detail = divergences since power-up. */
     if (fw->est.divergences != divergences) {
-        send_error(fw, UWB_ERROR_CODE_DIVERGED, in, fw->est.divergences);
+        fw_send_error(fw, UWB_ERROR_CODE_DIVERGED, in, fw->est.divergences);
     }
 }
 
@@ -517,14 +346,14 @@ static void on_frame(firmware_t *fw, const uint8_t *enc, size_t n)
         fw->stats.frames_ok++;
         fw->stats.unknown_types++;
         track_seq(fw, msg.seq);
-        send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, &msg, 0);
+        fw_send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, &msg, 0);
         return;
     case UWB_DECODE_BAD_LENGTH:
     default:
         fw->stats.frames_ok++;
         fw->stats.bad_lengths++;
         track_seq(fw, msg.seq);
-        send_error(fw, UWB_ERROR_CODE_BAD_LENGTH, &msg, (uint32_t)len);
+        fw_send_error(fw, UWB_ERROR_CODE_BAD_LENGTH, &msg, (uint32_t)len);
         return;
     }
     fw->stats.frames_ok++;

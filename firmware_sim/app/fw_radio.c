@@ -1,0 +1,117 @@
+/* RADIO and CLOCK_REQ frames: anchor packets through the tag's TDoA engine (docs/radio.md). */
+#include <string.h>
+
+#include "fw_internal.h"
+#include "platform.h"
+
+static void radio_drop(firmware_t *fw, const uwb_msg_t *in, uint8_t reason)
+{
+    uwb_msg_t out;
+    fw_stats_t *s = &fw->stats;
+    switch (reason) {
+    case UWB_DROP_REASON_NO_REFERENCE:
+        s->radio_no_reference++;
+        break;
+    case UWB_DROP_REASON_CLOCK_UNRELIABLE:
+        s->radio_clock++;
+        break;
+    case UWB_DROP_REASON_EXPIRED:
+        s->radio_expired++;
+        break;
+    case UWB_DROP_REASON_MALFORMED:
+        s->radio_malformed++;
+        break;
+    case UWB_DROP_REASON_UNKNOWN_TYPE:
+        s->radio_unknown_type++;
+        break;
+    default:
+        s->radio_no_position++;
+        break;
+    }
+    memset(&out, 0, sizeof out);
+    out.type = UWB_MSG_RADIO_DROP;
+    out.u.radio_drop.meas_seq = in->seq;
+    out.u.radio_drop.reason = reason;
+    out.u.radio_drop.anchor_id = (uint8_t)(in->u.radio.src_addr & 0xFFu);
+    fw_send_msg(fw, &out);
+}
+
+/* Checks the frame itself: length, 40-bit timestamp, zero padding. */
+static int radio_frame_ok(const uwb_radio_t *r)
+{
+    size_t i;
+    if (r->length > sizeof r->payload || (r->rx_ts >> 40) != 0) {
+        return 0;
+    }
+    for (i = r->length; i < sizeof r->payload; i++) {
+        if (r->payload[i] != 0) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/* One anchor packet: parse, LPP position into the anchor table, TDoA engine, then (if it formed a
+ * measurement) the same pipeline as a TDOA frame. Answered by RESULT, RADIO_DROP or ERROR. */
+void fw_on_radio(firmware_t *fw, const uwb_msg_t *in)
+{
+    const uwb_radio_t *r = &in->u.radio;
+    const uint8_t sender = (uint8_t)(r->src_addr & 0xFFu);
+    lps_packet_t pkt;
+    tdoa_meas_t meas;
+    estimator_result_t er;
+    uint32_t t0, t1;
+    int rc;
+    t0 = platform_cost_now();
+    fw->stats.radio_packets++;
+    if (!radio_frame_ok(r)) {
+        radio_drop(fw, in, UWB_DROP_REASON_MALFORMED);
+        return;
+    }
+    rc = lps_parse(r->payload, r->length, sender, &pkt);
+    if (rc != LPS_OK) {
+        radio_drop(fw, in, rc == LPS_ERR_UNKNOWN_TYPE ? UWB_DROP_REASON_UNKNOWN_TYPE : UWB_DROP_REASON_MALFORMED);
+        return;
+    }
+    if (pkt.has_pos && sender < ESTIMATOR_MAX_ANCHORS) {
+        (void)estimator_set_anchor(&fw->est, sender, pkt.pos);
+    }
+    rc = tdoa_engine_process(&fw->tdoa, &pkt, sender, r->rx_ts, r->t_us, &meas);
+    if (rc != TDOA_MEASUREMENT) {
+        radio_drop(fw, in, (uint8_t)rc);
+        return;
+    }
+    if (meas.anchor_a >= ESTIMATOR_MAX_ANCHORS || meas.anchor_b >= ESTIMATOR_MAX_ANCHORS) {
+        radio_drop(fw, in, UWB_DROP_REASON_BAD_ANCHOR);
+        return;
+    }
+    if (!((fw->est.anchor_known >> meas.anchor_a) & 1u) || !((fw->est.anchor_known >> meas.anchor_b) & 1u)) {
+        radio_drop(fw, in, UWB_DROP_REASON_NO_POSITION);
+        return;
+    }
+    fw->stats.radio_meas++;
+    memset(&er, 0, sizeof er);
+    rc = estimator_on_tdoa(&fw->est, r->t_us, meas.anchor_a, meas.anchor_b, (float)meas.diff, &er);
+    t1 = platform_cost_now();
+    if (rc != EST_OK) {
+        fw_refuse_measurement(fw, in, rc, (uint32_t)meas.anchor_a | ((uint32_t)meas.anchor_b << 8));
+        return;
+    }
+    fw_send_result(fw, in, UWB_MEAS_KIND_TDOA, r->t_us, &er, t1 - t0);
+}
+
+void fw_on_clock_req(firmware_t *fw, const uwb_msg_t *in)
+{
+    const tdoa_anchor_t *a = tdoa_engine_anchor(&fw->tdoa, in->u.clock_req.anchor_id);
+    uwb_msg_t out;
+    memset(&out, 0, sizeof out);
+    out.type = UWB_MSG_CLOCK;
+    out.u.clock.anchor_id = in->u.clock_req.anchor_id;
+    if (a != NULL) {
+        out.u.clock.known = 1;
+        out.u.clock.bucket = a->bucket;
+        out.u.clock.skew_ppm = a->cc > 0.0 ? (float)((a->cc - 1.0) * 1e6) : 0.0f;
+        out.u.clock.packets = a->packets;
+    }
+    fw_send_msg(fw, &out);
+}
