@@ -26,7 +26,8 @@ import numpy as np
 from harness.config import PRESETS, EstimatorConfig
 from harness.flight.data import KIND_TWR
 from harness.report.metrics import latency_summary
-from harness.session import DEFAULT_FIRMWARE, DeviceSpec, config_for, open_device
+from harness.device.registry import DeviceSpec, open_device
+from harness.session import DEFAULT_FIRMWARE, config_for
 from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
 
 

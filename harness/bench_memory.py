@@ -39,7 +39,8 @@ def _child(duration_s: float, path: str, mode: str, firmware: str) -> dict[str, 
     from harness.config import PRESETS, EstimatorConfig
     from harness.flight.scenarios import plan_scenario
     from harness.report.metrics import run_summary
-    from harness.session import DeviceSpec, config_for, open_device
+    from harness.device.registry import DeviceSpec, open_device
+    from harness.session import config_for
     from harness.stream.chunked_run import stream_plan
     from harness.stream.streamer import Pacing, Streamer
 

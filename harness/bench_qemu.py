@@ -69,14 +69,9 @@ def size_figures(build_dir: Path) -> dict[str, Any]:
 # ------------------------------------------------------------------------------------------ devices
 @contextmanager
 def qemu_device(elf: Path, log_dir: Path | None = None, timeout_s: float = 10.0) -> Iterator[Any]:
-    from harness.device.qemu import QemuDevice
-    device = QemuDevice(elf=elf, log_dir=log_dir)
-    device.start()
-    try:
-        device.hello(timeout=timeout_s)
+    from harness.device.registry import DeviceSpec, open_device
+    with open_device(DeviceSpec(target="qemu", firmware=elf, log_dir=log_dir, timeout_s=timeout_s)) as device:
         yield device
-    finally:
-        device.stop()
 
 
 # ------------------------------------------------------------------------------------------ flights

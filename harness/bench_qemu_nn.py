@@ -142,12 +142,12 @@ def network_kernels(n_inputs: int, seed: int, log_dir: Path | None = None,
     input's scaling range), against PyTorch on the same weights (dumped from the device). The comparison
     only means something where the output is not clamped and not constant: `unclamped` and `ref_std` say
     how much of it does (the probe model of harness/stm32_build.py is built for that)."""
-    from harness.device.qemu import PtyLink
+    from harness.link.qemu_link import QemuPtyLink
     rng = np.random.default_rng(seed)
     rows: list[KernelRow] = []
     proc = _process_start(elf, log_dir)
     try:
-        client = NnBenchClient(PtyLink(proc.fd, proc.serial_name or "?"), timeout_s=10.0)
+        client = NnBenchClient(QemuPtyLink(proc.fd, proc.serial_name or "?"), timeout_s=10.0)
         for kind, kind_name in ((0, "twr"), (1, "tdoa")):
             net = client.tables(kind)
             if net is None:

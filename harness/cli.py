@@ -25,7 +25,7 @@ from harness.errors import UsageError, UwbHilError
 from harness.run.demo import DemoFlights, run_demo
 from harness.run.single import checked_results_path, resume_one, run_one
 from harness.run.source import RunSource
-from harness.session import DeviceSpec
+from harness.device.registry import DeviceSpec
 from harness.stream.streamer import PACING_MODES, Pacing
 
 

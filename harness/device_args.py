@@ -12,14 +12,15 @@ from pathlib import Path
 from typing import Any
 
 from harness import options
-from harness.session import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, TARGETS, DeviceSpec
+from harness.device.registry import TARGETS, DeviceSpec
+from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
 
 def add_device_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("device")
     g.add_argument("--target", choices=TARGETS, default=None,
-                   help="emulator (host firmware on a pty; the default without a port), serial (a board on --port; "
-                        "the default with one), qemu")
+                   help="emulator (host firmware on a pty; the default without a port), asan (the same built with "
+                        "ASan+UBSan), serial (a board on --port; the default with one), qemu")
     g.add_argument("--port", help="pyserial URL or device of a real board: /dev/ttyACM0, rfc2217://host:port "
                                   "(default: $UWB_HIL_PORT; `uwb-hil ports` lists this machine's ports)")
     g.add_argument("--port-serial", metavar="SERIAL",

@@ -7,7 +7,8 @@ override by indirect parametrization (value resolution: indirect param -> comman
                   default $UWB_HIL_PORT
   --uwb-port-serial  the board with this USB serial number (`uwb-hil ports`), whatever its device path
   --uwb-baud      baud rate (115200)
-  --uwb-target    emulator | serial | qemu (emulator, or serial when a port is given)
+  --uwb-target    emulator | asan | serial | qemu (emulator, or serial when a port is given; the kinds of
+                  harness/device/registry.py, which builds the device as the CLI does)
   --uwb-firmware  host firmware binary (<repo>/firmware_sim/build/uwb-fw), or the ELF for qemu
   --uwb-timeout   seconds to wait for the device (5)
 
@@ -26,35 +27,24 @@ This module is imported by every pytest run in the environment: it imports nothi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator, Optional, Set, Tuple
 
 import pytest
 
-from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
+from harness.device.registry import TARGETS, DeviceSpec, create_device, default_firmware, started
+from harness.errors import UsageError
+from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
 if TYPE_CHECKING:
     from harness.device.base import Device
 
-TARGETS = ("emulator", "serial", "qemu")
 SCOPES = ("session", "module", "function")
 DEFAULT_BAUD = 115200
 DEFAULT_TIMEOUT_S = 5.0
 DEFAULT_FLASH_TIMEOUT_S = 600.0
 _PORT_KEY = pytest.StashKey[Optional[str]]()
 _SUITE_PROPS_KEY = pytest.StashKey[Set[Tuple[str, str]]]()
-
-
-@dataclass(frozen=True)
-class DeviceChoice:
-    """What `uwb_device` starts, resolved from the option fixtures."""
-
-    target: str
-    port: str | None
-    baud: int
-    firmware: Path
-    timeout_s: float
 
 
 # --------------------------------------------------------------------------------------- options
@@ -70,7 +60,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                     help="device kind (default: emulator, or serial when --uwb-port is given)")
     group.addoption("--uwb-firmware", default=None,
                     help=f"firmware: host binary for the emulator (default {DEFAULT_FIRMWARE}), ELF for qemu "
-                         f"(default {DEFAULT_STM32_ELF})")
+                         f"(default {DEFAULT_STM32_ELF}); asan: {DEFAULT_ASAN_FIRMWARE}")
     group.addoption("--uwb-timeout", type=float, default=None,
                     help=f"seconds to wait for the device (default {DEFAULT_TIMEOUT_S:g})")
     group.addoption("--uwb-scope", choices=SCOPES, default=None,
@@ -132,10 +122,8 @@ def pytest_report_header(config: pytest.Config) -> str:
     target = config.getoption("uwb_target") or ("serial" if port else "emulator")
     if target == "serial":
         return f"uwb-hil: target serial, port {port}, baud {config.getoption('uwb_baud') or DEFAULT_BAUD}"
-    if target == "emulator":
-        fw = Path(config.getoption("uwb_firmware") or DEFAULT_FIRMWARE)
-        return f"uwb-hil: target emulator, firmware {fw}{'' if fw.exists() else ' (not built)'}"
-    return f"uwb-hil: target {target}, firmware {config.getoption('uwb_firmware') or DEFAULT_STM32_ELF}"
+    fw = Path(config.getoption("uwb_firmware") or default_firmware(target))
+    return f"uwb-hil: target {target}, firmware {fw}{'' if fw.exists() else ' (not built)'}"
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -189,8 +177,7 @@ def uwb_target(request: pytest.FixtureRequest, uwb_port: str | None) -> str:
 
 @pytest.fixture(scope=_device_scope)
 def uwb_firmware(request: pytest.FixtureRequest, uwb_target: str) -> Path:
-    return Path(_param_or_option(request, "uwb_firmware",
-                                 DEFAULT_STM32_ELF if uwb_target == "qemu" else DEFAULT_FIRMWARE))
+    return Path(_param_or_option(request, "uwb_firmware", default_firmware(uwb_target)))
 
 
 @pytest.fixture(scope=_device_scope)
@@ -205,44 +192,12 @@ def uwb_expected_model_hash(request: pytest.FixtureRequest) -> int | None:
 
 
 # ------------------------------------------------------------------------------- device fixture
-def _make_device(choice: DeviceChoice, log_dir: Path) -> Device:
-    if choice.target == "emulator":
-        from harness.device.emulator import EmulatorDevice
-
-        if not choice.firmware.is_file():
-            pytest.fail(f"firmware binary {choice.firmware} not found: run `make firmware` "
-                        f"(or pass --uwb-firmware)", pytrace=False)
-        return EmulatorDevice(choice.firmware, log_dir=log_dir)
-    if choice.target == "serial":
-        from harness.device.serial_device import SerialDevice
-
-        if not choice.port:
-            pytest.fail("target 'serial' needs --uwb-port (a device path or pyserial URL)", pytrace=False)
-        return SerialDevice(choice.port, choice.baud)
-    from harness.device.qemu import QemuDevice
-
-    if not choice.firmware.is_file():
-        pytest.fail(f"firmware ELF {choice.firmware} not found: run `make stm32` (or pass --uwb-firmware)",
-                    pytrace=False)
-    return QemuDevice(elf=choice.firmware, log_dir=log_dir)
-
-
-def _hello_properties(device: Device) -> dict[str, str]:
-    hello = device.last_hello
-    if hello is None:
-        return {}
-    return {
-        "uwb_fw_version": f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}",
-        "uwb_build_id": _ascii(hello.build_id),
-        "uwb_model_hash": f"{hello.model_hash:#018x}",
-        "uwb_device_target": _ascii(hello.target),
-        "uwb_proto_version": str(hello.proto_version),
-        "uwb_layouts": f"twr={hello.layout_twr} tdoa={hello.layout_tdoa}",
-    }
-
-
-def _ascii(raw: bytes) -> str:
-    return raw.rstrip(b"\x00").decode("ascii", errors="replace")
+def _make_device(spec: DeviceSpec) -> Device:
+    """The device of the registry (the CLI's construction path); a bad choice fails the test, no traceback."""
+    try:
+        return create_device(spec)
+    except (UsageError, FileNotFoundError) as exc:
+        pytest.fail(f"{exc} (pytest options: --uwb-target, --uwb-port, --uwb-firmware)", pytrace=False)
 
 
 @pytest.fixture(scope="session")
@@ -274,7 +229,6 @@ def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | 
     test-suite properties (once per distinct value), which xunit2 accepts; per-device details (link,
     exit code, log) go to the report of a failing test instead of testcase properties, which it rejects.
     """
-    choice = DeviceChoice(uwb_target, uwb_port, uwb_baud, uwb_firmware, uwb_timeout)
     recorded = request.config.stash[_SUITE_PROPS_KEY]
 
     def suite_property(name: str, value: object) -> None:
@@ -283,19 +237,17 @@ def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | 
             record_testsuite_property(name, str(value))
 
     log_dir = tmp_path_factory.mktemp("uwb-device", numbered=True)
-    device = _make_device(choice, log_dir)
-    suite_property("uwb_target", choice.target)
-    try:
-        device.start()
-        device.hello(timeout=choice.timeout_s)
-        device.check(expected_model_hash=uwb_expected_model_hash)
-        for key, value in _hello_properties(device).items():
+    # the flash hook ran once for the session (uwb_flashed), not per device: no flash_cmd here
+    spec = DeviceSpec(target=uwb_target, port=uwb_port if uwb_target == "serial" else None, baud=uwb_baud,
+                      firmware=uwb_firmware, timeout_s=uwb_timeout, log_dir=log_dir)
+    device = _make_device(spec)
+    suite_property("uwb_target", uwb_target)
+    with started(device, uwb_timeout, uwb_expected_model_hash):
+        for key, value in device.identity.properties().items():
             suite_property(key, value)
         if uwb_flashed:
             suite_property("uwb_flash_cmd", uwb_flashed)
         yield device
-    finally:
-        device.stop()
 
 
 # ------------------------------------------------------------------------------------- verdicts

@@ -35,7 +35,8 @@ from harness.flight.scenarios import scenario_flight
 from harness.report.metrics import accuracy_summary
 from harness.report.radio import query_clocks, radio_summary
 from harness.report.radio_streams import FirmwareCheck, StreamComparison, compare_streams, firmware_check
-from harness.session import DeviceSpec, config_for, open_device, shared_data_dir
+from harness.device.registry import DeviceSpec, open_device
+from harness.session import config_for, shared_data_dir
 from harness.stream.streamer import Pacing, Streamer
 
 

@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.device.emulator import EmulatorDevice
+from harness.device.registry import DeviceSpec, open_device
 from harness.flight.scenarios import scenario_flight
 from harness.link.faulty import FaultRates, FaultyLink, unwrap_seqs
 from harness.session import DEFAULT_FIRMWARE, config_for
@@ -33,8 +33,7 @@ def fault_accounting(seconds: float, seed: int, direction: str) -> dict[str, Any
     flight = scenario_flight("circle", mode="twr", duration_s=seconds, seed=seed, noise="gaussian", noise_std=0.05)
     cfg = config_for(flight, EstimatorConfig(), stages=PRESETS["outlier"])
     tx, rx = (TX_RATES, FaultRates()) if direction == "tx" else (FaultRates(), RX_RATES)
-    with EmulatorDevice(DEFAULT_FIRMWARE) as dev:
-        dev.hello(timeout=10.0)
+    with open_device(DeviceSpec(timeout_s=10.0)) as dev:
         s0 = dev.channel.stats(timeout=2.0)
         link = FaultyLink(dev.link, tx=tx, rx=rx, seed=seed)
         with dev.channel.through(link) as channel:     # same session (seqs go on), faulty transport

@@ -284,7 +284,7 @@ def test_pair_keys_separate_constellations() -> None:
 
 # ------------------------------------------------------------------------------ device refusals
 def test_emulator_with_another_model_is_refused_naming_both_hashes(tmp_path: Path) -> None:
-    from harness.session import DeviceSpec, open_device
+    from harness.device.registry import DeviceSpec, open_device
     model = random_model(5)
     fw = firmware_for(model, build_root=tmp_path)
     with open_device(DeviceSpec(firmware=fw), expected_model_hash=model.hash) as dev:

@@ -47,7 +47,7 @@ def test_a_changed_model_starts_its_build_directory_afresh(tmp_path: Path) -> No
 
 
 def test_host_build_carries_the_model(tmp_path: Path) -> None:
-    from harness.session import DeviceSpec, open_device
+    from harness.device.registry import DeviceSpec, open_device
     model = probe_model()
     exe = build_firmware("host", model, tmp_path / "host")
     with open_device(DeviceSpec(firmware=exe), expected_model_hash=model.hash) as dev:

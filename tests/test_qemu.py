@@ -72,12 +72,13 @@ def _read_until(link: Any, pred: Any, timeout: float) -> bytes:
 
 
 def test_board_layer_boots_with_fpu_and_instruction_clock(stm32_selftest: Path, qemu_log: Path) -> None:
-    from harness.device.qemu import PtyLink, QemuProcess
+    from harness.device.qemu import QemuProcess
+    from harness.link.qemu_link import QemuPtyLink
     proc = QemuProcess(stm32_selftest / "selftest.elf", qemu_log)
     proc.start()
     try:
         assert proc.serial_name is not None
-        link = PtyLink(proc.fd, proc.serial_name)
+        link = QemuPtyLink(proc.fd, proc.serial_name)
         banner = _read_until(link, lambda b: b.endswith(b"\n"), 5.0).decode(errors="replace")
         m = re.search(r"emulated=(\d) dwt=(\d) sysclk=(\d+) fpu=(0x[0-9a-f]+) busy1000=(\d+)", banner)
         assert m, f"no self-test banner: {banner!r} (log {qemu_log})"
@@ -270,7 +271,7 @@ def test_m4_network_kernels_match_pytorch_and_are_faster(stm32_build: Path, prob
 def test_serial_over_a_socket_starts_without_the_pty_settle(stm32_build: Path, tmp_path: Path) -> None:
     """The default transport is a unix socket; the pty recipe (1.2 s settle) still works and answers alike."""
     from harness.device.qemu import QemuDevice, QemuOptions
-    from harness.session import DeviceSpec, open_device
+    from harness.device.registry import DeviceSpec, open_device
     times: dict[str, float] = {}
     hellos = {}
     for serial in ("socket", "pty"):

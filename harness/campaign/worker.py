@@ -24,7 +24,8 @@ from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_
 from harness.config import PRESETS, EstimatorConfig
 from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
-from harness.session import DeviceSpec, config_for, open_device
+from harness.device.registry import DeviceSpec, open_device
+from harness.session import config_for
 from harness.stream.streamer import Pacing, Streamer
 from protocol import messages as m
 

@@ -15,7 +15,7 @@ from harness.closedloop.vehicle import VehicleParams
 from harness.config import MODE_IMU, PRESETS, EstimatorConfig
 from harness.flight.arena import NLOS_BOXES, Arena
 from harness.flight.measurement_errors import sim_config
-from harness.session import DeviceSpec, open_device
+from harness.device.registry import DeviceSpec, open_device
 
 
 @dataclass(frozen=True)

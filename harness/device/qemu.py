@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from harness.device.base import Device
-from harness.device.qemu_link import QemuPtyLink
+from harness.link.qemu_link import QemuPtyLink
 from harness.errors import DeviceDied, DeviceError
 from harness.link.base import Link
 from harness.link.pty_link import make_raw
@@ -306,10 +306,6 @@ def _open_raw(path: str) -> int:
         os.close(fd)
         raise
     return fd
-
-
-# Kept for callers of the process layer alone (the self-test, the network bench).
-PtyLink = QemuPtyLink
 
 
 class QemuDevice(Device):

@@ -12,7 +12,8 @@ from harness.errors import ResultsFileError
 from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.run.source import RunSource, long_simulation, make_flight, make_run_flight, run_config
-from harness.session import DeviceSpec, check_network_inputs, open_device
+from harness.device.registry import DeviceSpec, open_device
+from harness.session import check_network_inputs
 from harness.stream.streamer import Pacing, Streamer
 
 Progress = Callable[[int, int], None]

@@ -1,6 +1,5 @@
 """The host end of QEMU's serial link (the guest's USART): a unix socket, or the pty of the older recipe.
-
-Split from harness/device/qemu.py (the process and device layers), which re-exports it.
+A transport like the others in harness/link/; the QEMU process and device are harness/device/qemu.py.
 """
 
 from __future__ import annotations

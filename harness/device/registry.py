@@ -1,0 +1,135 @@
+"""The one device registry: a `DeviceSpec` (what the user chose) -> a `Device`, for the CLI, the campaign
+workers and the pytest plugin alike (as Zephyr twister's adapter factory or labgrid's target factory do).
+
+Kinds (`KINDS`, the `--target` / `--uwb-target` choices):
+  emulator  the host build of the firmware on a pty (firmware_sim/build/uwb-fw)
+  asan      the same, built with AddressSanitizer + UBSan (firmware_sim/build/uwb-fw-asan): any memory or
+            undefined-behaviour error ends the process, which the harness reports as DeviceDied
+  serial    a running board on a serial port or pyserial URL (/dev/ttyACM0, rfc2217://host:port, ...)
+  qemu      the STM32F405 ELF in QEMU (firmware_sim/build/stm32/uwb-fw.elf)
+`create_device` checks the spec (a missing firmware or port is an input error, exit 2, before anything
+starts) and builds the device; `open_device` also runs the flash hook, starts it, takes its HELLO once and
+checks protocol and model, and always stops it (`started`, which the pytest plugin uses on the
+device it created). Device classes are imported only when their kind is
+built (the pytest plugin imports this module in every pytest run).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
+
+from harness.errors import UsageError
+from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
+
+if TYPE_CHECKING:
+    from harness.device.base import Device
+
+
+@dataclass(frozen=True)
+class DeviceSpec:
+    """What device to use and how to reach it (from the command line, a campaign job or pytest options)."""
+
+    target: str = "emulator"
+    port: str | None = None
+    baud: int = 115200
+    firmware: Path | None = None     # None: the kind's default (host binary, ASan binary, STM32 ELF)
+    timeout_s: float = 5.0           # device silence before giving up; bounds a board's link writes too
+    log_dir: Path | None = None
+    flash_cmd: str | None = None     # run (shell) before the device starts, e.g. to flash the board
+    flash_timeout_s: float = 600.0
+
+    def resolved_target(self) -> str:
+        """The kind: a port given with the default target means a board."""
+        return "serial" if (self.port and self.target == "emulator") else self.target
+
+    def firmware_path(self) -> Path:
+        return Path(self.firmware) if self.firmware is not None else default_firmware(self.resolved_target())
+
+
+@dataclass(frozen=True)
+class DeviceKind:
+    name: str
+    firmware: Path | None                         # default firmware image; None: the device brings its own
+    missing_firmware: str                         # how to get the firmware when it is not there
+    build: Callable[[DeviceSpec, Path], Device]   # (spec, firmware path) -> an unstarted device
+
+
+def _emulator(spec: DeviceSpec, firmware: Path) -> Device:
+    from harness.device.emulator import EmulatorDevice
+    return EmulatorDevice(firmware, log_dir=spec.log_dir)
+
+
+def _serial(spec: DeviceSpec, firmware: Path) -> Device:  # noqa: ARG001 - the board runs what it was flashed with
+    from harness.device.serial_device import SerialDevice, SerialDeviceOptions
+    if not spec.port:
+        raise UsageError("target 'serial' needs a port (--port /dev/ttyACM0, rfc2217://host:port, ...)")
+    # the timeout bounds writes too: a board (or serial server) that stops reading fails the run
+    return SerialDevice(spec.port, spec.baud, SerialDeviceOptions(write_timeout_s=spec.timeout_s))
+
+
+def _qemu(spec: DeviceSpec, firmware: Path) -> Device:
+    from harness.device.qemu import QemuDevice
+    return QemuDevice(elf=firmware, log_dir=spec.log_dir)
+
+
+KINDS: dict[str, DeviceKind] = {
+    "emulator": DeviceKind("emulator", DEFAULT_FIRMWARE, "firmware binary {path} not found: run `make firmware`",
+                           _emulator),
+    "asan": DeviceKind("asan", DEFAULT_ASAN_FIRMWARE,
+                       "sanitizer firmware binary {path} not found: run `make firmware`", _emulator),
+    "serial": DeviceKind("serial", None, "", _serial),
+    "qemu": DeviceKind("qemu", DEFAULT_STM32_ELF,
+                       "firmware ELF {path} not found: build it with `make stm32` or pass --firmware PATH", _qemu),
+}
+TARGETS = tuple(KINDS)
+
+
+def kind_of(spec: DeviceSpec) -> DeviceKind:
+    target = spec.resolved_target()
+    if target not in KINDS:
+        raise UsageError(f"unknown device target {target!r}; choose one of {', '.join(TARGETS)}")
+    return KINDS[target]
+
+
+def create_device(spec: DeviceSpec) -> Device:
+    """The device `spec` describes, not started. UsageError for an unknown kind or a missing port,
+    FileNotFoundError for a missing firmware image (both input errors: nothing was started)."""
+    kind = kind_of(spec)
+    firmware = spec.firmware_path()
+    if kind.firmware is not None and not firmware.is_file():
+        raise FileNotFoundError(kind.missing_firmware.format(path=firmware))
+    return kind.build(spec, firmware)
+
+
+def default_firmware(target: str) -> Path:
+    """The firmware image a kind runs when none is given (the host binary for a board: unused)."""
+    kind = KINDS.get(target)
+    return kind.firmware if kind is not None and kind.firmware is not None else DEFAULT_FIRMWARE
+
+
+@contextmanager
+def started(device: Device, timeout_s: float, expected_model_hash: int | None = None) -> Iterator[Device]:
+    """Start the device, take its HELLO (once: `device.identity`), check protocol and model; always stop it."""
+    device.start()
+    try:
+        device.hello(timeout=timeout_s)
+        device.check(expected_model_hash=expected_model_hash)
+        yield device
+    finally:
+        device.stop()
+
+
+@contextmanager
+def open_device(spec: DeviceSpec, expected_model_hash: int | None = None) -> Iterator[Device]:
+    """The device of `spec`, after the flash hook, `started`."""
+    device = create_device(spec)
+    if spec.flash_cmd:
+        from harness.device.flash import run_flash_command
+        log = Path(spec.log_dir) / "flash.log" if spec.log_dir else None
+        run_flash_command(spec.flash_cmd, spec.flash_timeout_s, log)
+    with started(device, spec.timeout_s, expected_model_hash) as dev:
+        yield dev
