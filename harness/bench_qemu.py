@@ -260,8 +260,7 @@ def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_
                 from harness.bench_radio import radio_stage
                 out["radio"] = asdict(radio_stage(dev, duration_s, seed))
             stack_used[name] = dev.stack_high_water()   # the deepest the flights took the painted stack
-            if dev.last_hello is not None:
-                out["model_hash"] = f"{dev.last_hello.model_hash:016x}"
+            out["model_hash"] = dev.identity.as_dict()["model_hash"]
     out["stages"] = [asdict(r) for r in stages]
     kernels = network_kernels(nn_inputs, seed, log_dir, build_m4 / "uwb-nnbench.elf", "shipped")
     kernels += network_kernels(nn_inputs, seed, log_dir, build_probe / "uwb-nnbench.elf", "probe")

@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         print("radio_compare: error: --spread must be >= 0 and --seeds >= 1", file=sys.stderr)
         return 2
     with open_device(DeviceSpec()) as device:
-        streamer = Streamer(device, timeout_s=10.0)  # type: ignore[arg-type]
+        streamer = Streamer(device, timeout_s=10.0)
         if args.util:
             pairs = recorded(streamer, Path(args.data), args.trial)
         else:

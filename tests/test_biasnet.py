@@ -288,7 +288,7 @@ def test_emulator_with_another_model_is_refused_naming_both_hashes(tmp_path: Pat
     model = random_model(5)
     fw = firmware_for(model, build_root=tmp_path)
     with open_device(DeviceSpec(firmware=fw), expected_model_hash=model.hash) as dev:
-        assert dev.hello().model_hash == model.hash  # type: ignore[attr-defined]
+        assert dev.identity.model_hash == model.hash
     shipped = BiasModel.load(DEFAULT_NPZ)
     with pytest.raises(ModelMismatch) as err:
         with open_device(DeviceSpec(firmware=fw), expected_model_hash=shipped.hash):

@@ -51,7 +51,7 @@ def test_host_build_carries_the_model(tmp_path: Path) -> None:
     model = probe_model()
     exe = build_firmware("host", model, tmp_path / "host")
     with open_device(DeviceSpec(firmware=exe), expected_model_hash=model.hash) as dev:
-        assert dev.hello().model_hash == model.hash  # type: ignore[attr-defined]
+        assert dev.identity.model_hash == model.hash
 
 
 @pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="no ARM toolchain")

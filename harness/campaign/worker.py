@@ -134,7 +134,7 @@ def run_group(job: WorkerJob) -> int:
                     device = device_cm.__enter__()
                     ident = device.identity
                 cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[run.config], uwb_only=run.flight.uwb_only)
-                streamer = Streamer(device, timeout_s=job.timeout_s)  # type: ignore[arg-type]
+                streamer = Streamer(device, timeout_s=job.timeout_s)
                 radio = run.role == ROLE_RADIO
                 result = streamer.run(flight, cfg, pacing, results_path=cdir.results_path(run.run_id), radio=radio)
                 summary = run_summary(result, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
