@@ -108,9 +108,6 @@ class ClosedLoop:
         self.channel: DeviceChannel = as_channel(device)
         self.loop = loop
 
-    def _frame(self, msg: Any) -> tuple[bytes, int]:
-        return self.channel.frame(msg)
-
     def _await_control(self, seq: int, statuses: dict[str, int], errors: list[m.Error]) -> m.Control | None:
         """Read until the CONTROL for `seq` (returned) or an ERROR refusing it (None)."""
         deadline = time.monotonic() + self.loop.timeout_s
@@ -167,7 +164,7 @@ class ClosedLoop:
             if k == 0:
                 s = veh.state
                 acc, gyr = sens.imu(veh.specific_force, veh.gyro)
-                chunks.append(self._frame(_imu(0, acc, gyr))[0])
+                chunks.append(self.channel.frame(_imu(0, acc, gyr))[0])
             else:
                 f_sum = [0.0] * 6
                 for j in range(1, sub + 1):
@@ -180,7 +177,7 @@ class ClosedLoop:
                         w = (t_m - (t_sub - phys_us)) / phys_us   # position at the measurement time
                         tag = tuple(p_prev[i] + (s.pos[i] - p_prev[i]) * w for i in range(3))
                         u = sens.measure(idx, t_m, tag, s.quat)   # type: ignore[arg-type]
-                        chunks.append(self._frame(_uwb(u))[0])
+                        chunks.append(self.channel.frame(_uwb(u))[0])
                     sf, gy = veh.specific_force, veh.gyro
                     for i in range(3):
                         f_sum[i] += sf[i]
@@ -189,7 +186,7 @@ class ClosedLoop:
                         c = 1.0 / lp.imu_every
                         acc, gyr = sens.imu((f_sum[0] * c, f_sum[1] * c, f_sum[2] * c),
                                             (f_sum[3] * c, f_sum[4] * c, f_sum[5] * c))
-                        chunks.append(self._frame(_imu(t_sub, acc, gyr))[0])
+                        chunks.append(self.channel.frame(_imu(t_sub, acc, gyr))[0])
                         f_sum = [0.0] * 6
             on = bool(plan.motors_on[k])
             sp = m.Setpoint(t_us=t_us, mode=int(m.ControlMode.POSITION if on else m.ControlMode.OFF), reserved=0,
@@ -197,7 +194,7 @@ class ClosedLoop:
                             vx=float(plan.vel[k, 0]), vy=float(plan.vel[k, 1]), vz=float(plan.vel[k, 2]),
                             ax=float(plan.acc[k, 0]), ay=float(plan.acc[k, 1]), az=float(plan.acc[k, 2]),
                             yaw=float(plan.yaw[k]))
-            frame, seq = self._frame(sp)
+            frame, seq = self.channel.frame(sp)
             chunks.append(frame)
             if lp.pacing == "realtime":
                 due = wall0 + (t_us * 1e-6) / lp.speed
