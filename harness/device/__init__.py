@@ -1,12 +1,21 @@
-"""Devices under test: the host emulator on a pty, a board on a serial port (QEMU: device/qemu.py)."""
+"""Devices under test: the registry (registry.py: DeviceSpec -> device), the one protocol session
+(channel.py: DeviceChannel), and the devices: the host emulator on a pty, a board on a serial port, QEMU.
+
+The names below load on first use: the pytest plugin imports harness.device.registry in every pytest run,
+which must not pull numpy and the device classes in with this package."""
 
 from __future__ import annotations
 
-from harness.device.base import Device
-from harness.device.channel import DeviceChannel
-from harness.device.identity import DeviceIdentity
-from harness.device.emulator import EmulatorDevice, EmulatorOptions
-from harness.device.serial_device import SerialDevice, SerialDeviceOptions
+import importlib
+from typing import Any
 
-__all__ = ["Device", "DeviceChannel", "DeviceIdentity", "EmulatorDevice", "EmulatorOptions", "SerialDevice",
-           "SerialDeviceOptions"]
+_WHERE = {"Device": "base", "DeviceChannel": "channel", "DeviceIdentity": "identity", "EmulatorDevice": "emulator",
+          "EmulatorOptions": "emulator", "SerialDevice": "serial_device", "SerialDeviceOptions": "serial_device"}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module 'harness.device' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"harness.device.{_WHERE[name]}"), name)
