@@ -85,6 +85,9 @@ void ekf_finalize(ekf_t *ekf);
  * semi-definite); a non-finite variance becomes EKF_P_MAX without correlations; other NaN -> 0;
  * |P_ij| <= EKF_P_MAX, P_ii >= EKF_P_MIN. */
 void ekf_sym_clamp(float P[EKF_N][EKF_N]);
+/* The same on a flat row-major 9x9 array (the form ekf_core.c and ekf_update.c call: GCC 12 misreads the
+ * bounds of an array parameter at some call sites, a false -Wstringop-overflow). */
+void ekf_sym_clamp_flat(float *P);
 
 /* 1 if the state, q and the diagonal of P are all finite. */
 int ekf_is_finite(const ekf_t *ekf);

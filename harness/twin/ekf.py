@@ -1,4 +1,5 @@
-"""Error-state EKF (twin of firmware_sim/core/ekf_core.c), written from the equations in float64.
+"""Error-state EKF (twin of firmware_sim/core/ekf_core.c, ekf_predict.c, ekf_update.c), written from the
+equations in float64.
 
 Error state ``x`` (9,): world position (0..2), **body-frame** velocity (3..5), attitude error
 (6..8, a body-frame rotation vector that is zero outside an update). The attitude itself is the
