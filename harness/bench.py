@@ -3,7 +3,7 @@
 1. Device compute per measurement: the C firmware (its own monotonic-clock figure in RESULT) against the
    numpy twin running the same measurements in this process.
 2. Replay of a 120 s simulated flight (all 1 kHz IMU samples and 200 Hz UWB measurements) through the
-   emulator over a pty: real-time factor per pacing mode, and the pty round trip p50/p99.
+   host build over a pty: real-time factor per pacing mode, and the pty round trip p50/p99.
 3. Bias-network training on ~700k simulated TDoA samples (goal: under 60 s) with `uwb-hil train`'s
    defaults (Adam with the fused update, batch 1024, one intra-op thread), against PyTorch's defaults
    (batch 64, all cores) on the same data.
@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in out["compute"]:
         print(f"{r['mode']:6} {r['n']:6d} {r['firmware_p50_us']:10.2f} {r['firmware_p99_us']:10.2f} "
               f"{r['twin_p50_us']:12.1f} {r['twin_p99_us']:12.1f} {r['speedup_p50']:12.0f}x")
-    print(f"== replay of a {args.replay_duration:.0f} s flight (IMU 1 kHz + TWR 200 Hz) through the emulator "
+    print(f"== replay of a {args.replay_duration:.0f} s flight (IMU 1 kHz + TWR 200 Hz) through the host build "
           "over a pty (ratio = simulated time / wall time)")
     print(f"{'pacing':9} {'window':>6} {'frames':>7} {'wall s':>7} {'x real time':>11} {'RTT p50 us':>10} "
           f"{'RTT p99 us':>10} {'lost':>5}")

@@ -1,4 +1,4 @@
-"""Peak host memory of a long simulated flight through the emulator (part of `make bench`).
+"""Peak host memory of a long simulated flight through the host build (part of `make bench`).
 
 Each measurement runs in a fresh subprocess (`python -m harness.bench_memory --child ...`) that builds
 the flight, streams it through the host firmware on a pty and computes the run summary, then reports its
@@ -92,7 +92,7 @@ def bench_memory(durations: list[float], baseline_durations: list[float], mode: 
 
 
 def print_rows(rows: list[dict[str, Any]]) -> None:
-    print(f"== peak host memory (RSS of the harness process) of a simulated flight through the emulator; goal for "
+    print(f"== peak host memory (RSS of the harness process) of a simulated flight through the host build; goal for "
           f"1 hour: < {GOAL_MB:.0f} MB")
     print(f"{'flight':>8} {'mode':5} {'measurements':>12} {'sliced MB':>10} {'whole MB':>9} {'ratio':>7} "
           f"{'sliced s':>9} {'whole s':>8} {'same RMSE':>9}")

@@ -1,6 +1,6 @@
 """uwb-hil command line: run flights through a device, print accuracy and latency.
 
-    uwb-hil run --mode tdoa --stages outlier+nn            # simulated circle on the built-in emulator
+    uwb-hil run --mode tdoa --stages outlier+nn            # simulated circle on the host build of the firmware
     uwb-hil run --recording FILE --anchors anchors.csv     # a recorded flight
     uwb-hil run --port /dev/ttyACM0 ...                    # a real board
     uwb-hil demo                                           # TWR and TDoA x three configurations
@@ -209,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--stages", choices=tuple(PRESETS), default="outlier+nn",
                      help="none | outlier (kinematic + chi-square gates) | outlier+nn (plus bias network)")
     run.add_argument("--uwb-only", action="store_true", help="ignore the IMU (constant-velocity model)")
-    run.add_argument("--model", help="bias model (.npz) the device must carry; the emulator firmware is built "
+    run.add_argument("--model", help="bias model (.npz) the device must carry; the host build is built "
                                      "with it, any other device is refused if its HELLO reports another model")
     run.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                      help="override an estimator setting, e.g. --set std_tdoa=0.1 (repeatable)")

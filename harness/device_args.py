@@ -12,22 +12,23 @@ from pathlib import Path
 from typing import Any
 
 from harness import options
-from harness.device.registry import TARGETS, DeviceSpec
+from harness.device.registry import TARGET_CHOICES, DeviceSpec
 from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
 
 def add_device_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("device")
-    g.add_argument("--target", choices=TARGETS, default=None,
-                   help="emulator (host firmware on a pty; the default without a port), asan (the same built with "
-                        "ASan+UBSan), serial (a board on --port; the default with one), qemu")
+    g.add_argument("--target", choices=TARGET_CHOICES, default=None,
+                   help="host (the firmware built for this machine, on a pty; the default without a port; "
+                        "'emulator' is its old name), asan (the same built with ASan+UBSan), serial (a board on "
+                        "--port; the default with one), qemu (the STM32F405 build in QEMU)")
     g.add_argument("--port", help="pyserial URL or device of a real board: /dev/ttyACM0, rfc2217://host:port "
                                   "(default: $UWB_HIL_PORT; `uwb-hil ports` lists this machine's ports)")
     g.add_argument("--port-serial", metavar="SERIAL",
                    help="the board whose USB serial number is SERIAL (see `uwb-hil ports`), whatever its path")
     g.add_argument("--baud", type=options.baud, default=115200, help="serial line speed of a board on --port")
     g.add_argument("--firmware", default=None,
-                   help=f"firmware to run: the host binary for the emulator (default {DEFAULT_FIRMWARE}), "
+                   help=f"firmware to run: the host binary for host (default {DEFAULT_FIRMWARE}), "
                         f"the STM32F405 ELF for qemu (default {DEFAULT_STM32_ELF})")
     g.add_argument("--timeout", type=options.timeout_s, default=5.0,
                    help="seconds of device silence before giving up (> 0)")
@@ -47,8 +48,8 @@ def device_spec(args: argparse.Namespace) -> DeviceSpec:
             raise ValueError("give --port or --port-serial, not both")
         port = port_for_serial(args.port_serial)
     if port is None and args.target in (None, "serial"):
-        port = default_port()           # $UWB_HIL_PORT; an explicit --target emulator/qemu ignores it
-    target = args.target or ("serial" if port else "emulator")
+        port = default_port()           # $UWB_HIL_PORT; an explicit --target host/qemu ignores it
+    target = args.target or ("serial" if port else "host")
     return DeviceSpec(target=target, port=port, baud=args.baud,
                       firmware=Path(args.firmware) if args.firmware else None,
                       timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None,
@@ -65,14 +66,14 @@ def log_to_stderr(name: str) -> None:
 
 
 def model_device_spec(args: argparse.Namespace) -> tuple[DeviceSpec, int | None]:
-    """The device spec, and the model hash the device must report when --model is given. On the emulator
+    """The device spec, and the model hash the device must report when --model is given. On the host build
     the firmware is (re)built with that model; a board or QEMU image must already carry it."""
     spec = device_spec(args)
     if not getattr(args, "model", None):
         return spec, None
     from harness.biasnet.network import BiasModel
     model = BiasModel.load(Path(args.model))
-    if spec.resolved_target() == "emulator" and spec.firmware_path() == DEFAULT_FIRMWARE:
+    if spec.resolved_target() == "host" and spec.firmware_path() == DEFAULT_FIRMWARE:
         from harness.firmware_build import firmware_for
         spec = replace(spec, firmware=firmware_for(model))
     return spec, model.hash

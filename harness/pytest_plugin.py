@@ -7,8 +7,8 @@ override by indirect parametrization (value resolution: indirect param -> comman
                   default $UWB_HIL_PORT
   --uwb-port-serial  the board with this USB serial number (`uwb-hil ports`), whatever its device path
   --uwb-baud      baud rate (115200)
-  --uwb-target    emulator | asan | serial | qemu (emulator, or serial when a port is given; the kinds of
-                  harness/device/registry.py, which builds the device as the CLI does)
+  --uwb-target    host | asan | serial | qemu (host, or serial when a port is given; the kinds of
+                  harness/device/registry.py, which builds the device as the CLI does; `emulator` = host)
   --uwb-firmware  host firmware binary (<repo>/firmware_sim/build/uwb-fw), or the ELF for qemu
   --uwb-timeout   seconds to wait for the device (5)
 
@@ -32,7 +32,8 @@ from typing import TYPE_CHECKING, Any, Iterator, Optional, Set, Tuple
 
 import pytest
 
-from harness.device.registry import TARGETS, DeviceSpec, create_device, default_firmware, started
+from harness.device.registry import (TARGET_CHOICES, TARGETS, DeviceSpec, canonical_target, create_device,
+                                     default_firmware, started)
 from harness.errors import UsageError
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
@@ -56,10 +57,11 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--uwb-port-serial", default=None, metavar="SERIAL",
                     help="the board whose USB serial number is SERIAL (`uwb-hil ports` lists them)")
     group.addoption("--uwb-baud", type=int, default=None, help=f"baud rate of --uwb-port (default {DEFAULT_BAUD})")
-    group.addoption("--uwb-target", choices=TARGETS, default=None,
-                    help="device kind (default: emulator, or serial when --uwb-port is given)")
+    group.addoption("--uwb-target", choices=TARGET_CHOICES, default=None,
+                    help="device kind (default: host, or serial when --uwb-port is given; 'emulator' is host's "
+                         "old name)")
     group.addoption("--uwb-firmware", default=None,
-                    help=f"firmware: host binary for the emulator (default {DEFAULT_FIRMWARE}), ELF for qemu "
+                    help=f"firmware: host binary for host (default {DEFAULT_FIRMWARE}), ELF for qemu "
                          f"(default {DEFAULT_STM32_ELF}); asan: {DEFAULT_ASAN_FIRMWARE}")
     group.addoption("--uwb-timeout", type=float, default=None,
                     help=f"seconds to wait for the device (default {DEFAULT_TIMEOUT_S:g})")
@@ -119,7 +121,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 def pytest_report_header(config: pytest.Config) -> str:
     port = config.stash.get(_PORT_KEY, None)
-    target = config.getoption("uwb_target") or ("serial" if port else "emulator")
+    target = canonical_target(config.getoption("uwb_target") or ("serial" if port else "host"))
     if target == "serial":
         return f"uwb-hil: target serial, port {port}, baud {config.getoption('uwb_baud') or DEFAULT_BAUD}"
     fw = Path(config.getoption("uwb_firmware") or default_firmware(target))
@@ -169,7 +171,7 @@ def uwb_baud(request: pytest.FixtureRequest) -> int:
 
 @pytest.fixture(scope=_device_scope)
 def uwb_target(request: pytest.FixtureRequest, uwb_port: str | None) -> str:
-    target = str(_param_or_option(request, "uwb_target", "serial" if uwb_port else "emulator"))
+    target = canonical_target(str(_param_or_option(request, "uwb_target", "serial" if uwb_port else "host")))
     if target not in TARGETS:
         raise pytest.UsageError(f"uwb_target must be one of {TARGETS}, got {target!r}")
     return target

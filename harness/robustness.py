@@ -29,7 +29,7 @@ RX_RATES = FaultRates(bit_flip=3e-4, drop_byte=1e-4, drop_frame=0.01, truncate_f
 
 
 def fault_accounting(seconds: float, seed: int, direction: str) -> dict[str, Any]:
-    """One faulted run on a fresh emulator; the accounting from all three sides."""
+    """One faulted run on a fresh host build; the accounting from all three sides."""
     flight = scenario_flight("circle", mode="twr", duration_s=seconds, seed=seed, noise="gaussian", noise_std=0.05)
     cfg = config_for(flight, EstimatorConfig(), stages=PRESETS["outlier"])
     tx, rx = (TX_RATES, FaultRates()) if direction == "tx" else (FaultRates(), RX_RATES)

@@ -74,7 +74,7 @@ def test_junit_xunit2_file_validates_with_the_device_identity_as_suite_propertie
     names = [n for n, _ in props]
     for name in ("uwb_target", "uwb_fw_version", "uwb_build_id", "uwb_model_hash", "uwb_proto_version"):
         assert names.count(name) == 1, props               # once, although two tests started a device
-    assert dict(props)["uwb_target"] == "emulator" and len(dict(props)["uwb_model_hash"]) == 18
+    assert dict(props)["uwb_target"] == "host" and len(dict(props)["uwb_model_hash"]) == 18
     assert ET.parse(xml).getroot().find(".//testcase/properties") is None
 
 
@@ -194,7 +194,7 @@ def test_plugin_takes_the_port_from_the_environment_and_by_serial_number(pyteste
     result = pytester.runpytest(*_LEAN, "-s")
     result.stdout.fnmatch_lines(["*VALUES socket://127.0.0.1:9 serial*"])
     result = pytester.runpytest(*_LEAN, "-s", "--uwb-target", "emulator")     # another target: env ignored
-    result.stdout.fnmatch_lines(["*VALUES None emulator*"])
+    result.stdout.fnmatch_lines(["*VALUES None host*"])                       # (emulator: host's old name)
     monkeypatch.setattr("harness.link.ports.list_ports", lambda: PORTS)
     result = pytester.runpytest(*_LEAN, "-s", "--uwb-port-serial", "206A3358")
     result.stdout.fnmatch_lines(["*VALUES /dev/ttyACM0 serial*"])

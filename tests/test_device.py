@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.device import Device, DeviceChannel, EmulatorDevice, EmulatorOptions, SerialDevice
+from harness.device import Device, DeviceChannel, HostDevice, HostOptions, SerialDevice
 from harness.errors import (DeviceDied, DeviceError, DeviceTimeout, LinkClosed, ModelMismatch, ProtocolMismatch,
                             UwbHilError)
 from harness.link import open_link
@@ -108,7 +108,7 @@ def _gone(pid: int) -> bool:
 
 # ------------------------------------------------------------------------------ handshake
 def test_hello_and_check_against_a_protocol_speaking_stand_in(fake_fw: Path, log_dir: Path) -> None:
-    with EmulatorDevice(fake_fw, log_dir=log_dir) as dev:
+    with HostDevice(fake_fw, log_dir=log_dir) as dev:
         assert dev.alive()
         reply = dev.hello(timeout=5)
         assert isinstance(reply, HelloReply)
@@ -128,7 +128,7 @@ def test_hello_and_check_against_a_protocol_speaking_stand_in(fake_fw: Path, log
 
 
 def test_hello_skips_noise_and_replies_with_a_wrong_nonce(fake_fw: Path, log_dir: Path) -> None:
-    with EmulatorDevice(fake_fw, args=["--noise"], log_dir=log_dir) as dev:
+    with HostDevice(fake_fw, args=["--noise"], log_dir=log_dir) as dev:
         reply = dev.hello(timeout=5)
         assert reply.build_id.rstrip(b"\0") == b"fake-id"
         assert dev.channel.skipped == 1
@@ -136,7 +136,7 @@ def test_hello_skips_noise_and_replies_with_a_wrong_nonce(fake_fw: Path, log_dir
 
 
 def test_hello_is_repeated_while_the_device_does_not_answer(fake_fw: Path, log_dir: Path) -> None:
-    with EmulatorDevice(fake_fw, args=["--ignore-first"], log_dir=log_dir) as dev:
+    with HostDevice(fake_fw, args=["--ignore-first"], log_dir=log_dir) as dev:
         dev.hello_resend_s = 0.2
         reply = dev.hello(timeout=3)
         assert reply.proto_version == PROTOCOL_VERSION
@@ -144,14 +144,14 @@ def test_hello_is_repeated_while_the_device_does_not_answer(fake_fw: Path, log_d
 
 
 def test_protocol_mismatch_names_both_versions(fake_fw: Path, log_dir: Path) -> None:
-    with EmulatorDevice(fake_fw, args=["--proto", "99"], log_dir=log_dir) as dev:
+    with HostDevice(fake_fw, args=["--proto", "99"], log_dir=log_dir) as dev:
         with pytest.raises(ProtocolMismatch, match=f"version {PROTOCOL_VERSION}.*reports 99") as info:
             dev.check()
         assert (info.value.expected, info.value.actual) == (PROTOCOL_VERSION, 99)
 
 
 def test_model_mismatch_shows_hashes_in_hex_and_layouts(fake_fw: Path, log_dir: Path) -> None:
-    with EmulatorDevice(fake_fw, log_dir=log_dir, env={"FAKE_MODEL_HASH": "deadbeef"}) as dev:
+    with HostDevice(fake_fw, log_dir=log_dir, env={"FAKE_MODEL_HASH": "deadbeef"}) as dev:
         dev.hello(timeout=5)
         with pytest.raises(ModelMismatch) as info:
             dev.check(expected_model_hash=FAKE_HASH)
@@ -165,7 +165,7 @@ def test_model_mismatch_shows_hashes_in_hex_and_layouts(fake_fw: Path, log_dir: 
 
 
 def test_wrapper_runs_the_binary_under_another_program(fake_fw: Path, log_dir: Path) -> None:
-    dev = EmulatorDevice(fake_fw, log_dir=log_dir, wrapper=["env", "FAKE_MODEL_HASH=42"])
+    dev = HostDevice(fake_fw, log_dir=log_dir, wrapper=["env", "FAKE_MODEL_HASH=42"])
     assert dev.command("/dev/pts/9")[:3] == ["env", "FAKE_MODEL_HASH=42", str(fake_fw)]
     with dev:
         assert dev.hello(timeout=5).model_hash == 0x42
@@ -174,7 +174,7 @@ def test_wrapper_runs_the_binary_under_another_program(fake_fw: Path, log_dir: P
 # --------------------------------------------------------------------------------- failures
 def test_device_that_exits_raises_device_died_with_exit_code_and_log(tmp_path: Path, log_dir: Path) -> None:
     fw = _script(tmp_path, "dying-fw", "#!/bin/sh\necho 'fatal: estimator exploded' >&2\nsleep 0.5\nexit 3\n")
-    dev = EmulatorDevice(fw, log_dir=log_dir)
+    dev = HostDevice(fw, log_dir=log_dir)
     dev.start()
     try:
         start = time.monotonic()
@@ -190,7 +190,7 @@ def test_device_that_exits_raises_device_died_with_exit_code_and_log(tmp_path: P
 
 
 def test_device_that_dies_mid_session_is_device_died(fake_fw: Path, log_dir: Path) -> None:
-    with EmulatorDevice(fake_fw, args=["--exit-after-hello", "5"], log_dir=log_dir) as dev:
+    with HostDevice(fake_fw, args=["--exit-after-hello", "5"], log_dir=log_dir) as dev:
         dev.hello(timeout=5)
         start = time.monotonic()
         with pytest.raises(DeviceDied) as info:
@@ -205,7 +205,7 @@ def test_device_that_dies_mid_session_is_device_died(fake_fw: Path, log_dir: Pat
 
 def test_device_that_exits_immediately_fails_start(tmp_path: Path, log_dir: Path) -> None:
     fw = _script(tmp_path, "bad-fw", "#!/bin/sh\necho 'usage: bad-fw' >&2\nexit 2\n")
-    dev = EmulatorDevice(fw, log_dir=log_dir)
+    dev = HostDevice(fw, log_dir=log_dir)
     with pytest.raises(DeviceDied, match="right after start") as info:
         dev.start()
     assert info.value.exit_code == 2 and "usage: bad-fw" in info.value.log_tail
@@ -214,7 +214,7 @@ def test_device_that_exits_immediately_fails_start(tmp_path: Path, log_dir: Path
 
 def test_device_killed_by_a_signal_reports_it(tmp_path: Path, log_dir: Path) -> None:
     fw = _script(tmp_path, "segv-fw", "#!/bin/sh\nsleep 0.4\nkill -SEGV $$\n")
-    with EmulatorDevice(fw, log_dir=log_dir) as dev:
+    with HostDevice(fw, log_dir=log_dir) as dev:
         with pytest.raises(DeviceDied, match="SIGSEGV") as info:
             dev.hello(timeout=5)
         assert info.value.exit_code == -11
@@ -222,7 +222,7 @@ def test_device_killed_by_a_signal_reports_it(tmp_path: Path, log_dir: Path) -> 
 
 def test_silent_device_times_out_on_hello_within_the_timeout(tmp_path: Path, log_dir: Path) -> None:
     fw = _script(tmp_path, "silent-fw", "#!/bin/sh\nexec sleep 100\n")
-    with EmulatorDevice(fw, log_dir=log_dir) as dev:
+    with HostDevice(fw, log_dir=log_dir) as dev:
         start = time.monotonic()
         with pytest.raises(DeviceTimeout) as info:
             dev.hello(timeout=0.6)
@@ -235,7 +235,7 @@ def test_silent_device_times_out_on_hello_within_the_timeout(tmp_path: Path, log
 
 def test_stop_kills_a_device_that_ignores_sigterm(tmp_path: Path, log_dir: Path) -> None:
     fw = _script(tmp_path, "stubborn-fw", "#!/bin/sh\ntrap '' TERM\nexec sleep 100\n")
-    dev = EmulatorDevice(fw, log_dir=log_dir, options=EmulatorOptions(stop_timeout_s=0.5))
+    dev = HostDevice(fw, log_dir=log_dir, options=HostOptions(stop_timeout_s=0.5))
     dev.start()
     pid = dev.pid
     assert pid is not None
@@ -250,7 +250,7 @@ def test_stop_kills_a_device_that_ignores_sigterm(tmp_path: Path, log_dir: Path)
 def test_stop_also_kills_children_of_a_wrapper(tmp_path: Path, log_dir: Path) -> None:
     pid_file = tmp_path / "child.pid"
     fw = _script(tmp_path, "forking-fw", f"#!/bin/sh\nsleep 100 &\necho $! > {pid_file}\nwait\n")
-    dev = EmulatorDevice(fw, log_dir=log_dir)
+    dev = HostDevice(fw, log_dir=log_dir)
     dev.start()
     deadline = time.monotonic() + 5
     while not pid_file.exists() or not pid_file.read_text().strip():
@@ -266,7 +266,7 @@ def test_stop_also_kills_children_of_a_wrapper(tmp_path: Path, log_dir: Path) ->
 
 def test_a_dropped_device_is_reaped_by_its_finalizer(tmp_path: Path) -> None:
     fw = _script(tmp_path, "silent-fw", "#!/bin/sh\nexec sleep 100\n")
-    dev = EmulatorDevice(fw)  # no log_dir: a temporary log, removed on stop
+    dev = HostDevice(fw)  # no log_dir: a temporary log, removed on stop
     dev.start()
     pid = dev.pid
     assert pid is not None and dev.log_path is not None and dev.log_path.exists()
@@ -278,14 +278,14 @@ def test_a_dropped_device_is_reaped_by_its_finalizer(tmp_path: Path) -> None:
 
 
 def test_temporary_log_is_removed_by_stop(fake_fw: Path) -> None:
-    with EmulatorDevice(fake_fw) as dev:
+    with HostDevice(fake_fw) as dev:
         log = dev.log_path
         assert log is not None and log.exists()
     assert not log.exists() and dev.log_path is None
 
 
 def test_missing_binary_and_unstarted_device_are_device_errors(tmp_path: Path) -> None:
-    dev = EmulatorDevice(tmp_path / "nope")
+    dev = HostDevice(tmp_path / "nope")
     with pytest.raises(DeviceError, match="not found"):
         dev.start()
     with pytest.raises(DeviceError, match="not started"):
@@ -433,7 +433,7 @@ def test_plugin_option_fixtures_defaults_cli_and_indirect(pytester: pytest.Pytes
     pytester.makepyfile(OPTION_PROBE)
     result = _run(pytester, "-s", "-rs")
     result.assert_outcomes(passed=2, skipped=1)
-    result.stdout.fnmatch_lines(["*VALUES None 115200 emulator uwb-fw 5.0",
+    result.stdout.fnmatch_lines(["*VALUES None 115200 host uwb-fw 5.0",
                                  "*INDIRECT socket://127.0.0.1:9 921600 serial",
                                  "*needs a real board*"])
     result = _run(pytester, "-s", "--uwb-port", "loop://", "--uwb-baud", "9600", "--uwb-timeout", "2",
@@ -454,11 +454,11 @@ def test_plugin_uwb_device_records_hello(pytester: pytest.Pytester, fake_fw: Pat
     xml = pytester.path / "junit.xml"
     result = _run(pytester, "-s", "--uwb-firmware", str(fake_fw), f"--junitxml={xml}")
     result.assert_outcomes(passed=1, warnings=0)
-    result.stdout.fnmatch_lines(["uwb-hil: target emulator, firmware *fake-fw", "*DEVICE pty:/dev/*"])
+    result.stdout.fnmatch_lines(["uwb-hil: target host, firmware *fake-fw", "*DEVICE pty:/dev/*"])
     text = xml.read_text()
     for expected in ('name="uwb_fw_version" value="1.2.3"', 'name="uwb_build_id" value="fake-id"',
                      f'name="uwb_model_hash" value="{FAKE_HASH:#018x}"', 'name="uwb_device_target" value="fake"',
-                     'name="uwb_target" value="emulator"'):
+                     'name="uwb_target" value="host"'):
         assert expected in text
     # test-suite properties (xunit2 rejects them inside a testcase)
     assert text.index("<properties>") < text.index("<testcase") and "</properties></testcase>" not in text

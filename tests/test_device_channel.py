@@ -179,13 +179,13 @@ def test_bulk_results_and_single_frames_share_one_decoder() -> None:
 def test_a_run_continues_the_sessions_seqs_without_gaps(tmp_path: Path) -> None:
     """HELLO, then a flight and STATS on the same session: the device sees consecutive seqs (no host-restart
     jump, no gap)."""
-    from harness.device.emulator import EmulatorDevice
+    from harness.device.host import HostDevice
     from harness.flight.scenarios import scenario_flight
     from harness.session import config_for
     from harness.stream.streamer import Pacing, Streamer
 
     flight = scenario_flight("hover", mode="twr", duration_s=2.0, seed=1, noise="none")
-    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
+    with HostDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
         dev.hello(timeout=10.0)
         assert dev.channel.next_seq == 1
         run = Streamer(dev).run(flight, config_for(flight), Pacing("windowed", 16))

@@ -9,9 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from harness.device.emulator import EmulatorDevice
+from harness.device.host import HostDevice
 from harness.device.qemu import QemuDevice
-from harness.device.registry import KINDS, TARGETS, DeviceSpec, create_device, default_firmware, open_device
+from harness.device.registry import (KINDS, TARGET_CHOICES, TARGETS, DeviceSpec, create_device, default_firmware,
+                                     open_device)
 from harness.device.serial_device import SerialDevice
 from harness.errors import InputError, UsageError
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
@@ -27,25 +28,37 @@ def _image(tmp_path: Path, name: str) -> Path:
 
 
 def test_every_kind_comes_from_the_registry(tmp_path: Path) -> None:
-    assert TARGETS == ("emulator", "asan", "serial", "qemu")
+    assert TARGETS == ("host", "asan", "serial", "qemu")
     host = create_device(DeviceSpec(firmware=_image(tmp_path, "uwb-fw"), log_dir=tmp_path))
     asan = create_device(DeviceSpec(target="asan", firmware=_image(tmp_path, "uwb-fw-asan")))
     board = create_device(DeviceSpec(target="serial", port="socket://127.0.0.1:9", baud=921600, timeout_s=3.0))
     qemu = create_device(DeviceSpec(target="qemu", firmware=_image(tmp_path, "uwb-fw.elf"), log_dir=tmp_path))
-    assert isinstance(host, EmulatorDevice) and host.binary.name == "uwb-fw" and host.log_dir == tmp_path
-    assert isinstance(asan, EmulatorDevice) and asan.binary.name == "uwb-fw-asan"
+    assert isinstance(host, HostDevice) and host.binary.name == "uwb-fw" and host.log_dir == tmp_path
+    assert isinstance(asan, HostDevice) and asan.binary.name == "uwb-fw-asan"
     assert isinstance(board, SerialDevice) and (board.url, board.baud) == ("socket://127.0.0.1:9", 921600)
     assert board.options.write_timeout_s == 3.0          # the device timeout bounds a board's writes too
     assert isinstance(qemu, QemuDevice) and qemu.elf.name == "uwb-fw.elf"
     # a port with the default target means a board
     assert isinstance(create_device(DeviceSpec(port="loop://")), SerialDevice)
-    assert default_firmware("emulator") == DEFAULT_FIRMWARE and default_firmware("asan") == DEFAULT_ASAN_FIRMWARE
+    assert default_firmware("host") == DEFAULT_FIRMWARE and default_firmware("asan") == DEFAULT_ASAN_FIRMWARE
     assert default_firmware("qemu") == DEFAULT_STM32_ELF
     assert DeviceSpec(target="qemu").firmware_path() == DEFAULT_STM32_ELF
 
 
+def test_emulator_is_the_old_name_of_the_host_build(tmp_path: Path) -> None:
+    """`emulator` named the host build (QEMU is the emulator): still accepted by the registry, the CLI's
+    --target and the plugin's --uwb-target, as host."""
+    from harness.cli import build_parser
+    from harness.device_args import device_spec
+    assert DeviceSpec(target="emulator").target == "host" and DeviceSpec().target == "host"
+    assert isinstance(create_device(DeviceSpec(target="emulator", firmware=_image(tmp_path, "uwb-fw"))), HostDevice)
+    args = build_parser().parse_args(["run", "--target", "emulator"])
+    assert device_spec(args).resolved_target() == "host"
+    assert "emulator" in TARGET_CHOICES and "emulator" not in TARGETS
+
+
 def test_bad_choices_are_input_errors_naming_the_fix(tmp_path: Path) -> None:
-    with pytest.raises(UsageError, match="unknown device target 'jtag'; choose one of emulator, asan, serial, qemu"):
+    with pytest.raises(UsageError, match="unknown device target 'jtag'; choose one of host, asan, serial, qemu"):
         create_device(DeviceSpec(target="jtag"))
     assert issubclass(UsageError, InputError)              # exit code 2, not a device failure
     with pytest.raises(UsageError, match="needs a port"):
@@ -61,7 +74,7 @@ def test_bad_choices_are_input_errors_naming_the_fix(tmp_path: Path) -> None:
 def test_the_cli_the_workers_and_the_plugin_construct_devices_only_through_it() -> None:
     """No module outside harness/device/ builds a device class itself (the QEMU start-up bench measures
     QemuOptions transports and is the one exception)."""
-    pattern = re.compile(r"\b(EmulatorDevice|SerialDevice|QemuDevice)\(")
+    pattern = re.compile(r"\b(HostDevice|SerialDevice|QemuDevice)\(")
     offenders = [str(p.relative_to(ROOT)) for p in sorted((ROOT / "harness").rglob("*.py"))
                  if "device" not in p.relative_to(ROOT).parts and p.name != "bench_qemu_start.py"
                  and pattern.search(p.read_text())]
@@ -83,5 +96,5 @@ def test_open_device_says_hello_once(tmp_path: Path) -> None:
 @pytest.mark.skipif(not DEFAULT_ASAN_FIRMWARE.exists(), reason="sanitizer firmware not built (make firmware)")
 def test_the_sanitizer_build_is_a_kind(tmp_path: Path) -> None:
     with open_device(DeviceSpec(target="asan", log_dir=tmp_path)) as dev:
-        assert isinstance(dev, EmulatorDevice) and dev.binary == DEFAULT_ASAN_FIRMWARE
+        assert isinstance(dev, HostDevice) and dev.binary == DEFAULT_ASAN_FIRMWARE
         assert dev.channel.stats(timeout=5.0).frames_ok == 2     # the HELLO and this STATS_REQ

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.device.emulator import EmulatorDevice
+from harness.device.host import HostDevice
 from harness.flight.scenarios import scenario_flight
 from harness.link.faulty import FaultRates, FaultyLink, SeqUnwrap, unwrap_seqs
 from harness.session import DEFAULT_FIRMWARE, config_for
@@ -35,8 +35,8 @@ FIELDS_COMPARED = ["status", "innovation", "innovation_var", "bias", "d_max", "p
 
 
 @pytest.fixture
-def device(tmp_path: Path) -> Iterator[EmulatorDevice]:
-    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
+def device(tmp_path: Path) -> Iterator[HostDevice]:
+    with HostDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
         dev.hello(timeout=10.0)
         yield dev
 
@@ -92,7 +92,7 @@ def test_crc_rejects_length_changing_corruptions() -> None:
 
 
 # ------------------------------------------------------------------------------ resynchronisation
-def test_device_resynchronises_after_garbage_and_oversize(device: EmulatorDevice) -> None:
+def test_device_resynchronises_after_garbage_and_oversize(device: HostDevice) -> None:
     rng = np.random.default_rng(3)
     ch = device.channel
     bursts = [rng.integers(1, 256, int(k), dtype=np.uint8).tobytes() for k in (1, 7, 250, 251, 252, 600, 5000)]
@@ -114,7 +114,7 @@ def _flight(seconds: float = 8.0, mode: str = "twr", seed: int = 5):  # noqa: AN
     return scenario_flight("circle", mode=mode, duration_s=seconds, seed=seed, noise="gaussian", noise_std=0.05)
 
 
-def _run_faulty(device: EmulatorDevice, flight, tx: FaultRates, rx: FaultRates, seed: int,  # noqa: ANN001
+def _run_faulty(device: HostDevice, flight, tx: FaultRates, rx: FaultRates, seed: int,  # noqa: ANN001
                 results_path: Path | None = None, window: int = 32):  # noqa: ANN202
     cfg = config_for(flight, EstimatorConfig(), stages=PRESETS["outlier"])
     stats0 = device.channel.stats(timeout=2.0)
@@ -129,7 +129,7 @@ def _delta(after: m.Stats, before: m.Stats) -> dict[str, int]:
     return {k: getattr(after, k) - getattr(before, k) for k, _ in m.Stats.FIELDS}
 
 
-def test_tx_faults_are_accounted_by_device_and_results(device: EmulatorDevice, tmp_path: Path) -> None:
+def test_tx_faults_are_accounted_by_device_and_results(device: HostDevice, tmp_path: Path) -> None:
     flight = _flight()
     rates = FaultRates(bit_flip=2e-4, drop_byte=2e-4, drop_frame=0.01, duplicate_frame=0.01,
                        truncate_frame=0.005, garbage=0.005, garbage_max=40)
@@ -173,7 +173,7 @@ def test_tx_faults_are_accounted_by_device_and_results(device: EmulatorDevice, t
     assert Counter(x["outcome"] for x in rows)[OUTCOME_LOST] == len(lost_meas)
 
 
-def test_rx_faults_lose_results_which_are_reported_lost(device: EmulatorDevice) -> None:
+def test_rx_faults_lose_results_which_are_reported_lost(device: HostDevice) -> None:
     flight = _flight(6.0, mode="tdoa", seed=6)
     rates = FaultRates(bit_flip=3e-4, drop_frame=0.01, truncate_frame=0.005, garbage=0.005, drop_byte=1e-4)
     run, link, stats0 = _run_faulty(device, flight, FaultRates(), rates, seed=22)
@@ -193,11 +193,11 @@ def test_rx_faults_lose_results_which_are_reported_lost(device: EmulatorDevice) 
     assert np.all(np.isfinite(res["px"][ok])) and int(ok.sum()) == len(res) - len(lost)
 
 
-def test_stalls_and_duplicates_do_not_change_the_estimates(device: EmulatorDevice, tmp_path: Path) -> None:
+def test_stalls_and_duplicates_do_not_change_the_estimates(device: HostDevice, tmp_path: Path) -> None:
     """Stalls only delay; a duplicated IMU/UWB frame at the same time stamp may change the estimate a
     little (it is processed twice), so duplicates are checked for accounting, stalls for identity."""
     flight = _flight(4.0, seed=7)
-    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev2:   # started with `device`: same binary
+    with HostDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev2:   # started with `device`: same binary
         dev2.hello(timeout=10.0)
         clean, _, _ = _run_faulty(device, flight, FaultRates(), FaultRates(), seed=1)
         stalled, link, _ = _run_faulty(dev2, flight, FaultRates(stall=0.02, stall_s=0.03),
@@ -272,7 +272,7 @@ BAD_CONFIGS = [
 ]
 
 
-def _session(device: EmulatorDevice, bad: list[m.Config]) -> tuple[list[m.Result], list[m.Error], m.Stats]:
+def _session(device: HostDevice, bad: list[m.Config]) -> tuple[list[m.Result], list[m.Error], m.Stats]:
     """Good CONFIG at (1, 1, 0.5), anchors, then `bad` CONFIGs (each with reset and another init
     point and noise), then TWR measurements; returns RESULTs, ERRORs and STATS."""
     anchors = [(0, -3.0, -3.0, 0.2), (1, 3.0, -3.0, 2.5), (2, 3.0, 3.0, 0.2), (3, -3.0, 3.0, 2.5)]
@@ -301,14 +301,14 @@ def _session(device: EmulatorDevice, bad: list[m.Config]) -> tuple[list[m.Result
     return results, errors, stats
 
 
-def test_bad_config_values_are_refused_and_change_nothing(device: EmulatorDevice, tmp_path: Path) -> None:
+def test_bad_config_values_are_refused_and_change_nothing(device: HostDevice, tmp_path: Path) -> None:
     bad = [_config_msg(replace(GOOD, std_twr=0.9, chi2_twr=100.0).with_init(-2.0, 2.0, 2.0), **raw)
            for _, raw, _ in BAD_CONFIGS]
     results, errors, stats = _session(device, bad)
     assert [(e.code, e.msg_type) for e in errors] == [(int(code), m.Config.MSG_ID) for _, _, code in BAD_CONFIGS]
     assert stats.bad_configs == sum(1 for *_, code in BAD_CONFIGS if code == BAD)
     assert stats.non_finite == sum(1 for *_, code in BAD_CONFIGS if code == NONFIN)
-    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as ref_dev:
+    with HostDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as ref_dev:
         ref_dev.hello(timeout=10.0)
         ref, ref_errors, _ = _session(ref_dev, [])
     assert ref_errors == [] and len(results) == len(ref) == 40
@@ -317,7 +317,7 @@ def test_bad_config_values_are_refused_and_change_nothing(device: EmulatorDevice
             assert getattr(r, f) == getattr(q, f), f
 
 
-def test_huge_init_std_is_accepted_and_stays_bounded(device: EmulatorDevice) -> None:
+def test_huge_init_std_is_accepted_and_stays_bounded(device: HostDevice) -> None:
     """Regression (fuzz finding): init_std_xy = 1e20 is valid; its square used to be inf in the device."""
     huge = [_config_msg(replace(GOOD, mode=1, stages=6), init_std_xy=1e20, init_std_z=1e20)]
     ch = device.channel

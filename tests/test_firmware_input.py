@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from harness.config import MODE_UWB_ONLY, EstimatorConfig
-from harness.device.emulator import EmulatorDevice
+from harness.device.host import HostDevice
 from harness.session import DEFAULT_FIRMWARE
 from protocol import encode_frame
 from protocol import messages as m
@@ -24,20 +24,20 @@ REJECTION_COUNTERS = ("crc_errors", "framing_errors", "unknown_types", "bad_leng
                       "time_backwards", "bad_configs", "dropped_meas")
 
 
-def _stats(dev: EmulatorDevice) -> m.Stats:
+def _stats(dev: HostDevice) -> m.Stats:
     ch = dev.channel
     ch.send(m.StatsReq())
     return ch.expect(lambda f: isinstance(f.msg, m.Stats), 10.0, "STATS").msg  # type: ignore[no-any-return]
 
 
-def _drain(dev: EmulatorDevice) -> None:
+def _drain(dev: HostDevice) -> None:
     while dev.channel.recv(0.0) is not None:
         pass
 
 
 def test_a_mebibyte_of_garbage_and_mutated_frames_is_survived_and_accounted(tmp_path: Path) -> None:
     rng = np.random.default_rng(2026)
-    with EmulatorDevice(ASAN_FIRMWARE, log_dir=tmp_path) as dev:
+    with HostDevice(ASAN_FIRMWARE, log_dir=tmp_path) as dev:
         dev.hello(timeout=10.0)
         ch = dev.channel
         for i, pos in enumerate(([0, 0, 0.2], [4, 0, 2.8], [4, 4, 0.2], [0, 4, 2.8])):

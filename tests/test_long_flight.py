@@ -27,7 +27,7 @@ import pytest
 
 from harness.bench_memory import peak_rss_mb
 from harness.config import PRESETS, EstimatorConfig
-from harness.device.emulator import EmulatorDevice
+from harness.device.host import HostDevice
 from harness.flight.chunked import SimPlan
 from harness.flight.faults import FlightFaults, InjectedFaults, inject_chunks
 from harness.flight.data import Flight
@@ -96,7 +96,7 @@ def long_run(request: pytest.FixtureRequest, long_flight: LongFlight,
              tmp_path_factory: pytest.TempPathFactory) -> LongRun:
     log_dir = tmp_path_factory.mktemp("longflight")
     t0 = time.perf_counter()
-    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=log_dir) as dev:
+    with HostDevice(DEFAULT_FIRMWARE, log_dir=log_dir) as dev:
         dev.hello(timeout=10.0)
         streamer = Streamer(dev, timeout_s=10.0)
         out = stream_chunks(streamer, long_flight.chunks(),
@@ -247,7 +247,7 @@ def test_nees_of_a_consistent_synthetic_estimator_is_three() -> None:
 def test_nees_over_monte_carlo_seeds_on_the_firmware(tmp_path: Path) -> None:
     """8 seeds of the same 10 s flight (Gaussian noise, no outliers) through the firmware."""
     nees = []
-    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
+    with HostDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
         dev.hello(timeout=10.0)
         streamer = Streamer(dev)
         for seed in range(8):

@@ -140,9 +140,9 @@ def test_shipped_build_fits_the_mcu_budget(stm32_build: Path) -> None:
 def devices(probe_builds: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     """Host firmware and QEMU firmware, both with the probe model compiled in."""
     from harness.bench_qemu import qemu_device
-    from harness.device.emulator import EmulatorDevice
+    from harness.device.host import HostDevice
     log_dir = tmp_path_factory.mktemp("qemu-logs")
-    host = EmulatorDevice(probe_builds["host"], log_dir=log_dir)
+    host = HostDevice(probe_builds["host"], log_dir=log_dir)
     host.start()
     try:
         host.hello(timeout=5.0)
@@ -226,9 +226,9 @@ def test_qemu_costs_are_deterministic(devices: dict[str, Any]) -> None:
 def test_shipped_build_equals_host_firmware(stm32_build: Path, tmp_path: Path) -> None:
     """The ELF that `make` ships (firmware_sim/models) against the host firmware with the same model."""
     from harness.bench_qemu import qemu_device
-    from harness.device.emulator import EmulatorDevice
+    from harness.device.host import HostDevice
     from harness.stm32_build import build_host
-    host = EmulatorDevice(build_host(tmp_path / "host"), log_dir=tmp_path)
+    host = HostDevice(build_host(tmp_path / "host"), log_dir=tmp_path)
     host.start()
     try:
         hh = host.hello(timeout=5.0)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.device.emulator import EmulatorDevice
+from harness.device.host import HostDevice
 from harness.flight.chunked import concat_flights
 from harness.flight.data import Flight
 from harness.flight.scenarios import plan_scenario, scenario_flight
@@ -74,7 +74,7 @@ def test_streaming_in_slices_gives_the_same_estimates_and_summary(tmp_path: Path
     plan = plan_scenario("circle", mode="twr", duration_s=20.0, seed=5)
     flight = plan.whole()
     cfg = config_for(flight, EstimatorConfig(), stages=PRESETS["outlier+nn"])
-    with EmulatorDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
+    with HostDevice(DEFAULT_FIRMWARE, log_dir=tmp_path) as dev:
         dev.hello(timeout=10.0)
         streamer = Streamer(dev)
         whole = streamer.run(flight, cfg, Pacing("windowed", 64))

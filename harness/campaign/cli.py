@@ -23,7 +23,7 @@ def add_parser(sub: Any) -> None:
     p = sub.add_parser("campaign", help="run the paper's experiments (simulated + recorded) in parallel",
                        description="Simulated {TWR, TDoA} x {none, outlier, outlier+nn} x trajectories x seeds "
                                    "and held-out recorded flights, each run through the firmware on its own "
-                                   "emulator. Re-running the same command resumes (complete runs are skipped).")
+                                   "host build. Re-running the same command resumes (complete runs are skipped).")
     p.add_argument("--out", required=True, help="campaign directory (created; resumed if it exists)")
     p.add_argument("--seeds", type=int, default=10, help="simulated flights per mode and trajectory")
     p.add_argument("--first-seed", type=int, default=FIRST_EVAL_SEED,

@@ -1,4 +1,4 @@
-"""Run a planned campaign: one worker process per flight, up to `jobs` at once, each with its own emulator.
+"""Run a planned campaign: one worker process per flight, up to `jobs` at once, each with its own host build.
 
 Resume: runs whose summary says "ok" for the same RunSpec fingerprint are skipped, so re-running the
 same command continues an interrupted campaign. A failing run (or a crashed or hung worker) is written

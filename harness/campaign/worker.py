@@ -1,5 +1,5 @@
 """One campaign worker process: builds one flight and streams it, once per configuration, through its own
-emulator (on its own pty). Started by the runner as ``python -m harness.campaign.worker GROUP.json``.
+host build (on its own pty). Started by the runner as ``python -m harness.campaign.worker GROUP.json``.
 
 Every run ends with a summary file, "ok" or "failed" (with the reason); a failing run does not stop the
 next one (a dead device is restarted). The results JSONL is written by the streamer as results arrive.

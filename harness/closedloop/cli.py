@@ -98,7 +98,7 @@ def add_fly_parser(sub: Any) -> None:
                    help="lockstep (deterministic, as fast as possible) or realtime (flight speed, for boards)")
     p.add_argument("--speed", type=float, default=1.0, help="realtime pacing speed factor")
     p.add_argument("--imu-every", type=int, default=1, help="physics steps (2 ms) per IMU frame (averaged)")
-    p.add_argument("--model", help="bias model (.npz) for outlier+nn: the emulator firmware is built with it; "
+    p.add_argument("--model", help="bias model (.npz) for outlier+nn: the host build is built with it; "
                                    "any other device must report its hash (default: the compiled-in model)")
     p.add_argument("--max-rmse", type=float, default=None, metavar="X",
                    help="verdict: worst seed's tracking RMSE per cell [m] (take-off and completion always checked; "

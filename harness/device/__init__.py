@@ -9,8 +9,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-_WHERE = {"Device": "base", "DeviceChannel": "channel", "DeviceIdentity": "identity", "EmulatorDevice": "emulator",
-          "EmulatorOptions": "emulator", "SerialDevice": "serial_device", "SerialDeviceOptions": "serial_device"}
+_WHERE = {"Device": "base", "DeviceChannel": "channel", "DeviceIdentity": "identity", "HostDevice": "host",
+          "HostOptions": "host", "SerialDevice": "serial_device", "SerialDeviceOptions": "serial_device"}
 
 __all__ = sorted(_WHERE)
 

@@ -2,7 +2,7 @@
 session (`channel`, a DeviceChannel: harness/device/channel.py) with the HELLO handshake every device answers.
 
 The link only moves bytes; the device knows whether the thing on the other end is still running. The
-channel asks it (through `died`) whenever a read finds no input or the link closes, so a crashed emulator
+channel asks it (through `died`) whenever a read finds no input or the link closes, so a crashed host build
 surfaces as DeviceDied (exit code + log tail) rather than as a silent timeout.
 """
 

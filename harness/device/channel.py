@@ -6,7 +6,7 @@ It owns everything a frame exchange needs, so that no caller keeps its own copy:
     RESULT rows as a numpy array plus the other frames, `recv()` / `expect()` one frame at a time;
     whatever one reader pulled from the link and did not use stays pending for the next;
   * the mapping of link errors to device errors: a closed link, or a read that found the input drained,
-    asks the device (`died`) whether it exited, so a crashed emulator surfaces as DeviceDied (exit code
+    asks the device (`died`) whether it exited, so a crashed host build surfaces as DeviceDied (exit code
     and log tail) rather than as a silent timeout or a bare LinkClosed;
   * the identity from HELLO (`hello()` -> DeviceIdentity, kept as `identity`), and the requests every
     run makes: `configure(config, anchors, reset)`, `stats()`, `clock()`.

@@ -2,7 +2,8 @@
 workers and the pytest plugin alike (as Zephyr twister's adapter factory or labgrid's target factory do).
 
 Kinds (`KINDS`, the `--target` / `--uwb-target` choices):
-  emulator  the host build of the firmware on a pty (firmware_sim/build/uwb-fw)
+  host      the host build of the firmware (Linux) on a pty (firmware_sim/build/uwb-fw); `emulator`, its old
+            name, is still accepted (TARGET_ALIASES; QEMU is the emulator)
   asan      the same, built with AddressSanitizer + UBSan (firmware_sim/build/uwb-fw-asan): any memory or
             undefined-behaviour error ends the process, which the harness reports as DeviceDied
   serial    a running board on a serial port or pyserial URL (/dev/ttyACM0, rfc2217://host:port, ...)
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
 class DeviceSpec:
     """What device to use and how to reach it (from the command line, a campaign job or pytest options)."""
 
-    target: str = "emulator"
+    target: str = "host"             # a kind of KINDS, or an alias of one (TARGET_ALIASES)
     port: str | None = None
     baud: int = 115200
     firmware: Path | None = None     # None: the kind's default (host binary, ASan binary, STM32 ELF)
@@ -42,9 +43,12 @@ class DeviceSpec:
     flash_cmd: str | None = None     # run (shell) before the device starts, e.g. to flash the board
     flash_timeout_s: float = 600.0
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "target", canonical_target(self.target))
+
     def resolved_target(self) -> str:
         """The kind: a port given with the default target means a board."""
-        return "serial" if (self.port and self.target == "emulator") else self.target
+        return "serial" if (self.port and self.target == "host") else self.target
 
     def firmware_path(self) -> Path:
         return Path(self.firmware) if self.firmware is not None else default_firmware(self.resolved_target())
@@ -58,9 +62,9 @@ class DeviceKind:
     build: Callable[[DeviceSpec, Path], Device]   # (spec, firmware path) -> an unstarted device
 
 
-def _emulator(spec: DeviceSpec, firmware: Path) -> Device:
-    from harness.device.emulator import EmulatorDevice
-    return EmulatorDevice(firmware, log_dir=spec.log_dir)
+def _host(spec: DeviceSpec, firmware: Path) -> Device:
+    from harness.device.host import HostDevice
+    return HostDevice(firmware, log_dir=spec.log_dir)
 
 
 def _serial(spec: DeviceSpec, firmware: Path) -> Device:  # noqa: ARG001 - the board runs what it was flashed with
@@ -77,15 +81,24 @@ def _qemu(spec: DeviceSpec, firmware: Path) -> Device:
 
 
 KINDS: dict[str, DeviceKind] = {
-    "emulator": DeviceKind("emulator", DEFAULT_FIRMWARE, "firmware binary {path} not found: run `make firmware`",
-                           _emulator),
+    "host": DeviceKind("host", DEFAULT_FIRMWARE, "firmware binary {path} not found: run `make firmware`", _host),
     "asan": DeviceKind("asan", DEFAULT_ASAN_FIRMWARE,
-                       "sanitizer firmware binary {path} not found: run `make firmware`", _emulator),
+                       "sanitizer firmware binary {path} not found: run `make firmware`", _host),
     "serial": DeviceKind("serial", None, "", _serial),
     "qemu": DeviceKind("qemu", DEFAULT_STM32_ELF,
                        "firmware ELF {path} not found: build it with `make stm32` or pass --firmware PATH", _qemu),
 }
 TARGETS = tuple(KINDS)
+#: old names still accepted wherever a target is chosen: "emulator" named the host build, while QEMU is the
+#: real emulator
+TARGET_ALIASES = {"emulator": "host"}
+#: what --target / --uwb-target accept
+TARGET_CHOICES = (*TARGETS, *TARGET_ALIASES)
+
+
+def canonical_target(name: str) -> str:
+    """The kind an accepted target name means (an alias -> its kind; anything else unchanged)."""
+    return TARGET_ALIASES.get(name, name)
 
 
 def kind_of(spec: DeviceSpec) -> DeviceKind:

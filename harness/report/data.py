@@ -44,7 +44,7 @@ class RunMetrics:
     status_counts: dict[str, int]
     err_t_s: np.ndarray          # bin centres, seconds since the flight's first measurement
     err_mean: np.ndarray         # mean |p_est - p_true| per bin
-    compute_us: np.ndarray       # float32, per RESULT (device cost; ns on the emulator -> us)
+    compute_us: np.ndarray       # float32, per RESULT (device cost; ns on the host build -> us)
     rtt_us: np.ndarray           # float32, per RESULT (host send -> host receive)
     kind: int
     device_stats: dict[str, Any] | None

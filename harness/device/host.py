@@ -1,4 +1,4 @@
-"""`EmulatorDevice`: the host build of the firmware (`uwb-fw --tty <pty slave>`) as a child process.
+"""`HostDevice`: the host build of the firmware (`uwb-fw --tty <pty slave>`) as a child process.
 
 Lifecycle:
   start  raw pty pair -> Popen([*wrapper, binary, "--tty", slave, *args]) in its own session
@@ -37,7 +37,7 @@ _counter = itertools.count()
 
 
 @dataclass(frozen=True)
-class EmulatorOptions:
+class HostOptions:
     startup_check_s: float = 0.1     # the process must survive this long after exec
     stop_timeout_s: float = 1.0      # per stage: after SIGTERM, after SIGKILL
     write_timeout_s: float = 5.0     # link writes fail after this long without progress
@@ -45,12 +45,12 @@ class EmulatorOptions:
     log_tail_lines: int = 30
 
 
-class EmulatorDevice(Device):
+class HostDevice(Device):
     """The host firmware binary serving a raw pty."""
 
     def __init__(self, binary: Path | str, args: Sequence[str] = (), log_dir: Path | str | None = None,
                  env: Mapping[str, str] | None = None, wrapper: Sequence[str] | None = None,
-                 options: EmulatorOptions = EmulatorOptions()) -> None:
+                 options: HostOptions = HostOptions()) -> None:
         super().__init__()
         self.binary = Path(binary)
         self.args = tuple(args)
@@ -63,13 +63,13 @@ class EmulatorDevice(Device):
         self._proc: subprocess.Popen[bytes] | None = None
         self._pty: PtyPair | None = None
         self._tmp_log_dir: str | None = None
-        self._finalizer: weakref.finalize[..., EmulatorDevice] | None = None
+        self._finalizer: weakref.finalize[..., HostDevice] | None = None
 
     # ------------------------------------------------------------------------------- identity
     @property
     def name(self) -> str:
         pid = f" pid {self._proc.pid}" if self._proc is not None else ""
-        return f"emulator {self.binary.name}{pid}"
+        return f"host {self.binary.name}{pid}"
 
     @property
     def pid(self) -> int | None:
