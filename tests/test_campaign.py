@@ -18,8 +18,8 @@ from typing import IO, Any
 import numpy as np
 import pytest
 
-from harness.campaign.plan import (FIRST_EVAL_SEED, RECORDED_MODELS, UTIL_HELD_OUT, CampaignOptions, PlanError,
-                                   RunSpec, group_by_flight, held_out, plan_campaign)
+from harness.campaign.plan import (FIRST_EVAL_SEED, RCV_TWR_HELD_OUT, RECORDED_MODELS, UTIL_HELD_OUT,
+                                   CampaignOptions, PlanError, RunSpec, group_by_flight, held_out, plan_campaign)
 from harness.campaign.runner import ExecOptions, group_stem, run_campaign
 from harness.campaign.store import CampaignDataError, CampaignDir, load_results
 from harness.report.build import build_report
@@ -343,3 +343,29 @@ def test_a_hung_worker_is_stopped_and_reported(tmp_path: Path) -> None:
     out = run_campaign(tmp_path / "c", runs, ExecOptions(jobs=1, python=str(hang), group_timeout_s=1.0),
                        log=lambda s: None)
     assert out.ok == 0 and len(out.failed) == 1 and "timed out after 1 s" in out.failed[0]["error"]
+
+
+def test_uwb_only_replays_leave_out_a_network_that_needs_the_attitude(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """rcv_twr.npz takes roll, pitch and yaw; the campaign replays rcv_twr UWB-only (no attitude), so its
+    network configurations are left out with a note, as `uwb-hil run` refuses them, instead of a level
+    attitude feeding the network a made-up input."""
+    from harness.biasnet.network import BiasModel, init_network
+    from harness.twin.features import LAYOUT_TWR_POS, LAYOUT_TWR_POSE
+    data = shared_data_dir()
+    if not (data / RCV_TWR_HELD_OUT[0]).is_dir():
+        pytest.skip(f"shared data not found at {data}")
+    import harness.campaign.plan as plan
+    lo, hi = np.full(6, -1.0), np.full(6, 1.0)
+    for layout, n_in, blind in ((LAYOUT_TWR_POSE, 6, True), (LAYOUT_TWR_POS, 3, False)):
+        model = tmp_path / f"rcv_{layout}.npz"
+        BiasModel(twr=init_network(layout, lo[:n_in], hi[:n_in], -0.5, 0.5, np.random.default_rng(1))).save(model)
+        monkeypatch.setitem(plan.RECORDED_MODELS, "rcv_twr", ("rcv_twr", model))
+        runs, notes = plan_campaign(CampaignOptions(seeds=0, modes=("twr",), latency_runs=False, data_dir=data))
+        configs = sorted(r.config for r in runs)
+        if blind:
+            assert configs == ["none", "outlier"], configs
+            assert any("takes roll, pitch and yaw" in n for n in notes), notes
+        else:
+            assert configs == ["none", "outlier", "outlier+nn"], configs
+            assert not any("takes roll, pitch and yaw" in n for n in notes), notes

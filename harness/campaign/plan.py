@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from harness.config import PAPER_PRESETS, PRESETS
+from harness.config import PAPER_PRESETS, PRESETS, STAGE_BIAS_NN
 from harness.paths import MODELS_DIR
 from harness.session import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
@@ -250,8 +250,15 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
         rec, notes, rec_models = recorded_flights(Path(opts.data_dir), opts.modes, opts.recorded_models)
         flights += rec
         models.update(rec_models)
+    blind = {f.flight_id for f in flights if f.uwb_only and _needs_attitude(models[f.flight_id], f.mode)}
+    for f in flights:
+        if f.flight_id in blind:
+            notes.append(f"{f.trajectory}: replayed UWB-only and its network ({models[f.flight_id]}) takes roll, "
+                         "pitch and yaw: its network configurations are left out (a level attitude would make "
+                         "the correction up; `uwb-hil run` refuses the same)")
     runs = [RunSpec(flight=f, config=c, firmware=str(opts.firmware), pacing=opts.pacing, model=models[f.flight_id])
-            for f in flights for c in opts.configs]
+            for f in flights for c in opts.configs
+            if not (f.flight_id in blind and PRESETS[c] & STAGE_BIAS_NN)]
     if opts.latency_runs:
         for mode in opts.modes:
             first = next((f for f in flights if f.source == "sim" and f.mode == mode), None)
@@ -260,6 +267,16 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
                 runs.append(RunSpec(flight=first, config=cfg, firmware=str(opts.firmware), pacing="realtime",
                                     role=ROLE_LATENCY, model=models[first.flight_id]))
     return runs + radio_runs(opts, flights, models), notes
+
+
+def _needs_attitude(model: str | None, mode: str) -> bool:
+    """Whether the network of `model` for this measurement kind takes the attitude (pose layout)."""
+    if model is None:
+        return False
+    from harness.biasnet.network import BiasModel
+    from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
+    net = getattr(BiasModel.load(Path(model)), mode)
+    return net is not None and net.layout in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE)
 
 
 def radio_runs(opts: CampaignOptions, flights: list[FlightSpec], models: dict[str, str | None]) -> list[RunSpec]:
