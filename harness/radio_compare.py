@@ -3,6 +3,7 @@
     python -m harness.radio_compare              # simulated: TDoA2, TDoA3 x outlier, outlier+nn x seeds
     python -m harness.radio_compare --spread 3   # + the measurement level with its values perturbed
     python -m harness.radio_compare --util       # recorded UTIL flights: today's replay vs radio level
+    python -m harness.radio_compare --noise-split  # where the white noise sits: UTIL vs the simulator
 
 Simulated: each flight is simulated once at radio level (harness/flight/radio_sim.py); its `uwb`
 stream holds the same measurements as differences (same pairs, times, link errors), so the only
@@ -16,6 +17,8 @@ measurement level (harness/report/radio_streams.py checks every RESULT): a firmw
 engine change forms other pairs, and the levels then differ by which pairs they fly (exit 3).
 --spread K flies the measurement level K more times with its values perturbed by white noise as large
 as the level difference (RMS): the RMSE change such a perturbation alone causes.
+--noise-split (no device): the correlation of consecutive measurements that share a tag reception, in the
+recorded UTIL TDoA flights and in simulated radio-level flights (RadioConfig.tag_noise_share).
 """
 
 from __future__ import annotations
@@ -34,7 +37,8 @@ from harness.flight.radio import radio_level
 from harness.flight.scenarios import scenario_flight
 from harness.report.metrics import accuracy_summary
 from harness.report.radio import query_clocks, radio_summary
-from harness.report.radio_streams import FirmwareCheck, StreamComparison, compare_streams, firmware_check
+from harness.report.radio_streams import (FirmwareCheck, StreamComparison, compare_streams, firmware_check,
+                                          shared_reception, twin_stream)
 from harness.device.registry import DeviceSpec, open_device
 from harness.session import config_for, shared_data_dir
 from harness.stream.streamer import Pacing, Streamer
@@ -145,6 +149,24 @@ def firmware_failures(pairs: list[tuple[Row, Row]]) -> list[str]:
     return out
 
 
+def noise_split(data: Path, seeds: list[int], duration: float) -> int:
+    """Print the shared-reception correlation of the UTIL TDoA recordings and of simulated radio-level
+    flights (their twin-formed values, as a tag's engine delivers them)."""
+    from harness.flight.loaders import load_recording
+    print("| flight | measurement pairs sharing a tag reception | their correlation | control (no shared reception) |")
+    print("|---|---|---|---|")
+    paths = sorted(glob.glob(str(data / "util" / "const*" / "const*-tdoa*-extracted.csv")))
+    flights = [load_recording(Path(p), anchors=data / "util" / "anchors.csv") for p in paths]
+    for protocol in ("tdoa2", "tdoa3"):
+        for seed in seeds:
+            f = radio_level(scenario_flight("circle", mode="tdoa", duration_s=duration, seed=seed), protocol, seed=seed)
+            flights.append(replace(f, uwb=replace(f.uwb, value=twin_stream(f).value)))
+    for f in flights:
+        s = shared_reception(f)
+        print(f"| {f.name} | {s.n_shared} | {s.corr_shared:+.3f} | {s.corr_other:+.3f} |")
+    return 0 if paths else 2
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--util", action="store_true", help="recorded UTIL flights instead of simulated ones")
@@ -154,10 +176,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=30.0)
     ap.add_argument("--spread", type=int, default=0, metavar="K",
                     help="simulated: also fly the measurement level K times with values perturbed by the level difference")
+    ap.add_argument("--noise-split", action="store_true",
+                    help="no device: where the white TDoA noise sits (UTIL recordings vs simulated radio level)")
     args = ap.parse_args(argv)
     if args.spread < 0 or args.seeds < 1:
         print("radio_compare: error: --spread must be >= 0 and --seeds >= 1", file=sys.stderr)
         return 2
+    if args.noise_split:
+        return noise_split(Path(args.data), list(range(1, args.seeds + 1)), args.duration)
     with open_device(DeviceSpec()) as device:
         streamer = Streamer(device, timeout_s=10.0)
         if args.util:

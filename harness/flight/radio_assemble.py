@@ -29,15 +29,17 @@ def _in(t: float, window: tuple[float, float] | None, extra: float = 0.0) -> boo
 
 
 def _anchor_rx(cfg: RadioConfig, ids: np.ndarray, clocks: dict[int, DeviceClock], who: np.ndarray,
-               t_tx: np.ndarray, apos: dict[int, np.ndarray], rng: np.random.Generator) -> dict[int, np.ndarray]:
-    """RX stamp (ticks, unwrapped, not yet rounded to whole ticks) of every transmission at every anchor."""
+               t_tx: np.ndarray, apos: dict[int, np.ndarray], anchor_err: np.ndarray,
+               rng: np.random.Generator) -> dict[int, np.ndarray]:
+    """RX stamp (ticks, unwrapped, not yet rounded to whole ticks) of every transmission at every anchor;
+    anchor_err [m] (anchor index, transmission): the error model's share, late stamps."""
     out = {}
     delay_s = cfg.antenna_delay_ticks / TS_FREQ
-    for b in ids:
+    for k, b in enumerate(ids):
         d = np.array([np.linalg.norm(apos[int(a)] - apos[int(b)]) for a in who])
         t = t_tx + delay_s + d / SPEED_OF_LIGHT
         noise = rng.normal(0.0, cfg.rx_noise_m / DW1000_TICK_M, size=len(who))
-        out[int(b)] = clocks[int(b)].local(t) + noise
+        out[int(b)] = clocks[int(b)].local(t) + noise + anchor_err[k] / DW1000_TICK_M
     return out
 
 
@@ -55,12 +57,12 @@ def _tof(cfg: RadioConfig, sim: SimConfig | None, hw: Any, clocks: dict[int, Dev
 def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: dict[int, DeviceClock],
              tag: DeviceClock, who: np.ndarray, t_tx: np.ndarray, tx_ticks: np.ndarray, t_rx: np.ndarray,
              rx_ticks: np.ndarray, heard_by_tag: np.ndarray, collided: np.ndarray, excess: np.ndarray,
-             silent: dict[int, tuple[float, float]], rng_loss: np.random.Generator,
+             anchor_err: np.ndarray, silent: dict[int, tuple[float, float]], rng_loss: np.random.Generator,
              rng_noise: np.random.Generator) -> Flight:
     ids = np.array(sorted(clocks))
     apos = {int(i): np.asarray(p, dtype=np.float64) for i, p in zip(flight.anchors.ids, flight.anchors.positions)}
     hw = hardware_params(sim.antenna, flight.anchors.ids) if sim is not None else None
-    arx = _anchor_rx(cfg, ids, clocks, who, t_tx, apos, rng_noise)
+    arx = _anchor_rx(cfg, ids, clocks, who, t_tx, apos, anchor_err, rng_noise)
     anchor_miss = rng_loss.random((len(who), len(ids))) < cfg.anchor_loss
     heard: dict[int, dict[int, tuple[int, int, float]]] = {int(a): {} for a in ids}
     seq = {int(a): 0 for a in ids}
@@ -101,7 +103,7 @@ def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: di
                 exact[e] = lp.Packet(type=payload[0], seq=seq[a], tx_ts=tx32, remote=remotes_x)
         seq[a] = (seq[a] + 1) & 0x7F
     rows.sort(key=lambda r: (r[0], r[4]))
-    out = _flight(flight, cfg, clocks, tag, rows, excess, sim, hw)
+    out = _flight(flight, cfg, clocks, tag, rows, excess, anchor_err, sim, hw)
     if cfg.exact_stamps and out.radio is not None:
         out = replace(out, radio=replace(out.radio, exact=[exact[r[4]] for r in rows],
                                          exact_rx=np.array([float(rx_ticks[r[4]]) % 2.0**40 for r in rows])))
@@ -128,9 +130,12 @@ def _radio_stream(cfg: RadioConfig, rows: list[tuple[int, int, int, bytes, int]]
 
 
 def _flight(flight: Flight, cfg: RadioConfig, clocks: dict[int, DeviceClock], tag: DeviceClock,
-            rows: list[tuple[int, int, int, bytes, int]], excess: np.ndarray, sim: SimConfig | None,
-            hw: Any) -> Flight:
-    """Run the engine twin over the packets: the measurement-level equivalent and the clock truth."""
+            rows: list[tuple[int, int, int, bytes, int]], excess: np.ndarray, anchor_err: np.ndarray,
+            sim: SimConfig | None, hw: Any) -> Flight:
+    """Run the engine twin over the packets: the measurement-level equivalent and the clock truth. A
+    difference carries the tag's reception errors of both packets, the pair offset and the sender's RX
+    stamp error of the reference's packet (a late stamp shortens tx_An - rxAr_by_An: + on the difference)."""
+    row_of = {int(a): k for k, a in enumerate(sorted(clocks))}
     engine = TdoaEngine()
     last_event: dict[int, int] = {}
     last_t: dict[int, float] = {}
@@ -145,7 +150,7 @@ def _flight(flight: Flight, cfg: RadioConfig, clocks: dict[int, DeviceClock], ta
                 t_us.append(t)
                 a_ids.append(meas.anchor_a)
                 b_ids.append(sender)
-                err.append(float(excess[e] - excess[ref]) + pair)
+                err.append(float(excess[e] - excess[ref] + anchor_err[row_of[sender], ref]) + pair)
         last_event[sender] = e
         last_t[sender] = t * 1e-6
     tt = np.array(t_us, dtype=np.int64)

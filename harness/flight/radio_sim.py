@@ -57,8 +57,8 @@ def _tx_schedule(cfg: RadioConfig, ids: np.ndarray, clocks: dict[int, DeviceCloc
     return t_all[order], w_all[order]
 
 
-def _link_errors(sim: SimConfig | None, arena: Arena, flight: Flight, who: np.ndarray, t_rx: np.ndarray,
-                 rng: np.random.Generator) -> np.ndarray:
+def _link_errors(sim: SimConfig | None, cfg: RadioConfig, arena: Arena, flight: Flight, who: np.ndarray,
+                 t_rx: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Excess path [m] of each tag reception (0 without an error model)."""
     if sim is None or len(who) == 0:
         return np.zeros(len(who))
@@ -72,7 +72,7 @@ def _link_errors(sim: SimConfig | None, arena: Arena, flight: Flight, who: np.nd
     bias = range_bias(sim.antenna, hw, who, anchors.positions[k], anchors.orientations[k], pos, quat)
     _, ut, _ = link_directions(anchors.positions[k], anchors.orientations[k], pos, quat)
     nlos, _ = _link_nlos(sim.nlos, arena, anchors.positions[k], pos, rng)
-    noise = rng.normal(0.0, sim.tdoa_std / np.sqrt(2.0), size=len(who))
+    noise = rng.normal(0.0, sim.tdoa_std * np.sqrt(cfg.tag_noise_share / 2.0), size=len(who))
     return bias + sim.antenna.pair_att_k * ut[:, 2] + nlos + noise
 
 
@@ -85,8 +85,8 @@ def simulate_radio(flight: Flight, cfg: RadioConfig, sim: SimConfig | None) -> F
         raise RadioSimError(f"TDoA2 needs anchor ids 0..7, got {ids.tolist()}")
     if len(ids) < 2 or ids.min() < 0 or ids.max() > 255:
         raise RadioSimError("need at least two anchors with ids 0..255")
-    rng_clk, rng_sched, rng_loss, rng_err, rng_noise = (np.random.default_rng(s)
-                                                         for s in np.random.SeedSequence([cfg.seed, 15]).spawn(5))
+    rng_clk, rng_sched, rng_loss, rng_err, rng_noise, rng_anchor = (
+        np.random.default_rng(s) for s in np.random.SeedSequence([cfg.seed, 15]).spawn(6))
     t0 = float(flight.truth.t_us[0]) * 1e-6 + 0.01
     t1 = float(flight.truth.t_us[-1]) * 1e-6
     clocks = {int(a): DeviceClock(rng_clk, t1 + 1.0, cfg.max_ppm, cfg.walk_ppm) for a in ids}
@@ -117,11 +117,14 @@ def simulate_radio(flight: Flight, cfg: RadioConfig, sim: SimConfig | None) -> F
     # Tag receptions
     tag_pos = flight.truth.position_at(t_tx * 1e6)
     rng_dist = np.linalg.norm(tag_pos - np.stack([apos[int(a)] for a in who]), axis=1)
-    excess = _link_errors(sim, arena, flight, who, t_tx, rng_err)
+    excess = _link_errors(sim, cfg, arena, flight, who, t_tx, rng_err)
+    # the error model's noise on the anchors' RX stamps [m], (anchor, transmission)
+    anchor_std = 0.0 if sim is None else sim.tdoa_std * np.sqrt(1.0 - cfg.tag_noise_share)
+    anchor_err = rng_anchor.normal(0.0, anchor_std, size=(len(ids), len(who)))
     t_rx = t_tx + 2 * half_delay_s + (rng_dist + excess) / SPEED_OF_LIGHT
     rx_ticks = tag.local(t_rx) + rng_noise.normal(0.0, cfg.rx_noise_m / DW1000_TICK_M, size=len(who))
     gap = np.diff(t_tx)
     collided = np.concatenate([[False], gap < cfg.airtime_s]) | np.concatenate([gap < cfg.airtime_s, [False]])
     heard_by_tag = (rng_loss.random(len(who)) >= cfg.loss) & ~collided
     return assemble(flight, cfg, sim, clocks, tag, who, t_tx, tx_ticks, t_rx, rx_ticks, heard_by_tag, collided,
-                    excess, silent, rng_loss, rng_noise)
+                    excess, anchor_err, silent, rng_loss, rng_noise)

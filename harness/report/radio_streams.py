@@ -132,3 +132,45 @@ def firmware_check(run: RunResult, flight: Flight, twin: TwinStream | None = Non
     err = err[np.isfinite(err)]
     return FirmwareCheck(checked=len(err), mismatched=int(np.count_nonzero(err > FIRMWARE_TOLERANCE_M)),
                          max_abs_m=float(err.max()) if len(err) else 0.0)
+
+
+@dataclass(frozen=True)
+class SharedReception:
+    """How much of a recorded flight's white TDoA noise sits on the tag's receptions. Two measurements in
+    a row where the first's sender is the second's reference (TDoA2: (n-1, n) then (n, n+1)) share the
+    tag's reception of that packet: its noise enters one with + and the other with -, so their errors
+    correlate at -s_tag^2 / s^2 (-0.5 if all the noise were on the tag's receptions, 0 if none)."""
+
+    n_shared: int
+    corr_shared: float
+    n_other: int                     # consecutive measurements that share no reception (control: ~0)
+    corr_other: float
+
+    @property
+    def tag_share(self) -> float:
+        """Share of the white variance of a difference on the tag's two receptions (-2 corr)."""
+        return -2.0 * self.corr_shared
+
+
+def shared_reception(flight: Flight, window: int = 15, max_gap_us: int = 5000, clip_m: float = 0.3) -> SharedReception:
+    """Residuals (value - true difference, minus each pair's centred moving average over `window` of its
+    measurements: the pose-dependent bias goes) of consecutive measurements < max_gap_us apart."""
+    u = flight.uwb
+    pos = flight.truth.position_at(u.t_us)
+    ap = {int(i): np.asarray(p, dtype=np.float64) for i, p in zip(flight.anchors.ids, flight.anchors.positions)}
+    pa = np.array([ap[int(i)] for i in u.anchor_a]).reshape(-1, 3)
+    pb = np.array([ap[int(i)] for i in u.anchor_b]).reshape(-1, 3)
+    err = u.value - (np.linalg.norm(pos - pb, axis=1) - np.linalg.norm(pos - pa, axis=1))
+    res = np.full(len(u), np.nan)
+    for a, b in set(zip(u.anchor_a.tolist(), u.anchor_b.tolist())):
+        k = np.flatnonzero((u.anchor_a == a) & (u.anchor_b == b))
+        if len(k) >= window:
+            padded = np.pad(err[k], window // 2, mode="edge")
+            res[k] = err[k] - np.convolve(padded, np.ones(window) / window, mode="valid")[:len(k)]
+    near = (np.diff(u.t_us) < max_gap_us) & (np.abs(res[:-1]) < clip_m) & (np.abs(res[1:]) < clip_m)
+    shared = near & (u.anchor_b[:-1] == u.anchor_a[1:])
+    other = near & ~shared & (u.anchor_b[:-1] != u.anchor_b[1:]) & (u.anchor_a[:-1] != u.anchor_a[1:])
+
+    def corr(sel: np.ndarray) -> float:
+        return float(np.corrcoef(res[:-1][sel], res[1:][sel])[0, 1]) if sel.sum() > 50 else float("nan")
+    return SharedReception(int(shared.sum()), corr(shared), int(other.sum()), corr(other))
