@@ -60,7 +60,7 @@ def test_radio_flight_through_the_firmware(uwb_device, protocol: str) -> None:  
 
 def test_radio_level_rmse_within_5_percent_of_measurement_level(uwb_device) -> None:  # noqa: ANN001
     """The same simulated flight (same pairs, times, link errors) as differences and as packets, 60 s as in
-    docs/radio.md (`python -m harness.radio_compare --seeds 6 --duration 60`: largest change 1.92 %). The
+    docs/radio.md (`python -m harness.radio_compare --seeds 6 --duration 60`: largest change 1.67 %). The
     comparison holds only if the firmware formed the twin's measurements: a binary built before the
     TDoA3 reference changed (rotating, the twin youngest) flew other pairs and moved the RMSE by up to
     6.27 % (docs/radio.md)."""
