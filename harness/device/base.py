@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from types import TracebackType
-from typing import Any
+from typing import Any, TypeVar
 
 from harness.device.channel import DeviceChannel
 from harness.device.identity import DeviceIdentity
@@ -18,6 +18,8 @@ from harness.errors import DeviceDied, DeviceError, DeviceTimeout, ModelMismatch
 from harness.link.base import Link
 from protocol import PROTOCOL_VERSION
 from protocol.messages import HelloReply
+
+_T = TypeVar("_T")
 
 
 class Device(ABC):
@@ -48,6 +50,18 @@ class Device(ABC):
 
     @abstractmethod
     def alive(self) -> bool: ...
+
+    # -------------------------------------------------------------- for the implementations
+    def _running(self, part: _T | None) -> _T:
+        """`part` (the link, the process) of a started device; DeviceError when it is not started."""
+        if part is None:
+            raise DeviceError(f"{self.name} is not started")
+        return part
+
+    def _not_running(self, part: object) -> None:
+        """DeviceError when `part` says the device is already started (start() twice)."""
+        if part is not None:
+            raise DeviceError(f"{self.name} is already started")
 
     def died(self, grace_s: float = 0.0) -> DeviceDied | None:
         """DeviceDied if the device is known to have exited (waiting up to grace_s), else None."""

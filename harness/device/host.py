@@ -77,9 +77,7 @@ class HostDevice(Device):
 
     @property
     def link(self) -> Link:
-        if self._pty is None:
-            raise DeviceError(f"{self.name} is not started")
-        return self._pty
+        return self._running(self._pty)
 
     @property
     def death_grace_s(self) -> float:  # type: ignore[override]
@@ -90,8 +88,7 @@ class HostDevice(Device):
 
     # ------------------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        if self._proc is not None:
-            raise DeviceError(f"{self.name} is already started")
+        self._not_running(self._proc)
         if not self.binary.is_file():
             raise DeviceError(f"firmware binary {self.binary} not found (build it: `make firmware`)")
         if not os.access(self.binary, os.X_OK):

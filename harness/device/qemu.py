@@ -29,7 +29,7 @@ import time
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
 from harness.device.base import Device
 from harness.link.qemu_link import QemuPtyLink
@@ -330,19 +330,14 @@ class QemuDevice(Device):
 
     @property
     def process(self) -> QemuProcess:
-        if self._proc is None:
-            raise DeviceError(f"{self.name} is not started")
-        return self._proc
+        return self._running(self._proc)
 
     @property
     def link(self) -> Link:
-        if self._link is None:
-            raise DeviceError(f"{self.name} is not started")
-        return self._link
+        return self._running(self._link)
 
     def start(self) -> None:
-        if self._proc is not None:
-            raise DeviceError(f"{self.name} is already started")
+        self._not_running(self._proc)
         if not self.elf.is_file():
             raise DeviceError(f"firmware {self.elf} not found: build it with `make stm32` "
                               "(toolchain: scripts/ensure_arm_tools.sh)")

@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from harness.device.base import Device
-from harness.errors import DeviceError
 from harness.link.base import Link
 from harness.link.serial_link import SerialLink
 
@@ -38,13 +37,10 @@ class SerialDevice(Device):
 
     @property
     def link(self) -> Link:
-        if self._link is None:
-            raise DeviceError(f"{self.name} is not started")
-        return self._link
+        return self._running(self._link)
 
     def start(self) -> None:
-        if self._link is not None:
-            raise DeviceError(f"{self.name} is already started")
+        self._not_running(self._link)
         link = SerialLink.open(self.url, baud=self.baud, timeout=self.options.write_timeout_s)
         try:
             self.discarded_bytes = link.discard_input(self.options.discard_quiet_s, self.options.discard_max_s)

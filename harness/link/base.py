@@ -10,12 +10,39 @@ Contract of every implementation:
 
 from __future__ import annotations
 
+import os
 import time
 from abc import ABC, abstractmethod
 from types import TracebackType
-from typing import Any
+from typing import Any, Callable
+
+from harness.errors import LinkClosed, LinkTimeout
 
 DEFAULT_READ_SIZE = 65536
+
+
+def write_fd(fd: int, data: bytes, timeout_s: float, closed: Callable[[OSError], LinkClosed],
+             stalled: Callable[[int, float], LinkTimeout], wait: Callable[[float], None]) -> None:
+    """Write all of `data` to a non-blocking fd. While it takes nothing, `wait(seconds left)` waits (for
+    it to become writable, or does what the transport must meanwhile); after `timeout_s` without a byte
+    taken, `stalled(bytes pending, seconds waited)` is raised; an OSError becomes `closed(exc)`."""
+    view = memoryview(data)
+    last_progress = time.monotonic()
+    while view:
+        try:
+            n = os.write(fd, view)
+        except BlockingIOError:
+            n = 0
+        except OSError as exc:
+            raise closed(exc) from exc
+        if n:
+            view = view[n:]
+            last_progress = time.monotonic()
+            continue
+        waited = time.monotonic() - last_progress
+        if waited >= timeout_s:
+            raise stalled(len(view), waited)
+        wait(timeout_s - waited)
 
 
 class Link(ABC):

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from harness.errors import LinkClosed, LinkTimeout
-from harness.link.base import DEFAULT_READ_SIZE, Link
+from harness.link.base import DEFAULT_READ_SIZE, Link, write_fd
 
 
 @dataclass(frozen=True)
@@ -101,26 +101,15 @@ class PtyPair(Link):
     # ------------------------------------------------------------------------------------ I/O
     def write(self, data: bytes) -> None:
         fd = self.master_fd
-        view = memoryview(data)
-        last_progress = time.monotonic()
-        while view:
-            try:
-                n = os.write(fd, view)
-            except BlockingIOError:
-                n = 0
-            except OSError as exc:
-                raise self._closed_by(exc, "write") from exc
-            if n:
-                view = view[n:]
-                last_progress = time.monotonic()
-                continue
-            waited = time.monotonic() - last_progress
-            left = self.options.write_timeout_s - waited
-            if left <= 0:
-                raise LinkTimeout(f"{self.name}: no byte written for {waited:.2f} s, {len(view)} of {len(data)} "
-                                  f"bytes pending: the device stopped reading",
-                                  pending_bytes=len(view), waited_s=waited)
+
+        def stalled(pending: int, waited: float) -> LinkTimeout:
+            return LinkTimeout(f"{self.name}: no byte written for {waited:.2f} s, {pending} of {len(data)} "
+                               f"bytes pending: the device stopped reading", pending_bytes=pending, waited_s=waited)
+
+        def wait(left: float) -> None:
             select.select([], [fd], [], min(left, 0.1))
+
+        write_fd(fd, data, self.options.write_timeout_s, lambda exc: self._closed_by(exc, "write"), stalled, wait)
 
     def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.0) -> bytes:
         fd = self.master_fd

@@ -7,11 +7,10 @@ from __future__ import annotations
 import errno
 import os
 import select
-import time
 from typing import Any
 
 from harness.errors import LinkClosed, LinkTimeout
-from harness.link.base import DEFAULT_READ_SIZE, Link
+from harness.link.base import DEFAULT_READ_SIZE, Link, write_fd
 
 
 class QemuPtyLink(Link):
@@ -44,26 +43,18 @@ class QemuPtyLink(Link):
 
     def write(self, data: bytes) -> None:
         fd = self._require()
-        view = memoryview(data)
-        last_progress = time.monotonic()
-        while view:
-            try:
-                n = os.write(fd, view)
-            except BlockingIOError:
-                n = 0
-            except OSError as exc:
-                raise LinkClosed(f"{self.name}: write failed: {exc}") from exc
-            if n:
-                view = view[n:]
-                last_progress = time.monotonic()
-                continue
-            waited = time.monotonic() - last_progress
-            if waited >= self.write_timeout_s:
-                raise LinkTimeout(f"{self.name}: no byte accepted for {waited:.1f} s ({len(view)} pending): "
-                                  "the guest stopped reading", pending_bytes=len(view), waited_s=waited)
-            r, _, _ = select.select([fd], [fd], [], min(0.05, self.write_timeout_s - waited))
+
+        def stalled(pending: int, waited: float) -> LinkTimeout:
+            return LinkTimeout(f"{self.name}: no byte accepted for {waited:.1f} s ({pending} pending): "
+                               "the guest stopped reading", pending_bytes=pending, waited_s=waited)
+
+        def wait(left: float) -> None:     # drain the guest's output, or QEMU's USART stalls the guest
+            r, _, _ = select.select([fd], [fd], [], min(0.05, left))
             if r:
                 self._drain(fd)
+
+        write_fd(fd, data, self.write_timeout_s, lambda exc: LinkClosed(f"{self.name}: write failed: {exc}"),
+                 stalled, wait)
 
     def _drain(self, fd: int) -> None:
         """Move what the guest sent into the buffer (called while a write waits)."""
