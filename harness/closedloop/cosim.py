@@ -132,6 +132,38 @@ class ClosedLoop:
             if done:
                 return found
 
+    def _advance(self, veh: Vehicle, sens: Sensors, t_us: int, thrust: float,
+                 rates: tuple[float, float, float]) -> list[bytes]:
+        """The physics steps of one control period ending at t_us with the last command, and the frames of
+        the UWB measurements and (averaged) IMU samples that fell due in it."""
+        lp = self.loop
+        ctrl_us = int(round(lp.control_dt * 1e6))
+        phys_us = int(round(lp.physics_dt * 1e6))
+        chunks: list[bytes] = []
+        f_sum = [0.0] * 6
+        for j in range(1, ctrl_us // phys_us + 1):
+            s = veh.state
+            p_prev = (s.pos[0], s.pos[1], s.pos[2])
+            veh.step(thrust, rates, lp.physics_dt)
+            t_sub = t_us - ctrl_us + j * phys_us
+            s = veh.state
+            for idx, t_m in sens.due(t_sub - 1):
+                w = (t_m - (t_sub - phys_us)) / phys_us   # position at the measurement time
+                tag = tuple(p_prev[i] + (s.pos[i] - p_prev[i]) * w for i in range(3))
+                u = sens.measure(idx, t_m, tag, s.quat)   # type: ignore[arg-type]
+                chunks.append(self.channel.frame(_uwb(u))[0])
+            sf, gy = veh.specific_force, veh.gyro
+            for i in range(3):
+                f_sum[i] += sf[i]
+                f_sum[3 + i] += gy[i]
+            if j % lp.imu_every == 0:
+                c = 1.0 / lp.imu_every
+                acc, gyr = sens.imu((f_sum[0] * c, f_sum[1] * c, f_sum[2] * c),
+                                    (f_sum[3] * c, f_sum[4] * c, f_sum[5] * c))
+                chunks.append(self.channel.frame(_imu(t_sub, acc, gyr))[0])
+                f_sum = [0.0] * 6
+        return chunks
+
     # ------------------------------------------------------------------------------------ flight
     def fly(self, plan: MissionPlan, est_cfg: EstimatorConfig, sensors_cfg: SensorConfig, sim: SimConfig,
             arena: Arena, vehicle: VehicleParams = VehicleParams(), seed: int = 1,
@@ -148,8 +180,6 @@ class ClosedLoop:
         statuses: dict[str, int] = {}
         errors: list[m.Error] = []
         ctrl_us = int(round(lp.control_dt * 1e6))
-        phys_us = int(round(lp.physics_dt * 1e6))
-        sub = ctrl_us // phys_us
         lo, hi = np.asarray(arena.lo) - lp.abort_margin_m, np.asarray(arena.hi) + lp.abort_margin_m
         thrust, rates = 0.0, (0.0, 0.0, 0.0)
         self.channel.configure(cfg, arena.anchors, reset=True)
@@ -160,41 +190,12 @@ class ClosedLoop:
         last = n
         for k in range(n):
             t_us = k * ctrl_us
-            chunks: list[bytes] = []
             if k == 0:
-                s = veh.state
                 acc, gyr = sens.imu(veh.specific_force, veh.gyro)
-                chunks.append(self.channel.frame(_imu(0, acc, gyr))[0])
+                chunks = [self.channel.frame(_imu(0, acc, gyr))[0]]
             else:
-                f_sum = [0.0] * 6
-                for j in range(1, sub + 1):
-                    s = veh.state
-                    p_prev = (s.pos[0], s.pos[1], s.pos[2])
-                    veh.step(thrust, rates, lp.physics_dt)
-                    t_sub = t_us - ctrl_us + j * phys_us
-                    s = veh.state
-                    for idx, t_m in sens.due(t_sub - 1):
-                        w = (t_m - (t_sub - phys_us)) / phys_us   # position at the measurement time
-                        tag = tuple(p_prev[i] + (s.pos[i] - p_prev[i]) * w for i in range(3))
-                        u = sens.measure(idx, t_m, tag, s.quat)   # type: ignore[arg-type]
-                        chunks.append(self.channel.frame(_uwb(u))[0])
-                    sf, gy = veh.specific_force, veh.gyro
-                    for i in range(3):
-                        f_sum[i] += sf[i]
-                        f_sum[3 + i] += gy[i]
-                    if j % lp.imu_every == 0:
-                        c = 1.0 / lp.imu_every
-                        acc, gyr = sens.imu((f_sum[0] * c, f_sum[1] * c, f_sum[2] * c),
-                                            (f_sum[3] * c, f_sum[4] * c, f_sum[5] * c))
-                        chunks.append(self.channel.frame(_imu(t_sub, acc, gyr))[0])
-                        f_sum = [0.0] * 6
-            on = bool(plan.motors_on[k])
-            sp = m.Setpoint(t_us=t_us, mode=int(m.ControlMode.POSITION if on else m.ControlMode.OFF), reserved=0,
-                            x=float(plan.pos[k, 0]), y=float(plan.pos[k, 1]), z=float(plan.pos[k, 2]),
-                            vx=float(plan.vel[k, 0]), vy=float(plan.vel[k, 1]), vz=float(plan.vel[k, 2]),
-                            ax=float(plan.acc[k, 0]), ay=float(plan.acc[k, 1]), az=float(plan.acc[k, 2]),
-                            yaw=float(plan.yaw[k]))
-            frame, seq = self.channel.frame(sp)
+                chunks = self._advance(veh, sens, t_us, thrust, rates)
+            frame, seq = self.channel.frame(_setpoint(plan, k, t_us))
             chunks.append(frame)
             if lp.pacing == "realtime":
                 due = wall0 + (t_us * 1e-6) / lp.speed
@@ -242,6 +243,16 @@ class ClosedLoop:
 
 _STATUS_NAMES = {int(m.Status.ACCEPTED): "accepted", int(m.Status.REJECTED_KINEMATIC): "rejected_kinematic",
                  int(m.Status.REJECTED_CHI2): "rejected_chi2", int(m.Status.REJECTED_GEOMETRY): "rejected_geometry"}
+
+
+def _setpoint(plan: MissionPlan, k: int, t_us: int) -> m.Setpoint:
+    """The mission's k-th setpoint (motors off outside the flight)."""
+    on = bool(plan.motors_on[k])
+    return m.Setpoint(t_us=t_us, mode=int(m.ControlMode.POSITION if on else m.ControlMode.OFF), reserved=0,
+                      x=float(plan.pos[k, 0]), y=float(plan.pos[k, 1]), z=float(plan.pos[k, 2]),
+                      vx=float(plan.vel[k, 0]), vy=float(plan.vel[k, 1]), vz=float(plan.vel[k, 2]),
+                      ax=float(plan.acc[k, 0]), ay=float(plan.acc[k, 1]), az=float(plan.acc[k, 2]),
+                      yaw=float(plan.yaw[k]))
 
 
 def _imu(t_us: int, acc: tuple[float, float, float], gyr: tuple[float, float, float]) -> m.Imu:
