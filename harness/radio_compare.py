@@ -123,8 +123,10 @@ def print_table(pairs: list[tuple[Row, Row]]) -> float:
 
 
 def print_streams(pairs: list[tuple[Row, Row]]) -> None:
-    """One row per flight: what the two levels feed the estimator."""
+    """One row per flight: what the two levels feed the estimator (simulated flights only)."""
     seen = set()
+    if all(r.stream is None for _, r in pairs):
+        return
     print("\n| flight | packets | measurements (both levels) | drops | same times and pairs | radio - measurement "
           "value: mean / RMS / max [mm] | error vs true difference, RMS meas / radio [mm] |")
     print("|---|---|---|---|---|---|---|")
