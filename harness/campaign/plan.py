@@ -274,9 +274,9 @@ def _needs_attitude(model: str | None, mode: str) -> bool:
     if model is None:
         return False
     from harness.biasnet.network import BiasModel
-    from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
+    from protocol.messages import Layout
     net = getattr(BiasModel.load(Path(model)), mode)
-    return net is not None and net.layout in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE)
+    return net is not None and net.layout in (Layout.TWR_POSE, Layout.TDOA_POSE)
 
 
 def radio_runs(opts: CampaignOptions, flights: list[FlightSpec], models: dict[str, str | None]) -> list[RunSpec]:
