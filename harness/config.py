@@ -20,6 +20,7 @@ STAGE_CHI2_GATE = int(Stage.CHI2_GATE)
 STAGE_NN_STD = int(Stage.NN_STD)                # measurement std = the network's predicted std (when it runs)
 STAGE_ROBUST_UPDATE = int(Stage.ROBUST_UPDATE)  # M-estimation weights on the update (robust_update.c)
 STAGE_NN_MONITOR = int(Stage.NN_MONITOR)        # per-pair monitor switching a harmful correction off (nn_monitor.c)
+STAGE_BIAS_STATES = int(Stage.BIAS_STATES)      # per-anchor Gauss-Markov bias states (bias_states.c)
 STAGES_ALL = STAGE_BIAS_NN | STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE  # the paper's outlier rejection + network
 STAGES_OUTLIER = STAGE_KINEMATIC_GATE | STAGE_CHI2_GATE
 
@@ -33,6 +34,8 @@ PRESETS: dict[str, int] = {
     "outlier+nn+monitor": STAGES_ALL | STAGE_NN_MONITOR,
     "robust": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE,
     "robust+nn": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE | STAGE_BIAS_NN,
+    "outlier+nn+states": STAGES_ALL | STAGE_BIAS_STATES,
+    "robust+nn+states": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE | STAGE_BIAS_NN | STAGE_BIAS_STATES,
 }
 #: What campaigns fly by default (the paper's table); the others are asked for by name.
 PAPER_PRESETS: tuple[str, ...] = ("none", "outlier", "outlier+nn")

@@ -32,6 +32,7 @@ class Stage(enum.IntEnum):
     NN_STD = 8
     ROBUST_UPDATE = 16
     NN_MONITOR = 32
+    BIAS_STATES = 64
 
 
 class MeasKind(enum.IntEnum):
@@ -535,7 +536,7 @@ MESSAGES_BY_ID: dict[int, type] = {cls.MSG_ID: cls for cls in MESSAGE_TYPES}
 #: The CONFIG fields with their defaults and bounds (the message's own fields last, control=True).
 CONFIG_FIELDS: tuple[ConfigField, ...] = (
     ConfigField('mode', 'u8', 0, doc='estimator mode', choices=(('IMU', 0), ('UWB_ONLY', 1))),
-    ConfigField('stages', 'u8', 7, doc='pipeline stages on', mask=0x3f),
+    ConfigField('stages', 'u8', 7, doc='pipeline stages on', mask=0x7f),
     ConfigField('std_twr', 'f32', 0.25, unit='m', doc='TWR measurement std', gt=0.0),
     ConfigField('std_tdoa', 'f32', 0.15, unit='m', doc='TDoA measurement std', gt=0.0),
     ConfigField('a_max_twr', 'f32', 5000.0, unit='m/s^2', doc="kinematic gate acceleration bound for TWR (a tuned bound, as the paper's a_max = 4 T_max g, not a physical acceleration)", gt=0.0),

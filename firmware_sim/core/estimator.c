@@ -12,7 +12,8 @@
 #include "robust_update.h"
 
 /* The gate and the pair monitor hold per-anchor state for every anchor the estimator holds. */
-typedef char est_check_anchors[(GATE_KIN_ANCHORS == ESTIMATOR_MAX_ANCHORS && NN_MON_ANCHORS == ESTIMATOR_MAX_ANCHORS)
+typedef char est_check_anchors[(GATE_KIN_ANCHORS == ESTIMATOR_MAX_ANCHORS && NN_MON_ANCHORS == ESTIMATOR_MAX_ANCHORS &&
+                                BIAS_ST_ANCHORS == ESTIMATOR_MAX_ANCHORS)
                                ? 1 : -1];
 
 /* Filter at the configured init position; time references forgotten. */
@@ -20,6 +21,7 @@ static void reset_filter(estimator_t *est)
 {
     const float pos[3] = {est->cfg.init_x, est->cfg.init_y, est->cfg.init_z};
     nn_monitor_reset(&est->nnmon); /* a new flight: every pair trusted again */
+    bias_states_reset(&est->bstates);
     ekf_init(&est->ekf, pos, est->cfg.init_std_xy, est->cfg.init_std_z);
     memcpy(est->last_good_pos, pos, sizeof pos);
     est->has_imu_time = 0;
@@ -260,7 +262,7 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     const bias_nn_t *net = NULL;
     const uint64_t t_ref = ekf->t_us;
     const int have_ref = ekf->has_time;
-    float h, H[3], dt, y, bias, std_nn, std;
+    float h, H[3], dt, y, bias, std_nn, std, b_st = 0.0f, var_st = 0.0f;
     ekf_scalar_t m;
     uint32_t c0, c1, c2, c3;
     int rc;
@@ -298,7 +300,11 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
         net = NULL; /* the monitor switched this pair's correction off */
     }
     bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a, std, &std_nn);
-    y = (z - bias) - h;
+    /* BIAS_STATES: the slowly varying rest, from the innovations of earlier measurements */
+    if (cfg->stages & EST_STAGE_BIAS_STATES) {
+        bias_states_predict(&est->bstates, t_us, id_a, id_b, &b_st, &var_st);
+    }
+    y = (z - bias - b_st) - h;
     /* NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std */
     if ((cfg->stages & EST_STAGE_NN_STD) && std_nn > 0.0f) {
         std = std_nn;
@@ -306,7 +312,7 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     c2 = platform_cost_now();
 
     /* 3./4. gates (S is needed by the chi-square gate and reported in every case) */
-    ekf_scalar_prepare(ekf, &m, H, y, std * std);
+    ekf_scalar_prepare(ekf, &m, H, y, std * std + var_st);
     out->status = EST_ACCEPTED;
     if ((cfg->stages & EST_STAGE_KINEMATIC_GATE) && !gate_kinematic_pass(y, out->d_max, tdoa ? 2.0f : 1.0f)) {
         out->status = EST_REJECTED_KINEMATIC;
@@ -331,6 +337,9 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
         }
         ekf_scalar_apply(ekf, &m);
         ekf_finalize(ekf);
+        if (cfg->stages & EST_STAGE_BIAS_STATES) {
+            bias_states_update(&est->bstates, id_a, id_b, y, m.S);
+        }
         gate_kinematic_fused(&est->kin, t_us, id_a, id_b);
         supervise(est);
         out->gain[0] = m.K[EKF_X];
@@ -339,7 +348,7 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     }
     out->innovation = y;
     out->innovation_var = m.S;
-    out->bias = bias;
+    out->bias = bias + b_st;
     out->cost_nn = c2 - c1;
     out->cost_gates = c3 - c2;
     out->cost_update = (c1 - c0) + (platform_cost_now() - c3);

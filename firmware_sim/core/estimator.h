@@ -7,6 +7,7 @@
 #include <stdint.h>
 
 #include "bias_nn.h"
+#include "bias_states.h"
 #include "ekf_core.h"
 #include "estimator_config.h" /* estimator_config_t, its defaults and checks: generated from messages.toml */
 #include "gate_kinematic.h"
@@ -51,7 +52,8 @@ enum {
     EST_STAGE_CHI2_GATE = 4,
     EST_STAGE_NN_STD = 8,       /* measurement std = the network's predicted std when it runs */
     EST_STAGE_ROBUST_UPDATE = 16, /* M-estimation weights on the update (robust_update.h) */
-    EST_STAGE_NN_MONITOR = 32     /* per-pair monitor of the corrections (nn_monitor.h) */
+    EST_STAGE_NN_MONITOR = 32,    /* per-pair monitor of the corrections (nn_monitor.h) */
+    EST_STAGE_BIAS_STATES = 64    /* per-anchor Gauss-Markov bias states on top of the network (bias_states.h) */
 };
 /* The paper's outlier rejection + network (the power-up default). */
 #define EST_STAGES_ALL (EST_STAGE_BIAS_NN | EST_STAGE_KINEMATIC_GATE | EST_STAGE_CHI2_GATE)
@@ -60,7 +62,8 @@ typedef struct {
     uint8_t status;        /* EST_ACCEPTED / EST_REJECTED_* */
     float innovation;      /* y = z - bias - h(x), before the update (0 for geometry) */
     float innovation_var;  /* S = H P H^T + R (0 for geometry) */
-    float bias;            /* what the network subtracted [m] */
+    float bias;            /* what was subtracted [m]: the network's correction, plus the link's bias
+                            * states with BIAS_STATES */
     float d_max;           /* kinematic bound, computed whether the gate is on or not */
     float gain[3];         /* K position rows, 0 unless accepted */
     /* platform_cost_now() units. cost_update includes the measurement model and finalize;
@@ -84,6 +87,7 @@ typedef struct {
     uint8_t has_height_time;
     uint8_t flags;                    /* EST_FLAG_* since the last result */
     nn_monitor_t nnmon;               /* per-pair monitor of the network's corrections (reset with the filter) */
+    bias_states_t bstates;            /* per-anchor bias states (BIAS_STATES; reset with the filter) */
     float last_good_pos[3];           /* re-initialisation point of the supervisor */
     uint32_t cost_predict;            /* cost of the predictions since the last measurement */
     uint32_t predictions;             /* IMU or CV predictions since power-up */

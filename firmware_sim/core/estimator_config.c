@@ -40,7 +40,7 @@ int estimator_config_valid(const estimator_config_t *cfg)
     if (!(cfg->mode == 0u || cfg->mode == 1u)) {
         return 0;
     }
-    if (!((cfg->stages & ~0x3fu) == 0u)) {
+    if (!((cfg->stages & ~0x7fu) == 0u)) {
         return 0;
     }
     {

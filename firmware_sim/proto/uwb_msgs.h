@@ -26,6 +26,7 @@ enum {
     UWB_STAGE_NN_STD = 8,
     UWB_STAGE_ROBUST_UPDATE = 16,
     UWB_STAGE_NN_MONITOR = 32,
+    UWB_STAGE_BIAS_STATES = 64,
 };
 
 /* Kind of UWB measurement in RESULT.kind */

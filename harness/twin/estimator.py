@@ -12,9 +12,10 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, STAGE_NN_MONITOR,
-                            STAGE_NN_STD, STAGE_ROBUST_UPDATE, EstimatorConfig)
+from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_BIAS_STATES, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE,
+                            STAGE_NN_MONITOR, STAGE_NN_STD, STAGE_ROBUST_UPDATE, EstimatorConfig)
 from harness.twin import gates, measurements
+from harness.twin.bias_states import BiasStates
 from harness.twin.ekf import POS, ErrorStateEkf
 from harness.twin.features import features, ood_fade
 from harness.twin.nn_monitor import NnMonitor
@@ -97,7 +98,7 @@ class TwinResult:
     innovation_var : float
         ``S = H P H^T + R`` (0 for geometry).
     bias : float
-        What the network subtracted [m].
+        What was subtracted [m]: the network's correction, plus the link's bias states (BIAS_STATES).
     d_max : float
         Kinematic bound [m], reported whether the gate is on or not.
     gain : ndarray, shape (3,)
@@ -151,6 +152,7 @@ class TwinEstimator:
         self.gap_restarts = 0   # restarts after a measurement gap (not divergences)
         self.nnmon = NnMonitor()
         self.kin = gates.KinematicGate()
+        self.bstates = BiasStates()
         self.heights = 0
         self._reset_filter()
 
@@ -158,6 +160,7 @@ class TwinEstimator:
     def _reset_filter(self) -> None:
         c = self.config
         self.nnmon.reset()  # a new flight: every pair trusted again
+        self.bstates.reset()
         self.last_good_pos = np.array([c.init_x, c.init_y, c.init_z], dtype=np.float64)
         self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
         self.t_imu_us: int | None = None
@@ -348,11 +351,13 @@ class TwinEstimator:
         if c.stages & STAGE_NN_MONITOR and not self.nnmon.enabled(*ids):
             net = None  # the monitor switched this pair's correction off
         bias, std_nn = self._bias(net, anchor_a, anchor_b, c.std_tdoa if tdoa else c.std_twr)
-        y = (z - bias) - h
+        # BIAS_STATES: the slowly varying rest, from the innovations of earlier measurements
+        b_st, var_st = self.bstates.predict(t_us, *ids) if c.stages & STAGE_BIAS_STATES else (0.0, 0.0)
+        y = (z - bias - b_st) - h
 
         # NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std
         std = std_nn if (c.stages & STAGE_NN_STD and std_nn > 0.0) else (c.std_tdoa if tdoa else c.std_twr)
-        upd = ekf.prepare(H3, y, std * std)
+        upd = ekf.prepare(H3, y, std * std + var_st)
         status = ACCEPTED
         if c.stages & STAGE_KINEMATIC_GATE and not gates.kinematic_pass(y, d_max, 2.0 if tdoa else 1.0):
             status = REJECTED_KINEMATIC
@@ -370,10 +375,12 @@ class TwinEstimator:
                     upd = ekf.prepare(H3, y, r_w)
             ekf.apply(upd)
             ekf.finalize()
+            if c.stages & STAGE_BIAS_STATES:
+                self.bstates.update(ids[0], ids[1], y, upd.S)
             self.kin.fused(t_us, ids)
             gain = upd.K[POS].copy()
             self._supervise()
-        return self._result(status, y, upd.S, bias, d_max, gain, upd.mahalanobis)
+        return self._result(status, y, upd.S, bias + b_st, d_max, gain, upd.mahalanobis)
 
     def _result(self, status: int, y: float, S: float, bias: float, d_max: float, gain: np.ndarray,
                 mahalanobis: float) -> TwinResult:
