@@ -201,19 +201,19 @@ def print_report(out: dict[str, Any]) -> None:
           f" (shipped model hash {out.get('model_hash', '?')})")
     print(f"   median over measurements with an EKF update; cycles ASSUMED = {CYCLES_PER_INSTRUCTION:g} x instructions;"
           f" slot = 5 ms at 168 MHz ({SLOT_S * SYSCLK_HZ:,.0f} cycles)")
-    hdr = f"{'measurement':34} {'n':>5} {'instr':>8} {'~cycles':>8} {'~us':>7} {'% slot':>7}   {'network':>7} {'gates':>6} {'update':>7}"
+    hdr = f"{'measurement':37} {'n':>5} {'instr':>8} {'~cycles':>8} {'~us':>7} {'% slot':>7}   {'network':>7} {'gates':>6} {'update':>7}"
     print(hdr)
     for r in out["stages"]:
         label = f"{r['mode'].upper()} update" + (f" + network ({r['build']})" if r["network"] else ", no network")
         label += " + states" if r.get("states") else ""
         cyc, us, pct = _share(r["compute"])
-        print(f"{label:34} {r['n']:5d} {r['compute']:8.0f} {cyc:8.0f} {us:7.1f} {pct:6.2f}%   "
+        print(f"{label:37} {r['n']:5d} {r['compute']:8.0f} {cyc:8.0f} {us:7.1f} {pct:6.2f}%   "
               f"{r['nn']:7.0f} {r['gates']:6.0f} {r['update']:7.0f}")
     preds = [r for r in out["stages"] if r["predictions"] > 0]
     if preds:
         p = float(np.median([r["predict_per_call"] for r in preds]))
         cyc, us, pct = _share(p)
-        print(f"{'IMU prediction (per prediction)':34} {sum(r['predictions'] for r in preds):5d} {p:8.0f} {cyc:8.0f} "
+        print(f"{'IMU prediction (per prediction)':37} {sum(r['predictions'] for r in preds):5d} {p:8.0f} {cyc:8.0f} "
               f"{us:7.1f} {pct:6.2f}%")
     g = out["goals"]
     print(f"goal: TDoA update incl. network <= {GOAL_TDOA_NN_INSTR:,} instructions: {g['tdoa_nn_instructions']:,.0f} "

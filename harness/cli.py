@@ -207,7 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_pacing_options(run)
     add_device_options(run)
     run.add_argument("--stages", choices=tuple(PRESETS), default="outlier+nn",
-                     help="none | outlier (kinematic + chi-square gates) | outlier+nn (plus bias network)")
+                     help="none | outlier (kinematic + chi-square gates) | outlier+nn (plus bias network) | "
+                          "...+states (plus per-anchor bias states, docs/bias-network.md)")
     run.add_argument("--uwb-only", action="store_true", help="ignore the IMU (constant-velocity model)")
     run.add_argument("--model", help="bias model (.npz) the device must carry; the host build is built "
                                      "with it, any other device is refused if its HELLO reports another model")

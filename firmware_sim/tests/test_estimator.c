@@ -67,8 +67,9 @@ static void test_config_validation(void)
     EXPECT_VALID(mode, 1, 1);
     EXPECT_VALID(mode, 2, 0);
     EXPECT_VALID(stages, 0, 1);
-    EXPECT_VALID(stages, EST_STAGES_ALL | EST_STAGE_NN_STD | EST_STAGE_ROBUST_UPDATE | EST_STAGE_NN_MONITOR, 1);
-    EXPECT_VALID(stages, 64, 0);
+    EXPECT_VALID(stages, EST_STAGES_ALL | EST_STAGE_NN_STD | EST_STAGE_ROBUST_UPDATE | EST_STAGE_NN_MONITOR |
+                             EST_STAGE_BIAS_STATES, 1);
+    EXPECT_VALID(stages, 128, 0);
     EXPECT_VALID(std_twr, 0.0f, 0);
     EXPECT_VALID(std_twr, -0.1f, 0);
     EXPECT_VALID(std_tdoa, NAN, 0);

@@ -33,7 +33,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--modes", type=_csv, default=MODES, help="twr,tdoa")
     p.add_argument("--trajectories", type=_csv, default=TRAJECTORIES, help="circle,circle-z")
     p.add_argument("--configs", type=_csv, default=CONFIGS, help="comma list of configurations (default none,outlier,outlier+nn; also outlier+nn+std, robust, "
-                        "robust+nn)")
+                        "robust+nn, outlier+nn+states, ...: harness/config.py PRESETS)")
     p.add_argument("--recorded", action=argparse.BooleanOptionalAction, default=True,
                    help="also replay the held-out recorded flights of the shared data")
     p.add_argument("--data-dir", default=None, help="recorded data (default ../shared/data or $UWB_HIL_DATA)")

@@ -13,7 +13,7 @@ import math
 
 ANCHORS = 16
 TAU_S = 0.3
-STD = 0.08
+STD = 0.12
 
 
 class BiasStates:
