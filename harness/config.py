@@ -35,6 +35,7 @@ PRESETS: dict[str, int] = {
     "robust": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE,
     "robust+nn": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE | STAGE_BIAS_NN,
     "outlier+nn+states": STAGES_ALL | STAGE_BIAS_STATES,
+    "outlier+nn+std+states": STAGES_ALL | STAGE_NN_STD | STAGE_BIAS_STATES,
     "robust+nn+states": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE | STAGE_BIAS_NN | STAGE_BIAS_STATES,
 }
 #: What campaigns fly by default (the paper's table); the others are asked for by name.
