@@ -10,6 +10,7 @@
 #include "mm_twr.h"
 #include "platform.h"
 #include "robust_update.h"
+#include "supervisor.h"
 
 /* The gate and the pair monitor hold per-anchor state for every anchor the estimator holds. */
 typedef char est_check_anchors[(GATE_KIN_ANCHORS == ESTIMATOR_MAX_ANCHORS && NN_MON_ANCHORS == ESTIMATOR_MAX_ANCHORS &&
@@ -76,107 +77,6 @@ static int anchor_known(const estimator_t *est, uint8_t id)
     return id < ESTIMATOR_MAX_ANCHORS && (est->anchor_known >> id) & 1u;
 }
 
-/* Beyond this |position| [m] the state counts as diverged even without anchors: far outside any UWB
- * network, and float32 resolution there (~1 cm) is already useless. */
-#define EST_MAX_ABS_POSITION 1e5f
-
-/* Signed t1 - t0 in microseconds without relying on unsigned -> signed wrap-around. */
-static int64_t diff_us(uint64_t t1, uint64_t t0)
-{
-    return t1 >= t0 ? (int64_t)(t1 - t0) : -(int64_t)(t0 - t1);
-}
-
-/* No UWB measurement for this long [us] is a measurement gap: at the rates of every supported setup
- * (10-400 Hz) a second without one is an outage (a drone on the ground, out of range), not noise. */
-#define EST_GAP_US 1000000
-
-/* 1 if no UWB measurement has arrived for EST_GAP_US up to the state's time (or none ever). */
-static int measurement_gap(const estimator_t *est)
-{
-    return !est->has_uwb_time || (est->ekf.has_time && diff_us(est->ekf.t_us, est->t_uwb_us) >= EST_GAP_US);
-}
-
-/* The supervisor's verdict on the current state: 0 if sane, else the EST_FLAG_* reason. The
- * covariance bound is never below the initial variance (a huge init std is valid). It counts as a
- * divergence only while measurements arrive: without any, the prediction grows P by construction,
- * and a variance above the bound then means "no fix for a while" (EST_FLAG_GAP_RESTART), not a filter
- * that lost track of what it measures. */
-/* The covariance bounds [m^2] of the supervisor: sup_max_var, never below the initial variance. */
-static void variance_bounds(const estimator_config_t *cfg, float *var_xy, float *var_z)
-{
-    *var_xy = cfg->init_std_xy * cfg->init_std_xy;
-    *var_z = cfg->init_std_z * cfg->init_std_z;
-    *var_xy = *var_xy > cfg->sup_max_var ? *var_xy : cfg->sup_max_var;
-    *var_z = *var_z > cfg->sup_max_var ? *var_z : cfg->sup_max_var;
-}
-
-static uint8_t supervisor_reason(const estimator_t *est)
-{
-    const ekf_t *ekf = &est->ekf;
-    const estimator_config_t *cfg = &est->cfg;
-    const float *p = &ekf->x[EKF_X], *v = &ekf->x[EKF_PX];
-    float var_xy, var_z;
-    unsigned k;
-    if (!ekf_is_finite(ekf)) {
-        return EST_FLAG_NON_FINITE;
-    }
-    for (k = 0; k < 3; k++) {
-        if (fabsf(p[k]) > EST_MAX_ABS_POSITION ||
-            (est->anchor_known && (p[k] < est->box_min[k] - cfg->sup_margin ||
-                                   p[k] > est->box_max[k] + cfg->sup_margin))) {
-            return EST_FLAG_OUT_OF_BOX;
-        }
-    }
-    /* body-frame velocity: its norm is the speed whatever the frame */
-    if (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] > cfg->sup_max_speed * cfg->sup_max_speed) {
-        return EST_FLAG_SPEED;
-    }
-    variance_bounds(cfg, &var_xy, &var_z);
-    if (ekf->P[EKF_X][EKF_X] > var_xy || ekf->P[EKF_Y][EKF_Y] > var_xy || ekf->P[EKF_Z][EKF_Z] > var_z) {
-        return measurement_gap(est) ? EST_FLAG_GAP_RESTART : EST_FLAG_COVARIANCE;
-    }
-    return 0;
-}
-
-/* Supervisor (as the Crazyflie's kalman_supervisor): a state that is not finite, outside the anchors'
- * box, too fast or too uncertain restarts the filter at the last position that passed, with the
- * initial covariance and zero velocity, keeping the time reference so the filter continues. After a
- * measurement gap the restart (the last fix at rest beats a position extrapolated for seconds) is
- * reported as GAP_RESTART and not counted as a divergence; its position variance is half the bound, not
- * the initial one: the tag may have moved metres meanwhile, and a confident restart would let the
- * chi-square gate refuse the ranges that show it (a circle flown through an 8 s gap: RMSE 1.96 m with
- * the initial 1 m std, 0.11 m with this); half leaves the predictions headroom under the bound until
- * the measurements bring it down. */
-static void supervise(estimator_t *est)
-{
-    ekf_t *ekf = &est->ekf;
-    uint64_t t_us;
-    uint8_t has_time;
-    const uint8_t reason = supervisor_reason(est);
-    if (reason == 0) {
-        memcpy(est->last_good_pos, &ekf->x[EKF_X], sizeof est->last_good_pos);
-        return;
-    }
-    t_us = ekf->t_us;
-    has_time = ekf->has_time;
-    if (reason == EST_FLAG_GAP_RESTART) {
-        float var_xy, var_z;
-        variance_bounds(&est->cfg, &var_xy, &var_z);
-        ekf_init(ekf, est->last_good_pos, sqrtf(0.5f * var_xy), sqrtf(0.5f * var_z));
-    } else {
-        ekf_init(ekf, est->last_good_pos, est->cfg.init_std_xy, est->cfg.init_std_z);
-    }
-    ekf->t_us = t_us;
-    ekf->has_time = has_time;
-    if (reason == EST_FLAG_GAP_RESTART) {
-        est->gap_restarts++;
-        est->flags = (uint8_t)(est->flags | EST_FLAG_GAP_RESTART);
-        return;
-    }
-    est->divergences++;
-    est->flags = (uint8_t)(est->flags | EST_FLAG_DIVERGED | reason);
-}
-
 int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3])
 {
     uint32_t c0;
@@ -195,7 +95,7 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
     c0 = platform_cost_now();
     if (ekf_imu_sample(&est->ekf, &noise, t_us, acc, gyro)) {
         est->predictions++;
-        supervise(est);
+        estimator_supervise(est);
         est->cost_predict += platform_cost_now() - c0;
     }
     return EST_OK;
@@ -247,9 +147,68 @@ static void predict_cv_to(estimator_t *est, uint64_t t_us)
         ekf_predict_cv(ekf, est->cfg.proc_cv_acc, (float)(t_us - ekf->t_us) * 1e-6f);
         ekf->t_us = t_us;
         est->predictions++;
-        supervise(est);
+        estimator_supervise(est);
         est->cost_predict += platform_cost_now() - c0;
     }
+}
+
+/* The network's bias correction of a measurement (0 without a network, stage or pair), and in `std` the
+ * standard deviation to fuse it with: the configured one, or with NN_STD the network's own std of what it
+ * leaves when it predicts one. */
+static float corrected_bias(estimator_t *est, int tdoa, uint8_t id_a, uint8_t id_b, const float *anchor_a,
+                            const float *anchor_b, float *std)
+{
+    const estimator_config_t *cfg = &est->cfg;
+    const bias_nn_t *net = NULL;
+    float bias, std_nn;
+    if (est->model != NULL) {
+        net = tdoa ? est->model->tdoa : est->model->twr;
+    }
+    *std = tdoa ? cfg->std_tdoa : cfg->std_twr;
+    if ((cfg->stages & EST_STAGE_NN_MONITOR) && !nn_monitor_enabled(&est->nnmon, id_a, id_b)) {
+        net = NULL; /* the monitor switched this pair's correction off */
+    }
+    bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a, *std, &std_nn);
+    if ((cfg->stages & EST_STAGE_NN_STD) && std_nn > 0.0f) {
+        *std = std_nn;
+    }
+    return bias;
+}
+
+/* The gates' verdict on innovation y (variance S): kinematic first, then chi-square. */
+static uint8_t gate_status(const estimator_config_t *cfg, float y, float d_max, float S, int tdoa)
+{
+    if ((cfg->stages & EST_STAGE_KINEMATIC_GATE) && !gate_kinematic_pass(y, d_max, tdoa ? 2.0f : 1.0f)) {
+        return EST_REJECTED_KINEMATIC;
+    }
+    if ((cfg->stages & EST_STAGE_CHI2_GATE) && !gate_chi2_pass(y, S, tdoa ? cfg->chi2_tdoa : cfg->chi2_twr)) {
+        return EST_REJECTED_CHI2;
+    }
+    return EST_ACCEPTED;
+}
+
+/* Fuse an accepted measurement; the robust stage inflates R by its M-estimation weight first (the gates
+ * saw the nominal S); the bias states learn from the innovation. */
+static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, uint64_t t_us, uint8_t id_a,
+                 uint8_t id_b, estimator_result_t *out)
+{
+    ekf_t *ekf = &est->ekf;
+    if (est->cfg.stages & EST_STAGE_ROBUST_UPDATE) {
+        const float r_w = robust_r_var(y, m->S - m->r_var, m->r_var);
+        if (r_w > m->r_var) {
+            ekf_scalar_prepare(ekf, m, H, y, r_w);
+        }
+    }
+    ekf_scalar_apply(ekf, m);
+    ekf_finalize(ekf);
+    if (est->cfg.stages & EST_STAGE_BIAS_STATES) {
+        bias_states_update(&est->bstates, id_a, id_b, y, m->S);
+    }
+    gate_kinematic_fused(&est->kin, t_us, id_a, id_b);
+    estimator_supervise(est);
+    out->gain[0] = m->K[EKF_X];
+    out->gain[1] = m->K[EKF_Y];
+    out->gain[2] = m->K[EKF_Z];
 }
 
 /* The pipeline for one measurement z. anchor_b == NULL means TWR to anchor_a (then id_b == id_a). */
@@ -259,10 +218,9 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     ekf_t *ekf = &est->ekf;
     const estimator_config_t *cfg = &est->cfg;
     const int tdoa = anchor_b != NULL;
-    const bias_nn_t *net = NULL;
     const uint64_t t_ref = ekf->t_us;
     const int have_ref = ekf->has_time;
-    float h, H[3], dt, y, bias, std_nn, std, b_st = 0.0f, var_st = 0.0f;
+    float h, H[3], dt, y, bias, std, b_st = 0.0f, var_st = 0.0f;
     ekf_scalar_t m;
     uint32_t c0, c1, c2, c3;
     int rc;
@@ -291,35 +249,18 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
         return;
     }
 
-    /* 2. bias */
-    if (est->model != NULL) {
-        net = tdoa ? est->model->tdoa : est->model->twr;
-    }
-    std = tdoa ? cfg->std_tdoa : cfg->std_twr;
-    if ((cfg->stages & EST_STAGE_NN_MONITOR) && !nn_monitor_enabled(&est->nnmon, id_a, id_b)) {
-        net = NULL; /* the monitor switched this pair's correction off */
-    }
-    bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a, std, &std_nn);
-    /* BIAS_STATES: the slowly varying rest, from the innovations of earlier measurements */
+    /* 2. bias: the network's, and with BIAS_STATES the slowly varying rest, from the innovations of
+     * earlier measurements */
+    bias = corrected_bias(est, tdoa, id_a, id_b, anchor_a, anchor_b, &std);
     if (cfg->stages & EST_STAGE_BIAS_STATES) {
         bias_states_predict(&est->bstates, t_us, id_a, id_b, &b_st, &var_st);
     }
     y = (z - bias - b_st) - h;
-    /* NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std */
-    if ((cfg->stages & EST_STAGE_NN_STD) && std_nn > 0.0f) {
-        std = std_nn;
-    }
     c2 = platform_cost_now();
 
     /* 3./4. gates (S is needed by the chi-square gate and reported in every case) */
     ekf_scalar_prepare(ekf, &m, H, y, std * std + var_st);
-    out->status = EST_ACCEPTED;
-    if ((cfg->stages & EST_STAGE_KINEMATIC_GATE) && !gate_kinematic_pass(y, out->d_max, tdoa ? 2.0f : 1.0f)) {
-        out->status = EST_REJECTED_KINEMATIC;
-    } else if ((cfg->stages & EST_STAGE_CHI2_GATE) &&
-               !gate_chi2_pass(y, m.S, tdoa ? cfg->chi2_tdoa : cfg->chi2_twr)) {
-        out->status = EST_REJECTED_CHI2;
-    }
+    out->status = gate_status(cfg, y, out->d_max, m.S, tdoa);
     /* the monitor compares what the filter sees with and without the correction, whatever the gates said */
     if ((cfg->stages & EST_STAGE_NN_MONITOR) && bias != 0.0f &&
         nn_monitor_observe(&est->nnmon, id_a, id_b, y, bias, m.S)) {
@@ -327,24 +268,9 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     }
     c3 = platform_cost_now();
 
-    /* 5. update; the robust stage inflates R by its M-estimation weight first (gates saw the nominal S) */
+    /* 5. update */
     if (out->status == EST_ACCEPTED) {
-        if (cfg->stages & EST_STAGE_ROBUST_UPDATE) {
-            const float r_w = robust_r_var(y, m.S - m.r_var, m.r_var);
-            if (r_w > m.r_var) {
-                ekf_scalar_prepare(ekf, &m, H, y, r_w);
-            }
-        }
-        ekf_scalar_apply(ekf, &m);
-        ekf_finalize(ekf);
-        if (cfg->stages & EST_STAGE_BIAS_STATES) {
-            bias_states_update(&est->bstates, id_a, id_b, y, m.S);
-        }
-        gate_kinematic_fused(&est->kin, t_us, id_a, id_b);
-        supervise(est);
-        out->gain[0] = m.K[EKF_X];
-        out->gain[1] = m.K[EKF_Y];
-        out->gain[2] = m.K[EKF_Z];
+        fuse(est, &m, H, y, t_us, id_a, id_b, out);
     }
     out->innovation = y;
     out->innovation_var = m.S;
@@ -403,7 +329,7 @@ int estimator_on_height(estimator_t *est, uint64_t t_us, float z, float std)
     ekf_finalize(ekf);
     est->heights++;
     est->flags = (uint8_t)(est->flags | EST_FLAG_HEIGHT_FUSED);
-    supervise(est);
+    estimator_supervise(est);
     return EST_OK;
 }
 

@@ -14,11 +14,13 @@ import numpy as np
 
 from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_BIAS_STATES, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE,
                             STAGE_NN_MONITOR, STAGE_NN_STD, STAGE_ROBUST_UPDATE, EstimatorConfig)
-from harness.twin import gates, measurements
+from harness.twin import gates, measurements, supervisor
 from harness.twin.bias_states import BiasStates
 from harness.twin.ekf import POS, ErrorStateEkf
 from harness.twin.features import features, ood_fade
 from harness.twin.nn_monitor import NnMonitor
+from harness.twin.supervisor import (FLAG_COVARIANCE, FLAG_GAP_RESTART, FLAG_NON_FINITE,  # noqa: F401 (all flags here)
+                                     FLAG_OUT_OF_BOX, FLAG_SPEED)
 from protocol.messages import MAX_ANCHORS as PROTOCOL_MAX_ANCHORS
 from protocol.messages import ErrorCode, MeasKind, ResultFlag, Status
 
@@ -26,24 +28,13 @@ if TYPE_CHECKING:
     from harness.flight.data import Flight
 
 MAX_ANCHORS = PROTOCOL_MAX_ANCHORS     # what the estimator holds = what the protocol addresses
-#: Supervisor: beyond this |position| [m] the state counts as diverged even without anchors (estimator.c).
-MAX_ABS_POSITION = 1e5
-
 #: HEIGHT std bound [m] (estimator.c EST_MAX_HEIGHT_STD): beyond it no information, and R could overflow
 MAX_HEIGHT_STD = 1000.0
 
 # protocol enum result_flag (supervisor events since the previous result), as plain ints
 FLAG_DIVERGED = int(ResultFlag.DIVERGED)
-FLAG_NON_FINITE = int(ResultFlag.NON_FINITE)
-FLAG_OUT_OF_BOX = int(ResultFlag.OUT_OF_BOX)
-FLAG_SPEED = int(ResultFlag.SPEED)
-FLAG_COVARIANCE = int(ResultFlag.COVARIANCE)
 FLAG_HEIGHT_FUSED = int(ResultFlag.HEIGHT_FUSED)
 FLAG_NN_PAIR_OFF = int(ResultFlag.NN_PAIR_OFF)
-FLAG_GAP_RESTART = int(ResultFlag.GAP_RESTART)
-
-#: No UWB measurement for this long [us] is a measurement gap (estimator.c EST_GAP_US)
-GAP_US = 1_000_000
 
 # protocol enum status
 ACCEPTED = int(Status.ACCEPTED)
@@ -226,47 +217,17 @@ class TwinEstimator:
         if self.t_uwb_us is not None and t_us < self.t_uwb_us:
             raise TwinError(ERR_TIME_BACKWARDS, f"UWB time {t_us} < {self.t_uwb_us}")
 
-    def _supervisor_reason(self) -> int:
-        """0 if the state is sane, else the FLAG_* reason (estimator.c supervisor_reason)."""
-        c, e = self.config, self.ekf
-        if not e.is_finite():
-            return FLAG_NON_FINITE
-        p = e.x[POS]
-        if bool(np.any(np.abs(p) > MAX_ABS_POSITION)):
-            return FLAG_OUT_OF_BOX
-        if self.anchors:
-            box = np.array(list(self.anchors.values()))
-            if bool(np.any(p < box.min(axis=0) - c.sup_margin) or np.any(p > box.max(axis=0) + c.sup_margin)):
-                return FLAG_OUT_OF_BOX
-        if float(np.sum(e.x[3:6] ** 2)) > c.sup_max_speed ** 2:
-            return FLAG_SPEED
-        if bool(np.any(np.diagonal(e.P)[:3] > self._variance_bounds())):
-            # a divergence only while measurements arrive: without any, P grows by construction
-            return FLAG_GAP_RESTART if self._measurement_gap() else FLAG_COVARIANCE
-        return 0
-
-    def _variance_bounds(self) -> np.ndarray:
-        """The supervisor's bounds on the position variances: sup_max_var, never below the initial ones."""
-        c = self.config
-        return np.maximum([c.init_std_xy ** 2, c.init_std_xy ** 2, c.init_std_z ** 2], c.sup_max_var)
-
-    def _measurement_gap(self) -> bool:
-        """No UWB measurement for GAP_US up to the state's time, or none yet (estimator.c measurement_gap)."""
-        if self.t_uwb_us is None:
-            return True
-        return self.ekf.t_us is not None and self.ekf.t_us - self.t_uwb_us >= GAP_US
-
     def _supervise(self) -> None:
         """Restart at the last position that passed, with the initial covariance, if the state is not sane;
-        after a measurement gap with half the bound as position variance (estimator.c supervise)."""
-        reason = self._supervisor_reason()
+        after a measurement gap with half the bound as position variance (supervisor.c estimator_supervise)."""
+        reason = supervisor.reason(self.ekf, self.config, self.anchors, self.t_uwb_us)
         if reason == 0:
             self.last_good_pos = self.ekf.x[POS].copy()
             return
         t_us = self.ekf.t_us
         c = self.config
         if reason == FLAG_GAP_RESTART:
-            bound = self._variance_bounds()
+            bound = supervisor.variance_bounds(self.config)
             self.ekf = ErrorStateEkf.initial(self.last_good_pos, float(np.sqrt(0.5 * bound[0])),
                                              float(np.sqrt(0.5 * bound[2])))
         else:
