@@ -101,13 +101,88 @@ static void print_result(const estimator_t *est, const estimator_result_t *r)
     printf(" %u\n", (unsigned)r->flags);
 }
 
+/* The estimator's answer to one input: "E code" when it refused it, else the measurement's result (if any). */
+static void answer(const estimator_t *est, int rc, const estimator_result_t *res)
+{
+    if (rc != EST_OK) {
+        printf("E %d\n", rc);
+    } else if (res != NULL) {
+        print_result(est, res);
+    }
+}
+
+/* A C or V line: configure with reset, or only check the configuration. */
+static int config_line(estimator_t *est, const char *line)
+{
+    estimator_config_t cfg;
+    if (!parse_config(line + 1, &cfg)) {
+        return 0;
+    }
+    if (line[0] == 'V') {
+        printf("V %d\n", estimator_config_valid(&cfg));
+    } else if (!estimator_config_valid(&cfg)) {
+        printf("E 6\n");
+    } else {
+        estimator_configure(est, &cfg, 1);
+    }
+    return 1;
+}
+
+/* One input line through the estimator; 0 when it cannot be parsed. */
+static int handle_line(estimator_t *est, const char *line)
+{
+    estimator_result_t res;
+    uint64_t t;
+    unsigned id, ida, idb;
+    float v[6];
+    switch (line[0]) {
+    case 'C':
+    case 'V':
+        return config_line(est, line);
+    case 'A':
+        if (sscanf(line + 1, "%u %f %f %f", &id, &v[0], &v[1], &v[2]) != 4) {
+            return 0;
+        }
+        answer(est, estimator_set_anchor(est, (uint8_t)(id > 255 ? 255 : id), v), NULL);
+        return 1;
+    case 'I':
+        if (sscanf(line + 1, "%" SCNu64 " %f %f %f %f %f %f", &t, &v[0], &v[1], &v[2], &v[3], &v[4], &v[5]) != 7) {
+            return 0;
+        }
+        answer(est, estimator_on_imu(est, t, v, v + 3), NULL);
+        return 1;
+    case 'T':
+        if (sscanf(line + 1, "%" SCNu64 " %u %f", &t, &id, &v[0]) != 3 || id > 255) {
+            return 0;
+        }
+        answer(est, estimator_on_twr(est, t, (uint8_t)id, v[0], &res), &res);
+        return 1;
+    case 'D':
+        if (sscanf(line + 1, "%" SCNu64 " %u %u %f", &t, &ida, &idb, &v[0]) != 4 || ida > 255 || idb > 255) {
+            return 0;
+        }
+        answer(est, estimator_on_tdoa(est, t, (uint8_t)ida, (uint8_t)idb, v[0], &res), &res);
+        return 1;
+    case 'H':
+        if (sscanf(line + 1, "%" SCNu64 " %f %f", &t, &v[0], &v[1]) != 3) {
+            return 0;
+        }
+        answer(est, estimator_on_height(est, t, v[0], v[1]), NULL);
+        return 1;
+    case '\n':
+    case '#':
+        return 1;
+    default:
+        return 0;
+    }
+}
+
 int main(int argc, char **argv)
 {
     static estimator_t est;
     char line[4096];
-    estimator_result_t res;
     long lineno = 0;
-    int rc, i, with_model = 1;
+    int i, with_model = 1;
 
     for (i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--fields") == 0) {
@@ -118,87 +193,11 @@ int main(int argc, char **argv)
     }
     estimator_init(&est, with_model ? &bias_model_compiled : &no_model);
     while (fgets(line, sizeof line, stdin) != NULL) {
-        uint64_t t;
-        unsigned id, ida, idb;
-        float v[6];
         lineno++;
-        switch (line[0]) {
-        case 'C':
-        case 'V': {
-            estimator_config_t cfg;
-            const char kind = line[0];
-            if (!parse_config(line + 1, &cfg)) {
-                goto bad;
-            }
-            if (kind == 'V') {
-                printf("V %d\n", estimator_config_valid(&cfg));
-            } else if (!estimator_config_valid(&cfg)) {
-                printf("E 6\n");
-            } else {
-                estimator_configure(&est, &cfg, 1);
-            }
-            break;
+        if (!handle_line(&est, line)) {
+            fprintf(stderr, "replay_core: cannot parse line %ld: %s", lineno, line);
+            return 2;
         }
-        case 'A':
-            if (sscanf(line + 1, "%u %f %f %f", &id, &v[0], &v[1], &v[2]) != 4) {
-                goto bad;
-            }
-            rc = estimator_set_anchor(&est, (uint8_t)(id > 255 ? 255 : id), v);
-            if (rc != EST_OK) {
-                printf("E %d\n", rc);
-            }
-            break;
-        case 'I':
-            if (sscanf(line + 1, "%" SCNu64 " %f %f %f %f %f %f", &t, &v[0], &v[1], &v[2], &v[3], &v[4],
-                       &v[5]) != 7) {
-                goto bad;
-            }
-            rc = estimator_on_imu(&est, t, v, v + 3);
-            if (rc != EST_OK) {
-                printf("E %d\n", rc);
-            }
-            break;
-        case 'T':
-            if (sscanf(line + 1, "%" SCNu64 " %u %f", &t, &id, &v[0]) != 3 || id > 255) {
-                goto bad;
-            }
-            rc = estimator_on_twr(&est, t, (uint8_t)id, v[0], &res);
-            if (rc == EST_OK) {
-                print_result(&est, &res);
-            } else {
-                printf("E %d\n", rc);
-            }
-            break;
-        case 'D':
-            if (sscanf(line + 1, "%" SCNu64 " %u %u %f", &t, &ida, &idb, &v[0]) != 4 || ida > 255 || idb > 255) {
-                goto bad;
-            }
-            rc = estimator_on_tdoa(&est, t, (uint8_t)ida, (uint8_t)idb, v[0], &res);
-            if (rc == EST_OK) {
-                print_result(&est, &res);
-            } else {
-                printf("E %d\n", rc);
-            }
-            break;
-        case 'H':
-            if (sscanf(line + 1, "%" SCNu64 " %f %f", &t, &v[0], &v[1]) != 3) {
-                goto bad;
-            }
-            rc = estimator_on_height(&est, t, v[0], v[1]);
-            if (rc != EST_OK) {
-                printf("E %d\n", rc);
-            }
-            break;
-        case '\n':
-        case '#':
-            break;
-        default:
-            goto bad;
-        }
-        continue;
-    bad:
-        fprintf(stderr, "replay_core: cannot parse line %ld: %s", lineno, line);
-        return 2;
     }
     printf("S %" PRIu32 " %" PRIu32 " %" PRIu32 "\n", est.predictions, est.divergences, est.heights);
     return 0;
