@@ -162,6 +162,20 @@ def _c_put(f, off: int) -> list[str]:  # noqa: ANN001
 
 
 def gen_c_source(spec: ProtocolSpec) -> str:
+    o = _c_prelude(spec) + _c_pack_unpack(spec) + _c_codec(spec)
+    for m in spec.messages:
+        floats = [f for f in m.fields if f.wire == "f32"]
+        if not floats:
+            continue
+        cond = " && ".join(f"isfinite(msg->u.{m.c_name}.{f.name})" for f in floats)
+        o.append(f"    case UWB_MSG_{m.name}:")
+        o.append(f"        return {cond};")
+    o += ["    default: return 1;", "    }", "}", ""]
+    return "\n".join(o)
+
+
+def _c_prelude(spec: ProtocolSpec) -> list[str]:
+    """Byte-order helpers, the CRC-32C table and function, uwb_payload_len."""
     table = _crc_table()
     rows = [", ".join(f"0x{v:08X}u" for v in table[i:i + 6]) for i in range(0, 256, 6)]
     o = [f"/* {BANNER} */", "#include <math.h>", "#include <string.h>", "", '#include "uwb_msgs.h"', "",
@@ -211,7 +225,12 @@ def gen_c_source(spec: ProtocolSpec) -> str:
     for m in spec.messages:
         o.append(f"    case UWB_MSG_{m.name}: return (int)UWB_MSG_{m.name}_LEN;")
     o += ["    default: return -1;", "    }", "}", ""]
-    # per-message unpack/pack
+    return o
+
+
+def _c_pack_unpack(spec: ProtocolSpec) -> list[str]:
+    """One unpack_* and pack_* per message with fields."""
+    o: list[str] = []
     for m in spec.messages:
         if not m.fields:
             continue
@@ -229,7 +248,12 @@ def gen_c_source(spec: ProtocolSpec) -> str:
             o += _c_put(f, off)
             off += f.size
         o += ["}", ""]
-    o += ["uwb_decode_status_t uwb_body_decode(const uint8_t *body, size_t n, uwb_msg_t *out)",
+    return o
+
+
+def _c_codec(spec: ProtocolSpec) -> list[str]:
+    """uwb_body_decode, uwb_body_encode and the head of uwb_msg_finite (its cases follow)."""
+    o = ["uwb_decode_status_t uwb_body_decode(const uint8_t *body, size_t n, uwb_msg_t *out)",
           "{",
           "    const uint8_t *p;",
           "    size_t payload;",
@@ -276,15 +300,7 @@ def gen_c_source(spec: ProtocolSpec) -> str:
           "int uwb_msg_finite(const uwb_msg_t *msg)",
           "{",
           "    switch (msg->type) {"]
-    for m in spec.messages:
-        floats = [f for f in m.fields if f.wire == "f32"]
-        if not floats:
-            continue
-        cond = " && ".join(f"isfinite(msg->u.{m.c_name}.{f.name})" for f in floats)
-        o.append(f"    case UWB_MSG_{m.name}:")
-        o.append(f"        return {cond};")
-    o += ["    default: return 1;", "    }", "}", ""]
-    return "\n".join(o)
+    return o
 
 
 def gen_c_format(spec: ProtocolSpec) -> str:
