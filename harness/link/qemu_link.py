@@ -1,5 +1,6 @@
 """The host end of QEMU's serial link (the guest's USART): a unix socket, or the pty of the older recipe.
-A transport like the others in harness/link/; the QEMU process and device are harness/device/qemu.py.
+A transport like the others in harness/link/; the QEMU process is harness/device/qemu_process.py, the
+device harness/device/qemu.py.
 """
 
 from __future__ import annotations
