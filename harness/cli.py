@@ -245,7 +245,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_fly_parser(sub)
     from harness.calibrate.cli import add_parser as add_calibrate_parser
     add_calibrate_parser(sub)
-    from harness.calibrate.range_offset_cli import add_parser as add_range_offset_parser
+    from harness.calibrate.cli import add_range_offset_parser
     add_range_offset_parser(sub)
     from harness.campaign import cli as campaign_cli
     from harness.report import cli as report_cli

@@ -3,7 +3,7 @@ import (Python) and include (C) is one that the folder table of docs/ARCHITECTUR
 
 The graph is built statically (ast) over harness/ and protocol/: every `import` and `from ... import` counts,
 at module level, inside functions and under `if TYPE_CHECKING:` alike, because each is a dependency of the
-design even when Python resolves it late. CLI modules (harness/cli.py, harness/*/cli.py) only parse and print:
+design even when Python resolves it late. CLI modules (harness/cli.py, harness/*/cli.py, cli_*.py) only parse and print:
 another CLI module may delegate to them (the top-level parser adds the sub-commands' parsers), no other module
 may import from them. The console-script entry (pyproject.toml) is not an import.
 """
@@ -101,7 +101,9 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def is_cli(module: str) -> bool:
-    return module.rpartition(".")[2] == "cli"
+    """cli.py, a package's cli.py, and their helpers named cli_*.py (harness/cli_verdict.py)."""
+    name = module.rpartition(".")[2]
+    return name == "cli" or name.startswith("cli_")
 
 
 def _describe(comp: list[str], graph: dict[str, set[str]]) -> str:
@@ -192,7 +194,7 @@ def unit_of(module: str, root: Path = ROOT) -> str:
         return "protocol/"
     if module in BASE:
         return "base"
-    if is_cli(module) or module == "harness.cli_verdict":
+    if is_cli(module):
         return "cli"
     if len(parts) == 1:
         return "harness"
