@@ -34,6 +34,7 @@ PRESETS: dict[str, int] = {
     "outlier+nn+monitor": STAGES_ALL | STAGE_NN_MONITOR,
     "robust": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE,
     "robust+nn": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE | STAGE_BIAS_NN,
+    "outlier+states": STAGES_OUTLIER | STAGE_BIAS_STATES,    # the states alone (no usable network)
     "outlier+nn+states": STAGES_ALL | STAGE_BIAS_STATES,
     "outlier+nn+std+states": STAGES_ALL | STAGE_NN_STD | STAGE_BIAS_STATES,
     "robust+nn+states": STAGE_KINEMATIC_GATE | STAGE_ROBUST_UPDATE | STAGE_BIAS_NN | STAGE_BIAS_STATES,
