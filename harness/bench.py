@@ -27,7 +27,8 @@ from harness.config import PRESETS, EstimatorConfig
 from harness.flight.data import KIND_TWR
 from harness.report.metrics import latency_summary
 from harness.device.registry import DeviceSpec, open_device
-from harness.session import DEFAULT_FIRMWARE, config_for
+from harness.flight.run_config import config_for
+from harness.paths import DEFAULT_FIRMWARE
 from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
 
 

@@ -40,7 +40,7 @@ def _child(duration_s: float, path: str, mode: str, firmware: str) -> dict[str, 
     from harness.flight.scenarios import plan_scenario
     from harness.report.metrics import run_summary
     from harness.device.registry import DeviceSpec, open_device
-    from harness.session import config_for
+    from harness.flight.run_config import config_for
     from harness.stream.chunked_run import stream_plan
     from harness.stream.streamer import Pacing, Streamer
 
@@ -67,7 +67,7 @@ def _child(duration_s: float, path: str, mode: str, firmware: str) -> dict[str, 
 
 def measure(duration_s: float, path: str, mode: str = "twr", firmware: str | None = None) -> dict[str, Any]:
     """Peak RSS of one flight in a fresh interpreter."""
-    from harness.session import DEFAULT_FIRMWARE
+    from harness.paths import DEFAULT_FIRMWARE
     cmd = [sys.executable, "-m", "harness.bench_memory", "--child", "--duration", str(duration_s), "--path", path,
            "--mode", mode, "--firmware", str(firmware or DEFAULT_FIRMWARE)]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)

@@ -160,7 +160,7 @@ def _median(a: np.ndarray) -> float:
 
 def stage_costs(device: Any, build_name: str, duration_s: float, seed: int) -> list[StageRow]:
     from harness.config import PRESETS, EstimatorConfig
-    from harness.session import config_for
+    from harness.flight.run_config import config_for
     from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
 
     rows = []

@@ -34,7 +34,7 @@ def radio_stage(device: Any, duration_s: float, seed: int, protocol: str = "tdoa
     from harness.config import PRESETS, EstimatorConfig
     from harness.flight.radio import radio_level
     from harness.flight.scenarios import scenario_flight
-    from harness.session import config_for
+    from harness.flight.run_config import config_for
     from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
 
     base = scenario_flight("circle", mode="tdoa", duration_s=max(duration_s, 2.0), seed=seed)

@@ -40,7 +40,8 @@ from harness.report.radio import query_clocks, radio_summary
 from harness.report.radio_streams import (FirmwareCheck, StreamComparison, compare_streams, firmware_check,
                                           shared_reception, twin_stream)
 from harness.device.registry import DeviceSpec, open_device
-from harness.session import config_for, shared_data_dir
+from harness.flight.run_config import config_for
+from harness.paths import shared_data_dir
 from harness.stream.streamer import Pacing, Streamer
 
 

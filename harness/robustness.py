@@ -18,7 +18,8 @@ from harness.config import PRESETS, EstimatorConfig
 from harness.device.registry import DeviceSpec, open_device
 from harness.flight.scenarios import scenario_flight
 from harness.link.faulty import FaultRates, FaultyLink, unwrap_seqs
-from harness.session import DEFAULT_FIRMWARE, config_for
+from harness.flight.run_config import config_for
+from harness.paths import DEFAULT_FIRMWARE
 from harness.stream.streamer import OUTCOME_LOST, OUTCOME_RESULT, Pacing, Streamer
 from protocol import messages as m
 

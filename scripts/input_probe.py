@@ -25,7 +25,7 @@ from harness.biasnet.dataset import LAYOUT_TDOA_POS, Samples, build_samples, spl
 from harness.biasnet.recipes import load_recordings
 from harness.flight.data import Flight
 from harness.optional import require_torch
-from harness.session import shared_data_dir
+from harness.paths import shared_data_dir
 
 N_IDS = 16
 

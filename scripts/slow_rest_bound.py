@@ -21,7 +21,7 @@ from harness.biasnet.dataset import XI_DEFAULT, geometric_value
 from harness.biasnet.recipes import load_recordings
 from harness.config import PRESETS
 from harness.flight.data import Flight
-from harness.session import config_for
+from harness.flight.run_config import config_for
 from harness.twin.estimator import run_flight
 
 

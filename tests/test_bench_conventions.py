@@ -13,7 +13,7 @@ import pytest
 
 from harness.cli import main
 from harness.link.ports import PortError, PortInfo, port_for_serial, ports_present
-from harness.session import DEFAULT_FIRMWARE, REPO_ROOT
+from harness.paths import DEFAULT_FIRMWARE, REPO_ROOT
 
 pytest_plugins = ["pytester"]
 XSD = REPO_ROOT / "tests" / "fixtures" / "junit-xunit2.xsd"

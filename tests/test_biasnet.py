@@ -19,7 +19,7 @@ from harness.biasnet.network import BiasModel, BiasNetwork, ModelFormatError, in
 from harness.biasnet.train import TrainConfig, to_torch, train_network
 from harness.errors import ModelMismatch
 from harness.flight.data import KIND_TDOA, Anchors, Flight, Truth, UwbStream
-from harness.session import shared_data_dir
+from harness.paths import shared_data_dir
 from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
 LO6 = np.array([-8.0, -8.0, -3.5, -0.6, -0.6, -np.pi])

@@ -11,7 +11,7 @@ import pytest
 
 from harness.calibrate import plots, rcv_twr, stats, util_tdoa
 from harness.cli import main as cli_main
-from harness.session import shared_data_dir
+from harness.paths import shared_data_dir
 
 DATA = shared_data_dir()
 needs_data = pytest.mark.skipif(not (DATA / "util" / "anchors.csv").is_file(),

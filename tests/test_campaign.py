@@ -25,7 +25,7 @@ from harness.campaign.store import CampaignDataError, CampaignDir, load_results
 from harness.report.build import build_report
 from harness.report.html import Section
 from harness.report.sections import ReportContext
-from harness.session import DEFAULT_FIRMWARE, shared_data_dir
+from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 
 pytestmark = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_FIRMWARE} not built (make firmware)")
 

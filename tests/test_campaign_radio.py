@@ -16,7 +16,7 @@ from harness.campaign.plan import (ROLE_RADIO, ROLE_RADIO_MEAS, CampaignOptions,
 from harness.cli import main
 from harness.report.data import load_campaign
 from harness.report.summary import accuracy_section, latency_section
-from harness.session import DEFAULT_FIRMWARE, shared_data_dir
+from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 
 pytestmark = [pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason="host firmware not built (make firmware)"),
               pytest.mark.timeout(900)]

@@ -15,7 +15,7 @@ import pytest
 from harness.campaign.merge import MergeError, merge_shards
 from harness.campaign.plan import CampaignOptions, PlanError, parse_shard, plan_campaign, shard_runs
 from harness.cli import main
-from harness.session import DEFAULT_FIRMWARE
+from harness.paths import DEFAULT_FIRMWARE
 
 pytestmark = [pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason="host firmware not built (make firmware)"),
               pytest.mark.timeout(600)]

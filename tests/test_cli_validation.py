@@ -18,7 +18,7 @@ import pytest
 
 from harness import cli
 from harness.biasnet.network import BiasModel, init_network
-from harness.session import DEFAULT_FIRMWARE
+from harness.paths import DEFAULT_FIRMWARE
 from harness.twin.features import LAYOUT_TDOA_POS
 
 ROOT = Path(__file__).resolve().parents[1]

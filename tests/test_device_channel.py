@@ -181,7 +181,7 @@ def test_a_run_continues_the_sessions_seqs_without_gaps(tmp_path: Path) -> None:
     jump, no gap)."""
     from harness.device.host import HostDevice
     from harness.flight.scenarios import scenario_flight
-    from harness.session import config_for
+    from harness.flight.run_config import config_for
     from harness.stream.streamer import Pacing, Streamer
 
     flight = scenario_flight("hover", mode="twr", duration_s=2.0, seed=1, noise="none")

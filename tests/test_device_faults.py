@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from harness import cli
-from harness.session import DEFAULT_FIRMWARE
+from harness.paths import DEFAULT_FIRMWARE
 from harness.stream.resume import ResumeError, read_results, split_flight
 from harness.stream.streamer import OUTCOME_RESULT
 

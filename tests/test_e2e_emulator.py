@@ -15,7 +15,7 @@ import pytest
 from harness.config import PRESETS, EstimatorConfig
 from harness.flight.scenarios import scenario_flight
 from harness.report.metrics import accuracy_summary
-from harness.session import config_for
+from harness.flight.run_config import config_for
 from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
 from harness.twin.estimator import TwinEstimator
 

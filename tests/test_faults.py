@@ -21,7 +21,8 @@ from harness.config import PRESETS, EstimatorConfig
 from harness.device.host import HostDevice
 from harness.flight.scenarios import scenario_flight
 from harness.link.faulty import FaultRates, FaultyLink, SeqUnwrap, unwrap_seqs
-from harness.session import DEFAULT_FIRMWARE, config_for
+from harness.flight.run_config import config_for
+from harness.paths import DEFAULT_FIRMWARE
 from protocol.batch import encode_rows
 from harness.stream.streamer import OUTCOME_LOST, OUTCOME_RESULT, Pacing, Streamer
 from protocol import encode_frame

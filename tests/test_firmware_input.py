@@ -12,7 +12,7 @@ import pytest
 
 from harness.config import MODE_UWB_ONLY, EstimatorConfig
 from harness.device.host import HostDevice
-from harness.session import DEFAULT_FIRMWARE
+from harness.paths import DEFAULT_FIRMWARE
 from protocol import encode_frame
 from protocol import messages as m
 

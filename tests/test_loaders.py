@@ -20,7 +20,8 @@ from harness.config import MODE_IMU, MODE_UWB_ONLY, PRESETS, EstimatorConfig
 from harness.flight.loaders import (RecordingError, load_anchors, load_flight, load_rcv_twr, load_recording,
                                     save_flight, time_slice)
 from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
-from harness.session import config_for, shared_data_dir
+from harness.flight.run_config import config_for
+from harness.paths import shared_data_dir
 
 FIX = Path(__file__).parent / "fixtures" / "recordings"
 REDUCED = FIX / "const1-fixture-tdoa2.csv"

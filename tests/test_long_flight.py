@@ -35,7 +35,8 @@ from harness.flight.scenarios import plan_scenario, scenario_flight
 from harness.report.chi2 import chi2_cdf, chi2_quantile
 from harness.report.consistency import monte_carlo_nees, position_nees
 from harness.report.health import reconvergence_s, rejection_streaks
-from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, config_for
+from harness.flight.run_config import config_for
+from harness.paths import DEFAULT_FIRMWARE, REPO_ROOT
 from harness.device.channel import setup_messages
 from harness.stream.prepare import prepare
 from harness.stream.chunked_run import stream_chunks

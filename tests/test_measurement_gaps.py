@@ -17,7 +17,7 @@ from harness.config import STAGES_OUTLIER
 from harness.flight.data import Flight
 from harness.flight.scenarios import scenario_flight
 from harness.report.metrics import run_summary
-from harness.session import config_for
+from harness.flight.run_config import config_for
 from harness.stream.streamer import Streamer
 
 GAP_US = (6_000_000, 14_000_000)

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from harness.cli import main
-from harness.session import DEFAULT_FIRMWARE, REPO_ROOT
+from harness.paths import DEFAULT_FIRMWARE, REPO_ROOT
 
 FIX = REPO_ROOT / "tests" / "fixtures" / "recordings"
 # `import torch` raises ImportError once sys.modules["torch"] is None: torch made unimportable

@@ -18,7 +18,7 @@ import pytest
 from harness import cli
 from harness.flight.loaders import load_recording
 from harness.flight.plausibility import ImplausibleRecording, findings
-from harness.session import DEFAULT_FIRMWARE, shared_data_dir
+from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 
 FIX = Path(__file__).parent / "fixtures" / "recordings"
 DATA = shared_data_dir()

@@ -159,7 +159,7 @@ def _flight(mode: str, duration_s: float = 2.0, seed: int = 21) -> Any:
 
 def _fly_both(devices: dict[str, Any], flight: Any, preset: str = "outlier+nn") -> tuple[Any, Any]:
     from harness.config import PRESETS, EstimatorConfig
-    from harness.session import config_for
+    from harness.flight.run_config import config_for
     from harness.stream.streamer import Pacing, Streamer
 
     cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
@@ -210,7 +210,7 @@ def test_qemu_flight_equals_host_firmware(devices: dict[str, Any], mode: str) ->
 def test_qemu_costs_are_deterministic(devices: dict[str, Any]) -> None:
     """Under -icount every stage costs the same instructions when the same data is replayed."""
     from harness.config import PRESETS, EstimatorConfig
-    from harness.session import config_for
+    from harness.flight.run_config import config_for
     from harness.stream.streamer import Pacing, Streamer
 
     flight = _flight("tdoa", duration_s=1.0)

@@ -19,7 +19,8 @@ from harness.flight.scenarios import scenario_flight
 from harness.report.metrics import accuracy_summary
 from harness.report.radio import query_clocks, radio_summary
 from harness.report.radio_streams import firmware_check
-from harness.session import config_for, shared_data_dir
+from harness.flight.run_config import config_for
+from harness.paths import shared_data_dir
 from harness.stream.streamer import OUTCOME_NO_MEAS, OUTCOME_RESULT, Pacing, Streamer
 from harness.twin.tdoa_engine import MEASUREMENT, replay
 from protocol import messages as m

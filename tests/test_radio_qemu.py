@@ -26,7 +26,7 @@ def test_tdoa3_packet_cost_and_twin_on_qemu(stm32_elf: Path) -> None:
     from harness.config import PRESETS, EstimatorConfig
     from harness.flight.radio import radio_level
     from harness.flight.scenarios import scenario_flight
-    from harness.session import config_for
+    from harness.flight.run_config import config_for
     from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
     from harness.twin.tdoa_engine import MEASUREMENT, replay
 

@@ -18,7 +18,8 @@ from harness.flight.radio_clock import TS_FREQ
 from harness.flight.radio_sim import RadioConfig, simulate_radio
 from harness.flight.scenarios import scenario_flight
 from harness.report.radio_streams import compare_streams, firmware_check, shared_reception, twin_stream
-from harness.session import config_for, shared_data_dir
+from harness.flight.run_config import config_for
+from harness.paths import shared_data_dir
 from harness.stream.streamer import Pacing, Streamer
 from harness.twin.tdoa_engine import DROP_CLOCK, MEASUREMENT
 

@@ -18,7 +18,7 @@ from harness.flight.range_offset import (RangeOffsetError, apply_range_offset, f
                                          save_range_offset)
 from harness.flight.scenarios import scenario_flight
 from harness.paths import REPO_ROOT
-from harness.session import shared_data_dir
+from harness.paths import shared_data_dir
 
 RCV = shared_data_dir() / "rcv_twr"
 needs_rcv = pytest.mark.skipif(not (RCV / "sequence3").is_dir(), reason=f"shared recordings not found in {RCV}")

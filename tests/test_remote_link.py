@@ -31,7 +31,8 @@ from harness.device.channel import DeviceChannel
 from harness.errors import DeviceTimeout, LinkTimeout
 from harness.flight.scenarios import scenario_flight
 from harness.link import PtyOptions, PtyPair, SerialLink, make_raw
-from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, config_for
+from harness.flight.run_config import config_for
+from harness.paths import DEFAULT_FIRMWARE, REPO_ROOT
 from harness.stream.streamer import Pacing, Streamer
 from protocol import encode_frame
 from protocol import messages as m

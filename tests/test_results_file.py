@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from harness import cli
-from harness.session import DEFAULT_FIRMWARE
+from harness.paths import DEFAULT_FIRMWARE
 
 pytestmark = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_FIRMWARE} not built (make firmware)")
 

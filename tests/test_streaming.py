@@ -18,7 +18,8 @@ from harness.flight.chunked import concat_flights
 from harness.flight.data import Flight
 from harness.flight.scenarios import plan_scenario, scenario_flight
 from harness.report.metrics import run_summary
-from harness.session import DEFAULT_FIRMWARE, REPO_ROOT, config_for
+from harness.flight.run_config import config_for
+from harness.paths import DEFAULT_FIRMWARE, REPO_ROOT
 from harness.stream.chunked_run import stream_plan
 from harness.stream.results_file import FlightDigest, flight_digest
 from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer

@@ -22,7 +22,7 @@ from harness.paths import REPO_ROOT
 from harness.report import jsonsafe
 from harness.report.geometry import geometry_summary
 from harness.report.verdict import Criteria, CriteriaError, assert_verdict, evaluate
-from harness.session import shared_data_dir
+from harness.paths import shared_data_dir
 from harness.stream.streamer import Pacing, RunResult
 from protocol.framing import DecoderErrors
 
@@ -251,7 +251,7 @@ def test_uwb_verdict_fixture_judges_a_device_run(uwb_device: Any, uwb_verdict: A
     """The pytest plugin offers the CLI's checks and thresholds to tests."""
     from harness.flight.scenarios import scenario_flight
     from harness.report.metrics import run_summary
-    from harness.session import config_for
+    from harness.flight.run_config import config_for
     from harness.stream.streamer import Streamer
     flight = scenario_flight("circle", mode="twr", duration_s=3.0, seed=2)
     run = Streamer(uwb_device).run(flight, config_for(flight, stages=6))

@@ -18,7 +18,7 @@ from harness.biasnet.workflow import EvalOptions, evaluate_model, fit_std_head, 
 from harness.optional import require_torch
 from harness.paths import SHARED_DATA
 from harness.report import jsonsafe
-from harness.session import shared_data_dir
+from harness.paths import shared_data_dir
 
 
 # ---------------------------------------------------------------------------------------------- progress

@@ -21,7 +21,7 @@ from harness.biasnet.uncertainty import StdHeadConfig, calibration, with_std_hea
 from harness.errors import InputError
 from harness.flight.data import KIND_TWR, Flight
 from harness.paths import SHARED_DATA
-from harness.session import position_only_hint
+from harness.flight.run_config import position_only_hint
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
 

@@ -14,7 +14,7 @@ from harness.calibrate.compare import calibrate
 from harness.calibrate.plots import write_plots
 from harness.calibrate.stats import STATS_KEYS
 from harness.report import jsonsafe
-from harness.session import shared_data_dir
+from harness.paths import shared_data_dir
 
 
 def _f(x: float, d: int = 3) -> str:

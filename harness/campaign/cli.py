@@ -11,7 +11,7 @@ from typing import Any
 from harness.campaign.plan import (CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, PlanError,
                                    attach_firmware, parse_shard, plan_campaign)
 from harness.campaign.runner import ExecOptions, run_campaign
-from harness.session import DEFAULT_FIRMWARE, shared_data_dir
+from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
 

@@ -21,7 +21,7 @@ from typing import Any
 
 from harness.config import PAPER_PRESETS, PRESETS, STAGE_BIAS_NN
 from harness.paths import MODELS_DIR
-from harness.session import DEFAULT_FIRMWARE, shared_data_dir
+from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
 MODES = ("twr", "tdoa")

@@ -25,7 +25,7 @@ from harness.config import PRESETS, EstimatorConfig
 from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.device.registry import DeviceSpec, open_device
-from harness.session import config_for
+from harness.flight.run_config import config_for
 from harness.stream.streamer import Pacing, Streamer
 from protocol import messages as m
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from harness.paths import REPO_ROOT
-from harness.session import shared_data_dir
+from harness.paths import shared_data_dir
 
 MAX_RMSE = 2.0
 UTIL_MODEL = REPO_ROOT / "firmware_sim" / "models" / "util_tdoa_pos.npz"

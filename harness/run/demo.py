@@ -11,7 +11,7 @@ from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.run.single import radio_section
 from harness.device.registry import DeviceSpec, open_device
-from harness.session import config_for
+from harness.flight.run_config import config_for
 from harness.stream.streamer import Pacing, Streamer
 
 #: (mode, configurations) of the measurement-level flights, and the configurations of the radio-level ones

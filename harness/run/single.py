@@ -13,7 +13,7 @@ from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.run.source import RunSource, long_simulation, make_flight, make_run_flight, run_config
 from harness.device.registry import DeviceSpec, open_device
-from harness.session import check_network_inputs
+from harness.flight.run_config import check_network_inputs
 from harness.stream.streamer import Pacing, Streamer
 
 Progress = Callable[[int, int], None]

@@ -13,7 +13,7 @@ from typing import Any, Mapping, Sequence
 from harness.config import PRESETS, EstimatorConfig
 from harness.errors import UsageError
 from harness.flight.data import Flight
-from harness.session import config_for
+from harness.flight.run_config import config_for
 
 
 @dataclass(frozen=True)

@@ -1,15 +1,12 @@
-"""Flights and their estimator configuration from user choices (devices: harness/device/registry.py)."""
+"""The estimator configuration a flight runs with (`config_for`: IMU or UWB-only mode, the initial position, the
+stages), and the check that the device's bias network can run on it (its inputs need the attitude)."""
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
-from pathlib import Path
 
 from harness.config import MODE_IMU, MODE_UWB_ONLY, EstimatorConfig
 from harness.flight.data import KIND_TDOA, KIND_TWR, Flight
-
-from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, REPO_ROOT, SHARED_DATA  # noqa: F401 (re-exported)
 
 
 def config_for(flight: Flight, base: EstimatorConfig | None = None, stages: int | None = None,
@@ -26,10 +23,6 @@ def config_for(flight: Flight, base: EstimatorConfig | None = None, stages: int 
 
 def kind_name(kind: int) -> str:
     return {KIND_TWR: "twr", KIND_TDOA: "tdoa"}[kind]
-
-
-def shared_data_dir() -> Path:
-    return Path(os.environ.get("UWB_HIL_DATA", SHARED_DATA))
 
 
 #: position-only networks trained on the shared recordings (`make models`), by measurement kind (the
