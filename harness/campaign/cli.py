@@ -8,9 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from harness.campaign.plan import (CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, PlanError,
-                                   attach_firmware, parse_shard, plan_campaign)
-from harness.campaign.runner import ExecOptions, run_campaign
+from harness.campaign.plan import CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, parse_shard
+from harness.campaign.runner import ExecOptions, plan_and_run
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
@@ -69,20 +68,14 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                            latency_runs=args.latency_runs,
                            sim_model=Path(args.sim_model).resolve() if args.sim_model else None,
                            recorded_models=args.recorded_models, radio=tuple(args.radio))
-    if args.jobs < 1:
-        raise PlanError(f"--jobs must be >= 1, got {args.jobs}")
-    if not (0 < args.timeout <= 3600):
-        raise PlanError(f"--timeout must be in (0, 3600] s, got {args.timeout:g}")
+    ex = ExecOptions(jobs=args.jobs, timeout_s=args.timeout, keep_jsonl=args.keep_jsonl)
     shard = parse_shard(args.shard) if args.shard else None
-    runs, notes = plan_campaign(opts)      # validates the options: nothing has started yet
     try:
-        runs = attach_firmware(runs)      # firmware images for non-default models (built once, cached)
-    except RuntimeError as exc:
+        outcome = plan_and_run(Path(args.out), opts, ex, shard=shard,
+                               log=lambda s: print(s, file=sys.stderr, flush=True))
+    except RuntimeError as exc:     # a firmware image for a model could not be built
         print(f"uwb-hil: error: {exc}", file=sys.stderr)
         return 2
-    ex = ExecOptions(jobs=max(1, args.jobs), timeout_s=args.timeout, keep_jsonl=args.keep_jsonl)
-    outcome = run_campaign(Path(args.out), runs, ex, options=opts, notes=notes, shard=shard,
-                           log=lambda s: print(s, file=sys.stderr, flush=True))
     print(f"campaign: {outcome.total} runs: {outcome.skipped} resumed, {outcome.ok} ran ok, "
           f"{len(outcome.failed)} failed", file=sys.stderr)
     if args.report:

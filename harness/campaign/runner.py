@@ -22,7 +22,8 @@ from typing import Any, Callable
 
 from harness.biasnet.export import DEFAULT_NPZ
 from harness.campaign.models import snapshot_models
-from harness.campaign.plan import MODELS_DIR, CampaignOptions, RunSpec, group_by_flight, plan_digest, shard_runs
+from harness.campaign.plan import (MODELS_DIR, CampaignOptions, PlanError, RunSpec, attach_firmware, group_by_flight,
+                                   plan_campaign, plan_digest, shard_runs)
 from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, read_json, write_json_atomic
 from harness.campaign.worker import WorkerJob
 from harness.paths import REPO_ROOT
@@ -38,6 +39,12 @@ class ExecOptions:
     group_timeout_s: float | None = None
     python: str = sys.executable
     keep_jsonl: bool = False       # keep each run's JSON Lines (gzip) besides its binary rows
+
+    def validate(self) -> None:
+        if self.jobs < 1:
+            raise PlanError(f"--jobs must be >= 1, got {self.jobs}")
+        if not (0 < self.timeout_s <= 3600):
+            raise PlanError(f"--timeout must be in (0, 3600] s, got {self.timeout_s:g}")
 
 
 @dataclass
@@ -106,6 +113,16 @@ class _Active:
     deadline: float
     limit_s: float
     term_sent: float | None = None
+
+
+def plan_and_run(root: Path, options: CampaignOptions, exec_opts: ExecOptions, shard: tuple[int, int] | None = None,
+                 log: Callable[[str], None] = print) -> CampaignOutcome:
+    """Plan the campaign (the options are checked before anything starts), build the firmware images the
+    plan's models need (once each, cached), and run it, or shard K of N of it, into `root`."""
+    exec_opts.validate()
+    runs, notes = plan_campaign(options)
+    runs = attach_firmware(runs)
+    return run_campaign(root, runs, exec_opts, options=options, notes=notes, shard=shard, log=log)
 
 
 def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, options: CampaignOptions | None = None,
