@@ -3,9 +3,9 @@ import (Python) and include (C) is one that the folder table of docs/ARCHITECTUR
 
 The graph is built statically (ast) over harness/ and protocol/: every `import` and `from ... import` counts,
 at module level, inside functions and under `if TYPE_CHECKING:` alike, because each is a dependency of the
-design even when Python resolves it late. CLI modules (harness/cli.py, harness/*/cli.py, cli_*.py) only parse and print:
-another CLI module may delegate to them (the top-level parser adds the sub-commands' parsers), no other module
-may import from them. The console-script entry (pyproject.toml) is not an import.
+design even when Python resolves it late. CLI modules (harness/cli.py, harness/*/cli.py, cli_*.py) only parse
+and print: another CLI module may delegate to them (the top-level parser adds the sub-commands' parsers), no other
+module may import from them. The console-script entry (pyproject.toml) is not an import.
 """
 
 from __future__ import annotations

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from harness.flight.formats.common import (CsvTable, RecordingError, anchor_positions, check_not_backwards,
-                                           distinct_poses, normalised_quats, quat_to_rotmat, read_csv_table, repeated_rows,
-                                           seconds_to_us)
+                                           distinct_poses, normalised_quats, quat_to_rotmat, read_csv_table,
+                                           repeated_rows, seconds_to_us)
 from harness.flight.data import KIND_TDOA, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
 
 REDUCED_COLUMNS = ("idA", "idB", "tdoa_meas", "t_tdoa", "pose_x", "pose_y", "pose_z", "t_pose")
