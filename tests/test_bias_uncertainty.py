@@ -79,6 +79,21 @@ def test_fitted_head_tracks_the_residual_std_on_unseen_samples() -> None:
     assert np.array_equal(fitted.predict_batch(test.x), net.predict_batch(test.x))
 
 
+def test_constant_head_is_the_rms_of_the_residual_and_inflate_scales_it() -> None:
+    net = base_net(3)
+    s = hetero_samples(net, 20_000, seed=1)
+    rms = float(np.sqrt(np.mean((s.bias - net.predict_batch(s.x)) ** 2)))  # about sqrt((0.03^2 + 0.12^2) / 2)
+    const = fit_std_head(net, s, StdHeadConfig(std_min=0.01, std_max=0.5, constant=True))
+    _, std = const.predict_with_std_batch(s.x)
+    assert np.all(const.w3s == 0.0)
+    assert np.allclose(std, rms, rtol=1e-5)
+    assert calibration(const, s)["mean_z2"] == pytest.approx(1.0, abs=1e-3)
+    wide = fit_std_head(net, s, StdHeadConfig(std_min=0.01, std_max=0.5, constant=True, inflate=1.5))
+    assert np.allclose(wide.predict_with_std_batch(s.x)[1], 1.5 * rms, rtol=1e-5)
+    with pytest.raises(ValueError, match="inflate"):
+        fit_std_head(net, s, StdHeadConfig(inflate=0.0))
+
+
 def test_head_bounds_apply() -> None:
     net = base_net(4)
     s = hetero_samples(net, 2000, seed=5)

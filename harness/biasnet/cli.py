@@ -123,8 +123,8 @@ def cmd_fit_std(args: argparse.Namespace) -> int:
     recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0, spins=1)
     flights, kind, _ = flights_for(_paths(args.recording), Path(args.anchors) if args.anchors else None, True,
                                    recipe, _flights_progress(f"simulating {args.mode}"))
-    out = fit_std_head(model, args.model, flights, kind, StdHeadConfig(std_min=args.std_min, std_max=args.std_max),
-                       args.xi)
+    out = fit_std_head(model, args.model, flights, kind, StdHeadConfig(std_min=args.std_min, std_max=args.std_max,
+                                                                   constant=args.constant, inflate=args.inflate), args.xi)
     out.save(Path(args.out))
     cal = out.meta[f"{kind}_std_head"]["calibration"]  # type: ignore[index]
     print(f"{kind} std head on {cal['n']} samples of {len(flights)} flights: predicted std RMS {cal['std_rms']:.4f} m, "
@@ -221,6 +221,9 @@ def add_commands(sub: Any) -> None:
     fs.add_argument("--std-min", type=float, default=StdHeadConfig.std_min, help="lower bound of the std [m]")
     fs.add_argument("--std-max", type=float, default=StdHeadConfig.std_max, help="upper bound of the std [m]")
     fs.add_argument("--xi", type=float, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")
+    fs.add_argument("--constant", action="store_true",
+                    help="one std for every input: the RMS of the corrected residual (a per-kind constant)")
+    fs.add_argument("--inflate", type=float, default=1.0, help="multiply the fitted std by this factor")
     fs.set_defaults(func=cmd_fit_std)
 
     mo = sub.add_parser("models", help="train the shipped default networks (what `make models` runs)")

@@ -32,12 +32,19 @@ class StdHeadConfig:
     std_max: float = 0.5      # [m] above this the measurement is near-useless anyway (Xi is 0.7 m)
     ridge: float = 1e-3       # L2 on w (not b): keeps the head smooth where h2 is rarely active
     iterations: int = 30
+    #: one std for every input (w = 0, b = its maximum-likelihood value: the RMS of the residual), i.e. a
+    #: per-kind measurement std fitted to the corrected residuals instead of a pose-dependent one
+    constant: bool = False
+    #: multiply the fitted std by this (>= 1 trades filter consistency for accuracy, see docs/bias-network.md)
+    inflate: float = 1.0
 
     def validate(self) -> None:
         if not 0.0 < self.std_min < self.std_max:
             raise ValueError(f"need 0 < std_min < std_max, got {self.std_min}, {self.std_max}")
         if self.ridge < 0 or self.iterations < 1:
             raise ValueError("ridge must be >= 0 and iterations >= 1")
+        if not (self.inflate > 0.0 and np.isfinite(self.inflate)):
+            raise ValueError(f"inflate must be a positive factor, got {self.inflate}")
 
 
 def _nll(phi: np.ndarray, r2: np.ndarray, theta: np.ndarray, ridge: float) -> float:
@@ -56,6 +63,15 @@ def fit_std_head(net: BiasNetwork, samples: Samples, cfg: StdHeadConfig = StdHea
     phi = np.concatenate([h2, np.ones((len(h2), 1))], axis=1)
     theta = np.zeros(phi.shape[1])
     theta[-1] = 0.5 * np.log(np.mean(r2))  # start: one std for all, the maximum-likelihood constant
+    if not cfg.constant:
+        theta = _newton(phi, r2, theta, cfg)
+    theta[-1] += np.log(cfg.inflate)
+    return replace(net, w3s=theta[:-1].astype(np.float32), b3s=float(theta[-1]), std_min=cfg.std_min,
+                   std_max=cfg.std_max)
+
+
+def _newton(phi: np.ndarray, r2: np.ndarray, theta: np.ndarray, cfg: StdHeadConfig) -> np.ndarray:
+    """Damped Newton steps on the NLL from ``theta`` (convex for a log-std head)."""
     reg = np.full(phi.shape[1], cfg.ridge)
     reg[-1] = 0.0
     f = _nll(phi, r2, theta, cfg.ridge)
@@ -77,8 +93,7 @@ def fit_std_head(net: BiasNetwork, samples: Samples, cfg: StdHeadConfig = StdHea
         theta, f = cand, fc
         if converged:
             break
-    return replace(net, w3s=theta[:-1].astype(np.float32), b3s=float(theta[-1]), std_min=cfg.std_min,
-                   std_max=cfg.std_max)
+    return theta
 
 
 def calibration(net: BiasNetwork, samples: Samples) -> dict[str, float]:
@@ -106,6 +121,7 @@ def with_std_head(model: "BiasModel", kind: str, samples: Samples,
     fitted = fit_std_head(net, samples, cfg)
     meta = dict(model.meta)
     meta[f"{kind}_std_head"] = {"fitted_on": list(samples.names), "std_min": cfg.std_min, "std_max": cfg.std_max,
+                                "constant": cfg.constant, "inflate": cfg.inflate,
                                 "calibration": calibration(fitted, samples)}
     return BiasModel(twr=fitted if kind == "twr" else model.twr, tdoa=fitted if kind == "tdoa" else model.tdoa,
                      name=model.name, meta=meta)
