@@ -21,6 +21,7 @@ from harness.device_args import add_device_options, model_device_spec
 from harness.flight.measurement_errors import PROFILES
 from harness.report import jsonsafe
 from harness.report.verdict import Criteria, fly_verdict
+from harness.run.source import config_with
 
 
 # ------------------------------------------------------------------------------------------ output
@@ -97,6 +98,9 @@ def add_fly_parser(sub: Any) -> None:
     p.add_argument("--pacing", choices=PACINGS, default="lockstep",
                    help="lockstep (deterministic, as fast as possible) or realtime (flight speed, for boards)")
     p.add_argument("--speed", type=float, default=1.0, help="realtime pacing speed factor")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override an estimator setting for every flight, e.g. --set std_tdoa=0.25 (repeatable; "
+                        "as `uwb-hil run --set`)")
     p.add_argument("--imu-every", type=int, default=1, help="physics steps (2 ms) per IMU frame (averaged)")
     p.add_argument("--model", help="bias model (.npz) for outlier+nn: the host build is built with it; "
                                    "any other device must report its hash (default: the compiled-in model)")
@@ -118,7 +122,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     spec = FlySpec(modes=args.mode, missions=args.mission, configs=args.config,
                    seeds=tuple(range(args.seed0, args.seed0 + args.seeds)), laps=args.laps,
                    hover_s=args.hover_s, radius=args.radius, height=args.height, profile=args.profile,
-                   noise=args.noise, mass=args.mass, loop=loop)
+                   noise=args.noise, mass=args.mass, loop=loop, estimator=config_with(args.set))
     progress = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     device_spec, want_hash = model_device_spec(args)
     result = fly_on_device(device_spec, want_hash, spec, progress)
