@@ -369,3 +369,17 @@ def test_report_section_from_a_fly_result(tmp_path) -> None:  # noqa: ANN001
     assert sec is not None and sec.tables[0].rows[0][:5] == ["tdoa", "circle", "outlier+nn", "2/2", "2/2"]
     assert sec.figures and sec.figures[0].path.is_file()
     assert closed_loop_section(type("Empty", (), {"fig_dir": tmp_path / "none" / "figures"})()) is None
+
+
+def test_fly_set_overrides_the_estimator_of_every_flight(tmp_path, capsys) -> None:  # noqa: ANN001
+    import json
+    from harness.cli import main
+    assert main(["fly", "--set", "std_tdoa=x", "--quiet"]) == 2          # refused before any flight
+    assert "not a number" in capsys.readouterr().err
+    assert main(["fly", "--set", "stages=1", "--quiet"]) == 2            # stages come from --config
+    out = tmp_path / "fly.json"
+    code = main(["fly", "--mode", "tdoa", "--mission", "hover", "--hover-s", "1", "--seeds", "1",
+                 "--config", "outlier", "--set", "std_tdoa=0.3", "--set", "chi2_tdoa=9", "--quiet", "--out", str(out)])
+    assert code == 0
+    spec = json.loads(out.read_text())["spec"]
+    assert spec["estimator"]["std_tdoa"] == pytest.approx(0.3) and spec["estimator"]["chi2_tdoa"] == pytest.approx(9.0)
