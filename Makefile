@@ -120,7 +120,8 @@ campaign: $(STAMP) firmware $(RECORDED_MODELS)
 clean:
 	$(MAKE) -C firmware_sim clean
 
-# The shipped bias networks (firmware_sim/models/): simulated TWR/TDoA, UTIL and rcv_twr; reproducible
+# The shipped bias networks (firmware_sim/models/): simulated TWR/TDoA (LOS, compiled in; obstacle arena,
+# bias_model_nlos.npz), UTIL and rcv_twr; reproducible
 # (seeded, single-threaded, ends by early stopping). Rebuild the firmware afterwards: `make firmware`.
 .PHONY: models
 models: $(STAMP)
