@@ -267,7 +267,7 @@ BAD_CONFIGS = [
     ("inf a_max", dict(a_max_twr=float("inf")), NONFIN),
     ("NaN init position", dict(init_x=float("nan")), NONFIN),
     ("unknown mode", dict(mode=7), BAD),
-    ("unknown stage bits", dict(stages=0x48), BAD),
+    ("unknown stage bits", dict(stages=0x88), BAD),   # 0x80: no stage (BIAS_STATES took 0x40)
     ("reset not 0/1", dict(reset=2), BAD),
     ("reserved set", dict(reserved=1), BAD),
 ]
