@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import math
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
+from harness.errors import DeviceError, LinkError, UwbHilError
 from harness.flight.data import Flight
 from harness.flight.radio import radio_level
 from harness.flight.scenarios import scenario_flight
@@ -170,6 +172,15 @@ def noise_split(data: Path, seeds: list[int], duration: float) -> int:
     return 0 if paths else 2
 
 
+def usage_problem(args: argparse.Namespace) -> str | None:
+    """What is wrong with the options (None: nothing): checked before any flight is simulated."""
+    if args.spread < 0 or args.seeds < 1 or args.trial < 1:
+        return "--spread must be >= 0, --seeds and --trial >= 1"
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        return f"--duration must be a positive number of seconds, got {args.duration}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--util", action="store_true", help="recorded UTIL flights instead of simulated ones")
@@ -182,9 +193,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--noise-split", action="store_true",
                     help="no device: where the white TDoA noise sits (UTIL recordings vs simulated radio level)")
     args = ap.parse_args(argv)
-    if args.spread < 0 or args.seeds < 1:
-        print("radio_compare: error: --spread must be >= 0 and --seeds >= 1", file=sys.stderr)
+    problem = usage_problem(args)
+    if problem is not None:
+        print(f"radio_compare: error: {problem}", file=sys.stderr)
         return 2
+    try:
+        return compare(args)
+    except (UwbHilError, FileNotFoundError, ValueError) as exc:
+        # as uwb-hil: 3 for a device or link failure, 2 for an input the harness refuses (never a traceback
+        # and exit 1, which would read as "the levels differ by more than 5 %")
+        print(f"radio_compare: error: {exc}", file=sys.stderr)
+        return 3 if isinstance(exc, (DeviceError, LinkError)) else 2
+
+
+def compare(args: argparse.Namespace) -> int:
+    """The comparison the options ask for: 0 within 5 %, 1 beyond, 2 no flights, 3 firmware != twin."""
     if args.noise_split:
         return noise_split(Path(args.data), list(range(1, args.seeds + 1)), args.duration)
     with open_device(DeviceSpec()) as device:

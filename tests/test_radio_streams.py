@@ -98,3 +98,32 @@ def test_firmware_check_tells_other_pairs(uwb_device) -> None:  # noqa: ANN001
     first = int(np.flatnonzero(tw.outcome == MEASUREMENT)[0])
     dropped = replace(tw, outcome=np.where(np.arange(len(tw.outcome)) == first, DROP_CLOCK, tw.outcome))
     assert firmware_check(run, flight, dropped).mismatched == 1
+
+
+@pytest.mark.parametrize("args", [["--duration", "-1"], ["--duration", "nan"], ["--trial", "0"], ["--seeds", "0"],
+                                  ["--spread", "-1"]])
+def test_radio_compare_refuses_bad_options_with_exit_2(args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    """Before anything is simulated or started: exit 2 and the option named (was a ScenarioError traceback,
+    exit 1, which the command uses for "the levels differ by more than 5 %")."""
+    from harness.radio_compare import main
+    assert main(["--noise-split", *args]) == 2
+    assert "radio_compare: error: --" in capsys.readouterr().err
+
+
+def test_radio_compare_maps_errors_to_exit_codes(monkeypatch: pytest.MonkeyPatch,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    from harness import radio_compare
+    from harness.errors import DeviceTimeout
+
+    def device_fails(args: object) -> int:
+        raise DeviceTimeout("device did not answer HELLO within 5.00 s")
+
+    monkeypatch.setattr(radio_compare, "compare", device_fails)
+    assert radio_compare.main([]) == 3
+    assert "HELLO" in capsys.readouterr().err
+
+    def bad_input(args: object) -> int:
+        raise FileNotFoundError("recording x not found")
+
+    monkeypatch.setattr(radio_compare, "compare", bad_input)
+    assert radio_compare.main([]) == 2
