@@ -8,6 +8,7 @@ validate()) and the firmware's C struct, defaults and checks from them. Here: th
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Sequence
 
 from protocol.messages import ConfigError, EkfMode, EstimatorConfigBase, Stage  # noqa: F401 (ConfigError re-exported)
 
@@ -55,3 +56,21 @@ class EstimatorConfig(EstimatorConfigBase):
 
     def with_init(self, x: float, y: float, z: float) -> "EstimatorConfig":
         return replace(self, init_x=float(x), init_y=float(y), init_z=float(z))
+
+
+def config_with(settings: Sequence[str]) -> EstimatorConfig:
+    """EstimatorConfig() with `FIELD=VALUE` overrides (numeric fields; mode, stages and the initial position
+    come from their own options and the flight)."""
+    allowed = [k for k in vars(EstimatorConfig()) if k not in ("mode", "stages", "init_x", "init_y", "init_z")]
+    overrides: dict[str, float] = {}
+    for item in settings:
+        name, sep, text = item.partition("=")
+        if not sep or name.strip() not in allowed:
+            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(allowed)}")
+        try:
+            overrides[name.strip()] = float(text)
+        except ValueError:
+            raise ValueError(f"--set {item!r}: {text!r} is not a number") from None
+    cfg = replace(EstimatorConfig(), **overrides)
+    cfg.validate()
+    return cfg

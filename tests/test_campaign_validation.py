@@ -18,6 +18,8 @@ from harness.cli import main
     (["--timeout", "-1"], r"--timeout must be in"),
     (["--firmware", "/nonexistent/uwb-fw"], r"firmware binary /nonexistent/uwb-fw not found"),
     (["--sim-model", "/nonexistent/m.npz"], r"--sim-model /nonexistent/m.npz: file not found"),
+    (["--set", "proc_acc_xy=fast"], r"--set 'proc_acc_xy=fast': 'fast' is not a number"),
+    (["--set", "stages=7"], r"--set 'stages=7': expected FIELD=VALUE"),
 ])
 def test_bad_campaign_options_are_refused_before_any_worker(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                            argv: list[str], match: str) -> None:
@@ -35,3 +37,23 @@ def test_run_on_qemu_refuses_a_missing_firmware(capsys: pytest.CaptureFixture[st
     err = capsys.readouterr().err
     assert code == 2
     assert "uwb-hil: error: firmware ELF /nonexistent.elf not found" in err
+
+
+def test_campaign_set_reaches_every_run_and_its_fingerprint(tmp_path: Path) -> None:
+    import json
+    from dataclasses import replace
+    from harness.campaign.plan import CampaignOptions, RunSpec, plan_campaign
+    base = CampaignOptions(seeds=1, modes=("tdoa",), trajectories=("circle",), configs=("outlier",), recorded=False,
+                           latency_runs=False, duration_s=12.0)
+    plain, _ = plan_campaign(base)
+    tuned, _ = plan_campaign(replace(base, settings=("proc_acc_xy=0.05",)))
+    assert "settings" not in plain[0].as_dict()          # campaigns without --set keep their fingerprints
+    assert tuned[0].settings == ("proc_acc_xy=0.05",) and tuned[0].fingerprint() != plain[0].fingerprint()
+    assert RunSpec.from_dict(tuned[0].as_dict()) == tuned[0]
+    out = tmp_path / "c"
+    assert main(["campaign", "--out", str(out), "--seeds", "1", "--duration", "12", "--modes", "tdoa",
+                 "--trajectories", "circle", "--configs", "outlier", "--no-recorded", "--no-latency-runs",
+                 "--no-report", "--set", "proc_acc_xy=0.05", "--set", "std_tdoa=0.2"]) == 0
+    summary = json.loads(next((out / "runs").glob("*.json")).read_text())
+    assert summary["estimator_config"]["proc_acc_xy"] == pytest.approx(0.05)
+    assert summary["estimator_config"]["std_tdoa"] == pytest.approx(0.2)

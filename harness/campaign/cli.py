@@ -54,6 +54,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--shard", metavar="K/N", default=None,
                    help="run only shard K of N (1 <= K <= N; the flights dealt round-robin in plan order), e.g. "
                         "one per CI matrix job or Slurm array task; merge with `uwb-hil report DIR... --out M`")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override an estimator setting in every run, e.g. --set proc_acc_xy=0.05 (repeatable; as "
+                        "`uwb-hil run --set`); part of each run's fingerprint")
     p.add_argument("--keep-jsonl", action="store_true",
                    help="keep each run's per-measurement JSON Lines (gzip) besides its binary rows (.npy)")
     p.set_defaults(func=cmd_campaign)
@@ -67,7 +70,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                            firmware=Path(args.firmware).resolve(), pacing=args.pacing,
                            latency_runs=args.latency_runs,
                            sim_model=Path(args.sim_model).resolve() if args.sim_model else None,
-                           recorded_models=args.recorded_models, radio=tuple(args.radio))
+                           recorded_models=args.recorded_models, radio=tuple(args.radio), settings=tuple(args.set))
     ex = ExecOptions(jobs=args.jobs, timeout_s=args.timeout, keep_jsonl=args.keep_jsonl)
     shard = parse_shard(args.shard) if args.shard else None
     try:

@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from harness.config import PAPER_PRESETS, PRESETS, STAGE_BIAS_NN
+from harness.config import PAPER_PRESETS, PRESETS, STAGE_BIAS_NN, config_with
 from harness.paths import MODELS_DIR
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
@@ -101,6 +101,7 @@ class RunSpec:
     role: str = ROLE_ACCURACY
     model: str | None = None       # bias model (.npz) the firmware must carry; None: its compiled-in default
     model_hash: str | None = None  # expected HELLO model hash (checked before the run), once known
+    settings: tuple[str, ...] = ()  # estimator overrides FIELD=VALUE (harness.config.config_with)
 
     @property
     def run_id(self) -> str:
@@ -110,7 +111,8 @@ class RunSpec:
     def as_dict(self) -> dict[str, Any]:
         return {"run_id": self.run_id, "flight_id": self.flight.flight_id, "config": self.config,
                 "firmware": self.firmware, "pacing": self.pacing, "role": self.role, "model": self.model,
-                "model_hash": self.model_hash, "flight": self.flight.as_dict()}
+                "model_hash": self.model_hash, "flight": self.flight.as_dict()} | (
+                    {"settings": list(self.settings)} if self.settings else {})  # absent: old fingerprints hold
 
     def fingerprint(self) -> str:
         """Changes whenever anything that decides the run's outcome changes (resume compares it)."""
@@ -121,7 +123,8 @@ class RunSpec:
     def from_dict(d: dict[str, Any]) -> RunSpec:
         return RunSpec(flight=FlightSpec(**d["flight"]), config=str(d["config"]), firmware=str(d["firmware"]),
                        pacing=str(d.get("pacing", "windowed")), role=str(d.get("role", ROLE_ACCURACY)),
-                       model=d.get("model"), model_hash=d.get("model_hash"))
+                       model=d.get("model"), model_hash=d.get("model_hash"),
+                       settings=tuple(str(x) for x in d.get("settings", ())))
 
 
 @dataclass(frozen=True)
@@ -140,6 +143,7 @@ class CampaignOptions:
     latency_runs: bool = True      # per mode, one extra real-time run (outlier+nn) of the first flight
     sim_model: Path | None = None  # None: the firmware's compiled-in default model
     recorded_models: bool = True   # recorded flights on a firmware with the real-data network (if present)
+    settings: tuple[str, ...] = ()  # estimator overrides FIELD=VALUE for every run (`--set`)
     radio: tuple[str, ...] = ()    # LPS radio-level flight sets: the TDoA flights (simulated, and held-out
     #                                UTIL recordings of that protocol) again at radio level, both levels flown
 
@@ -162,6 +166,10 @@ class CampaignOptions:
             raise PlanError(f"firmware binary {self.firmware} not found: run `make firmware` (or pass --firmware)")
         if self.sim_model is not None and not Path(self.sim_model).is_file():
             raise PlanError(f"--sim-model {self.sim_model}: file not found")
+        try:
+            config_with(self.settings)
+        except ValueError as exc:
+            raise PlanError(str(exc)) from None
         for mode in self.modes:
             if mode not in MODES:
                 raise PlanError(f"unknown mode {mode!r} in --modes; choose from {MODES}")
@@ -266,7 +274,8 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
                 cfg = "outlier+nn" if "outlier+nn" in opts.configs else opts.configs[-1]
                 runs.append(RunSpec(flight=first, config=cfg, firmware=str(opts.firmware), pacing="realtime",
                                     role=ROLE_LATENCY, model=models[first.flight_id]))
-    return runs + radio_runs(opts, flights, models), notes
+    runs += radio_runs(opts, flights, models)
+    return ([replace(r, settings=opts.settings) for r in runs] if opts.settings else runs), notes
 
 
 def _needs_attitude(model: str | None, mode: str) -> bool:

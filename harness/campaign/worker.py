@@ -21,7 +21,7 @@ from typing import Any
 from harness.campaign.plan import FIRST_EVAL_SEED, ROLE_RADIO, FlightSpec, RunSpec
 from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_array_atomic, save_flight,
                                     write_json_atomic)
-from harness.config import PRESETS, EstimatorConfig
+from harness.config import PRESETS, config_with
 from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.device.registry import DeviceSpec, open_device
@@ -133,7 +133,8 @@ def run_group(job: WorkerJob) -> int:
                     device_cm = open_device(spec, expected_model_hash=want)
                     device = device_cm.__enter__()
                     ident = device.identity
-                cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[run.config], uwb_only=run.flight.uwb_only)
+                cfg = config_for(flight, config_with(run.settings), stages=PRESETS[run.config],
+                                 uwb_only=run.flight.uwb_only)
                 streamer = Streamer(device, timeout_s=job.timeout_s)
                 radio = run.role == ROLE_RADIO
                 result = streamer.run(flight, cfg, pacing, results_path=cdir.results_path(run.run_id), radio=radio)

@@ -16,12 +16,11 @@ from harness.closedloop.fly import FlySpec, fly_on_device
 from harness.closedloop.cosim import PACINGS, LoopConfig
 from harness.closedloop.mission import MISSIONS
 from harness.closedloop.sensors import NOISE_KINDS
-from harness.config import PAPER_PRESETS, PRESETS
+from harness.config import PAPER_PRESETS, PRESETS, config_with
 from harness.device_args import add_device_options, model_device_spec
 from harness.flight.measurement_errors import PROFILES
 from harness.report import jsonsafe
 from harness.report.verdict import Criteria, fly_verdict
-from harness.run.source import config_with
 
 
 # ------------------------------------------------------------------------------------------ output

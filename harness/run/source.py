@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from harness.config import PRESETS, EstimatorConfig
+from harness.config import PRESETS, EstimatorConfig, config_with
 from harness.errors import UsageError
 from harness.flight.data import Flight
 from harness.flight.run_config import config_for
@@ -103,19 +103,3 @@ def run_config(src: RunSource, flight: Flight) -> EstimatorConfig:
     return config_for(flight, config_with(src.set), stages=PRESETS[src.stages], uwb_only=src.uwb_only)
 
 
-def config_with(settings: Sequence[str]) -> EstimatorConfig:
-    """EstimatorConfig() with `FIELD=VALUE` overrides (numeric fields; mode, stages and the initial position
-    come from their own options and the flight)."""
-    allowed = [k for k in vars(EstimatorConfig()) if k not in ("mode", "stages", "init_x", "init_y", "init_z")]
-    overrides: dict[str, float] = {}
-    for item in settings:
-        name, sep, text = item.partition("=")
-        if not sep or name.strip() not in allowed:
-            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(allowed)}")
-        try:
-            overrides[name.strip()] = float(text)
-        except ValueError:
-            raise ValueError(f"--set {item!r}: {text!r} is not a number") from None
-    cfg = replace(EstimatorConfig(), **overrides)
-    cfg.validate()
-    return cfg
