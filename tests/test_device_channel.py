@@ -64,9 +64,9 @@ def test_the_channel_owns_the_seq_and_nobody_else_reads_it() -> None:
     ch.hello(timeout=1.0)
     ch.configure(EstimatorConfig(), Anchors(ids=np.array([0, 1]), positions=np.zeros((2, 3))), reset=True)
     first = ch.reserve(5)                              # a whole flight's block, encoded elsewhere
-    assert first == 4 and ch.next_seq == 9
+    assert first == 5 and ch.next_seq == 10          # CONFIG 1, ANCHOR 2-3, the STATS_REQ barrier 4
     ch.stats(timeout=1.0)
-    assert [seq for seq, _ in link.sent] == [0, 1, 2, 3, 9]
+    assert [seq for seq, _ in link.sent] == [0, 1, 2, 3, 4, 10]
     ch.reserve(0xFFFF - ch.next_seq)
     assert ch.send(m.StatsReq()) == 0xFFFF and ch.next_seq == 0          # wraps at 16 bits
     # no module but the channel touches a private seq counter
@@ -132,15 +132,16 @@ def test_configure_round_trip_and_refusal() -> None:
     cfg = replace(EstimatorConfig(), std_twr=0.2, stages=6).with_init(1.0, -2.0, 0.5)
     anchors = Anchors(ids=np.array([3, 5]), positions=np.array([[1.0, 2.0, 3.0], [-1.0, 0.5, 2.5]]))
     ch.configure(cfg, anchors, reset=False)
-    (s0, conf), *sent_anchors = link.sent
-    assert isinstance(conf, m.Config) and conf.reset == 0
+    (s0, conf), *sent_anchors, (_, barrier) = link.sent
+    assert isinstance(conf, m.Config) and conf.reset == 0 and isinstance(barrier, m.StatsReq)
     sent = asdict(conf)
     for name, value in asdict(cfg).items():
         assert sent[name] == pytest.approx(value, rel=1e-6), name      # f32 on the wire
     assert [(a.anchor_id, a.x, a.y, a.z) for _, a in sent_anchors] == [(3, 1.0, 2.0, 3.0), (5, -1.0, 0.5, 2.5)]
     assert config_message(cfg, True).reset == 1
     ch.configure(cfg, None, reset=True)                          # radio level: no anchors
-    assert isinstance(link.sent[-1][1], m.Config) and len(link.sent) == 4
+    assert isinstance(link.sent[-2][1], m.Config) and len(link.sent) == 6
+    assert ch.recv(0.0) is None                                  # the barrier's STATS is not left pending
 
     # a device that refuses the CONFIG: DeviceError; an unrelated reply read meanwhile stays pending
     refusing = MemLink()
@@ -149,6 +150,24 @@ def test_configure_round_trip_and_refusal() -> None:
                                         if isinstance(msg, m.Config) else b"")  # type: ignore[method-assign]
     with pytest.raises(DeviceError, match="refused the setup"):
         DeviceChannel(refusing).configure(replace(cfg, std_twr=0.3), anchors)
+    # a refusal that comes late (the device busy, a slow link): still found before the run starts, where
+    # the run used to go on with the device's previous configuration and pass
+    late = MemLink()
+    late.answer = refusing.answer  # type: ignore[method-assign]
+    reads = []
+
+    def read_late(max_bytes: int, timeout: float) -> bytes:
+        reads.append(timeout)
+        return b"" if len(reads) == 1 else MemLink.read(late, max_bytes, timeout)   # nothing yet, then all
+
+    late.read = read_late  # type: ignore[method-assign]
+    with pytest.raises(DeviceError, match="refused the setup"):
+        DeviceChannel(late).configure(cfg, anchors)
+    # a device that never answers the barrier: a timeout naming the request, not a run on an unknown config
+    mute = MemLink()
+    mute.answer = lambda seq, msg: b""  # type: ignore[method-assign]
+    with pytest.raises(DeviceTimeout, match="CONFIG"):
+        DeviceChannel(mute).configure(cfg, anchors, timeout=0.2)
     other = MemLink()
     other.inbox += encode_frame(m.Error(code=int(m.ErrorCode.DIVERGED), msg_type=0, msg_seq=999, detail=0), 2)
     ch2 = DeviceChannel(other)

@@ -252,20 +252,35 @@ class DeviceChannel:
             self.identity = DeviceIdentity.from_reply(frame.msg)
             return self.identity
 
-    def configure(self, config: EstimatorConfig, anchors: AnchorsLike | None, reset: bool = True) -> None:
-        """CONFIG (with or without filter reset) and the anchors, in one write. CONFIG and ANCHOR are
-        answered only when refused: what has arrived by then is looked at (DeviceError on a refusal of
-        these frames), everything else stays pending for the caller."""
+    def configure(self, config: EstimatorConfig, anchors: AnchorsLike | None, reset: bool = True,
+                  timeout: float = 5.0) -> None:
+        """CONFIG (with or without filter reset) and the anchors, in one write with a STATS_REQ behind them.
+        CONFIG and ANCHOR are answered only when refused, and the device handles frames in order: once its
+        STATS is back, every refusal has arrived. A refusal is a DeviceError (without the barrier, one that
+        came after the first read let the run go on with the device's previous configuration and pass);
+        every other frame read meanwhile stays pending for the caller."""
         msgs = setup_messages(config, anchors, reset)
         first = self.reserve(len(msgs))
-        self.write(b"".join(encode_frame(msg, first + i) for i, msg in enumerate(msgs)))
+        setup = b"".join(encode_frame(msg, first + i) for i, msg in enumerate(msgs))
+        self.write(setup + self.frame(m.StatsReq())[0])
         seqs = {(first + i) & 0xFFFF for i in range(len(msgs))}
-        got = self._read_link(0.0)
-        for f in got.frames:
-            if isinstance(f.msg, m.Error) and f.msg.msg_seq in seqs:
-                raise DeviceError(f"device refused the setup: {f.msg}")
-        if got:
-            self._keep(got)
+        start = time.monotonic()
+        deadline = start + max(0.0, timeout)
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise DeviceTimeout.for_request("CONFIG", time.monotonic() - start,
+                                                f"no STATS behind the setup; {self.diagnosis()}")
+            got = self._read_link(min(left, self._poll_s))
+            barrier = next((f for f in got.frames if isinstance(f.msg, m.Stats)), None)
+            for f in got.frames:
+                if isinstance(f.msg, m.Error) and f.msg.msg_seq in seqs:
+                    raise DeviceError(f"device refused the setup: {f.msg}")
+            rest = Replies(got.results, [f for f in got.frames if f is not barrier], got.t_ns)
+            if rest:
+                self._keep(rest)
+            if barrier is not None:
+                return
 
     def stats(self, timeout: float = 5.0) -> m.Stats:
         """The device counters (STATS_REQ -> STATS); also the liveness probe after a silence."""
