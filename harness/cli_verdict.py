@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from harness.errors import DeviceError, LinkError
+from harness import errors
 from harness.report import jsonsafe
 from harness.report.verdict import Criteria, CriteriaError, Verdict, evaluate, evaluate_all
 
@@ -116,4 +116,4 @@ def _g(x: Any) -> str:
 
 def exit_code(exc: BaseException) -> int:
     """3 for a device or link failure, 2 for anything else the harness refuses (usage, input)."""
-    return EXIT_DEVICE if isinstance(exc, (DeviceError, LinkError)) else EXIT_INPUT
+    return errors.exit_code(exc)

@@ -153,3 +153,9 @@ def _layouts(layouts: tuple[int, int]) -> str:
         return f"({names[0]}, {names[1]})"
     except ImportError:  # pragma: no cover - the protocol package is part of this repository
         return str(tuple(layouts))
+
+
+def exit_code(exc: BaseException) -> int:
+    """The exit code of a run that ended in `exc`: 3 for a device or link failure, 2 for anything else the
+    harness refuses (usage, input). Every command and `python -m` tool maps its errors through this."""
+    return 3 if isinstance(exc, (DeviceError, LinkError)) else 2

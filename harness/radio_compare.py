@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.errors import DeviceError, LinkError, UwbHilError
+from harness.errors import UwbHilError, exit_code
 from harness.flight.data import Flight
 from harness.flight.radio import radio_level
 from harness.flight.scenarios import scenario_flight
@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         # as uwb-hil: 3 for a device or link failure, 2 for an input the harness refuses (never a traceback
         # and exit 1, which would read as "the levels differ by more than 5 %")
         print(f"radio_compare: error: {exc}", file=sys.stderr)
-        return 3 if isinstance(exc, (DeviceError, LinkError)) else 2
+        return exit_code(exc)
 
 
 def compare(args: argparse.Namespace) -> int:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import asdict
 from typing import Any, Sequence
@@ -16,6 +17,7 @@ import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
 from harness.device.registry import DeviceSpec, open_device
+from harness.errors import UwbHilError, exit_code
 from harness.flight.scenarios import scenario_flight
 from harness.link.faulty import FaultRates, FaultyLink, unwrap_seqs
 from harness.flight.run_config import config_for
@@ -78,14 +80,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=21)
     args = ap.parse_args(argv)
+    if not (math.isfinite(args.seconds) and args.seconds > 0):
+        print(f"robustness: error: --seconds must be a positive number, got {args.seconds}", file=sys.stderr)
+        return 2
     if not DEFAULT_FIRMWARE.exists():
         print(f"{DEFAULT_FIRMWARE} not built: run `make firmware`", file=sys.stderr)
         return 2
     ok = True
-    for direction in ("tx", "rx"):
-        fig = fault_accounting(args.seconds, args.seed, direction)
-        print(json.dumps(fig))
-        ok &= fig["agree"] and fig["estimate_finite"]
+    try:
+        for direction in ("tx", "rx"):
+            fig = fault_accounting(args.seconds, args.seed, direction)
+            print(json.dumps(fig))
+            ok &= fig["agree"] and fig["estimate_finite"]
+    except (UwbHilError, FileNotFoundError, ValueError) as exc:   # exit 1 means "the accounting disagrees"
+        print(f"robustness: error: {exc}", file=sys.stderr)
+        return exit_code(exc)
     return 0 if ok else 1
 
 

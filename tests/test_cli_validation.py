@@ -143,3 +143,14 @@ def test_eval_bias_checks_recordings_and_force_overrides(tmp_path: Path, capsys:
     assert cli.main(argv) == 2
     assert "looks like millimetres" in capsys.readouterr().err
     assert cli.main([*argv, "--force"]) == 0
+
+
+def test_the_python_m_tools_refuse_bad_options_with_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    """`python -m harness.robustness --seconds -5` was a ScenarioError traceback (exit 1, its code for 'the
+    fault accounting disagrees'); the same mapping of errors to exit codes as uwb-hil."""
+    from harness import errors, robustness
+    for bad in ("-5", "nan", "0"):
+        assert robustness.main(["--seconds", bad]) == 2
+        assert "--seconds must be a positive number" in capsys.readouterr().err
+    assert errors.exit_code(errors.DeviceTimeout("x")) == 3 and errors.exit_code(errors.LinkClosed("x")) == 3
+    assert errors.exit_code(errors.UsageError("x")) == 2 and errors.exit_code(FileNotFoundError("x")) == 2
