@@ -57,3 +57,21 @@ def test_campaign_set_reaches_every_run_and_its_fingerprint(tmp_path: Path) -> N
     summary = json.loads(next((out / "runs").glob("*.json")).read_text())
     assert summary["estimator_config"]["proc_acc_xy"] == pytest.approx(0.05)
     assert summary["estimator_config"]["std_tdoa"] == pytest.approx(0.2)
+
+
+def test_the_report_names_the_estimator_overrides(tmp_path: Path) -> None:
+    """A campaign flown with `--set` says so in its provenance (summary JSON and the report's table)."""
+    from types import SimpleNamespace
+
+    from harness.report.data import CampaignData
+    from harness.report.sections import provenance
+    from harness.report.summary import provenance_section
+    runs = [{"run_id": "a", "settings": ["proc_acc_xy=0.05", "proc_acc_z=0.1"]}, {"run_id": "b"}]
+    prov = provenance_section(CampaignData(root=tmp_path, manifest={"runs": runs}, runs=[], failures=[], missing=[],
+                                           devices=[]))
+    assert prov["estimator_settings"] == ["proc_acc_xy=0.05", "proc_acc_z=0.1"]
+    sec = provenance(SimpleNamespace(summary={"provenance": prov}))  # type: ignore[arg-type]
+    assert sec is not None and ["estimator overrides (--set)", "proc_acc_xy=0.05, proc_acc_z=0.1"] in sec.tables[0].rows
+    plain = provenance_section(CampaignData(root=tmp_path, manifest={"runs": runs[1:]}, runs=[], failures=[],
+                                            missing=[], devices=[]))
+    assert plain["estimator_settings"] == []

@@ -192,7 +192,8 @@ def provenance(ctx: ReportContext) -> Section | None:
             ["load average at start (1/5/15 min)", str(p.get("load_average_1_5_15", "-"))],
             ["campaign date (UTC)", str(p.get("date_utc", "-"))],
             ["report generated on", platform.node()],
-            ["pacing", ", ".join(p.get("pacing") or [])]]
+            ["pacing", ", ".join(p.get("pacing") or [])],
+            ["estimator overrides (--set)", ", ".join(p.get("estimator_settings") or []) or "none"]]
     sec.tables.append(Table(["what", "value"], rows))
     sec.data = p
     return sec

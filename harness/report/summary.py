@@ -133,6 +133,8 @@ def provenance_section(data: CampaignData) -> dict[str, Any]:
         by_source.setdefault(r.source, set()).add(r.model_hash)
     prov["model_hash_by_source"] = {k: sorted(v) for k, v in by_source.items()}
     prov["pacing"] = sorted({f"{r.role}: {r.pacing}" for r in data.runs})
+    # estimator settings the runs overrode (`campaign --set`): the figures depend on them
+    prov["estimator_settings"] = sorted({str(x) for r in data.manifest.get("runs", []) for x in r.get("settings", ())})
     return prov
 
 
