@@ -19,12 +19,16 @@ from pathlib import Path
 import numpy as np
 
 from harness.biasnet.network import BiasModel
+from harness.config import EstimatorConfig
 from harness.biasnet.recipes import load_recordings
 from harness.flight.data import Flight
 from harness.twin.features import features
+from protocol.messages import MAX_ANCHORS
 
-N_ANCHORS = 16
-STD_TDOA, PROC_CV_ACC, CHI2, NN_MIN_Z = 0.15, 2.0, 3.841, 0.5
+N_ANCHORS = MAX_ANCHORS
+# the firmware's power-up configuration (protocol/messages.toml), not a copy of its numbers
+_FW = EstimatorConfig()
+STD_TDOA, PROC_CV_ACC, CHI2, NN_MIN_Z = _FW.std_tdoa, _FW.proc_cv_acc, _FW.chi2_tdoa, _FW.nn_min_z
 
 
 def predict(x: np.ndarray, P: np.ndarray, dt: float, tau: float, std: float) -> tuple[np.ndarray, np.ndarray]:
