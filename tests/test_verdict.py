@@ -150,6 +150,12 @@ def test_coplanar_anchors_leave_a_mirror_image_the_dop_does_not_see() -> None:
                           "mirror_axis": "z"})
     check = {c.name: c for c in evaluate(s, Criteria(max_rmse=0.3)).checks}["rmse"]
     assert check.value == 0.1 and "anchors on one plane in 98 % of epochs: the mirror image" in check.detail
+    # anchors on a wall (one vertical plane): the verdict names the mirror, not "cannot localise"
+    wall = summary(geometry={"z_observable": True, "xy_observable": False, "hdop_p50": 1.4, "vdop_p50": 1.1,
+                             "mirror_share": 0.9, "mirror_axis": "xy"})
+    check = {c.name: c for c in evaluate(wall, Criteria(max_rmse=0.3)).checks}["rmse"]
+    assert not check.passed and "one vertical plane in 90 % of epochs" in check.detail
+    assert "cannot localise" not in check.detail
 
 
 @needs_rcv

@@ -161,10 +161,14 @@ def evaluate(summary: Mapping[str, Any], criteria: Criteria = Criteria()) -> Ver
     rtt = summary.get("round_trip_us") or {}
     if criteria.max_rmse is not None:
         if not geo.get("xy_observable", True):
-            # no axis to judge the RMSE on: the anchors cannot localise this flight (e.g. on a line)
+            # no axis to judge the RMSE on: the anchors cannot localise this flight (e.g. on a line), or they
+            # stand on one vertical plane (a wall) and the tag's reflection across it has the same ranges
+            why = (f"anchors on one vertical plane in {100 * geo['mirror_share']:.0f} % of epochs: the mirror "
+                   "image across it has the same ranges, so the horizontal position is ambiguous"
+                   if geo.get("mirror_axis") == "xy" else "the anchors cannot localise this flight")
             checks.append(Check("rmse", criteria.max_rmse, acc.get("rmse"), False,
                                 f"position not observable (HDOP p50 {_fmt(geo.get('hdop_p50'))}, VDOP p50 "
-                                f"{_fmt(geo.get('vdop_p50'))}): the anchors cannot localise this flight"))
+                                f"{_fmt(geo.get('vdop_p50'))}): {why}"))
         elif geo.get("z_observable", True):
             checks.append(_at_most("rmse", acc.get("rmse"), criteria.max_rmse))
         else:
