@@ -273,6 +273,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         # (128 + 13); stdout goes to /dev/null so the interpreter's final flush cannot fail again
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
+    except OSError as exc:
+        # a file the command writes (--out DIR, a full disk, no permission): the user's to fix, not a crash;
+        # device and link failures arrive as LinkError / DeviceError above (exit 3)
+        print(f"uwb-hil: error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

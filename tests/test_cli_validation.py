@@ -154,3 +154,18 @@ def test_the_python_m_tools_refuse_bad_options_with_exit_2(capsys: pytest.Captur
         assert "--seconds must be a positive number" in capsys.readouterr().err
     assert errors.exit_code(errors.DeviceTimeout("x")) == 3 and errors.exit_code(errors.LinkClosed("x")) == 3
     assert errors.exit_code(errors.UsageError("x")) == 2 and errors.exit_code(FileNotFoundError("x")) == 2
+
+
+@pytest.mark.parametrize("out", ["DIR", "/dev/full"])
+def test_an_output_file_that_cannot_be_written_is_exit_2_not_a_traceback(
+        out: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`fly --out DIR` (likewise range-offset, fit-std, train --out) ended in an IsADirectoryError traceback
+    with exit 1, the code of a failed verdict."""
+    target = str(tmp_path) if out == "DIR" else out
+    if out == "/dev/full" and not Path(out).exists():
+        pytest.skip("no /dev/full here")
+    code = cli.main(["fly", "--mode", "twr", "--mission", "hover", "--hover-s", "1", "--seeds", "1",
+                     "--config", "outlier", "--quiet", "--out", target])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("uwb-hil: error: ") and "Traceback" not in err
