@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from harness import errors
+from harness import errors, options
 from harness.report import jsonsafe
 from harness.report.verdict import Criteria, CriteriaError, Verdict, evaluate, evaluate_all
 
@@ -45,7 +45,8 @@ def add_planar_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--height", metavar="Z|truth",
                    help="the tag's height is known: fuse a height pseudo-measurement before every UWB measurement, "
                         "Z metres, or 'truth' = the recording's ground-truth height at each measurement")
-    g.add_argument("--height-std", type=float, default=0.05, metavar="M",
+    g.add_argument("--height-std", type=options.number(float, 0.0, 1000.0, lo_open=True, unit=" m"), default=0.05,
+                   metavar="M",
                    help="standard deviation of the height pseudo-measurement [m] (default 0.05)")
 
 
