@@ -50,6 +50,9 @@ def test_three_merged_shards_give_the_unsharded_report(campaigns: dict[str, Any]
     merged = json.loads((base / "merged" / "report.json").read_text())
     assert one["runs"]["planned"] == one["runs"]["ok"] == 6 and one["runs"]["failed"] == 0
     assert 0.0 < one["twr"]["rmse_outlier"] < 0.2
+    # the verdict judged the three "outlier" runs ("none", the baseline, is not judged by default) in every
+    # shard; the merged report carries the shards' verdicts as one
+    assert one["verdict"]["passed"] and one["verdict"]["judged_runs"] == 3 and one["verdict"]["not_judged"] == 3
     assert _comparable(merged) == _comparable(one)
     assert merged["latency"]["twr"]["compute"]["n"] == one["latency"]["twr"]["compute"]["n"]
 

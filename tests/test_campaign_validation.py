@@ -75,3 +75,44 @@ def test_the_report_names_the_estimator_overrides(tmp_path: Path) -> None:
     plain = provenance_section(CampaignData(root=tmp_path, manifest={"runs": runs[1:]}, runs=[], failures=[],
                                             missing=[], devices=[]))
     assert plain["estimator_settings"] == []
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["--max-rmse", "-1"], r"--max-rmse must be a finite number >= 0"),
+    (["--criteria", "/nonexistent/c.toml"], r"criteria file not found"),
+    (["--judge", "outlier,robust+nn"], r"--judge: robust\+nn not among the configurations flown"),
+])
+def test_bad_campaign_criteria_are_refused_before_any_run(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                          argv: list[str], match: str) -> None:
+    out = tmp_path / "c"
+    code = main(["campaign", "--out", str(out), "--seeds", "1", "--no-recorded", "--configs", "none,outlier", *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and re.search(match, err), err
+    assert not out.exists()
+
+
+def test_campaign_verdict_judges_each_run_and_names_the_failing_one(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+    out = tmp_path / "c"
+    tiny = ["campaign", "--out", str(out), "--seeds", "1", "--duration", "11", "--modes", "tdoa", "--trajectories",
+            "circle", "--configs", "none,outlier", "--no-recorded", "--no-latency-runs", "--jobs", "1"]
+    assert main([*tiny, "--max-rmse", "5"]) == 0
+    v = json.loads((out / "report.json").read_text())["verdict"]
+    # "none" (the no-rejection baseline) is not judged by default; the outlier run is, health included
+    assert v["passed"] and v["judged_configs"] == ["outlier"] and v["judged_runs"] == 1 and v["not_judged"] == 1
+    names = [c["name"] for c in v["runs"][0]["checks"]]
+    assert {"diverged", "non_finite_estimates", "rmse"} <= set(names)
+    rmse = next(c for c in v["runs"][0]["checks"] if c["name"] == "rmse")
+    assert 0 < rmse["value"] <= 5 and rmse["threshold"] == 5
+    assert "Verdict: PASS" in (out / "report.md").read_text()
+    capsys.readouterr()
+    # same command again: every run resumes, and its stored summary is judged under the new criterion
+    assert main([*tiny, "--max-rmse", "0.001", "--judge", "none,outlier"]) == 1
+    err = capsys.readouterr().err
+    line = next(x for x in err.splitlines() if x.startswith("uwb-hil: verdict failed"))
+    assert "2 of 2 judged runs failed" in line and "tdoa-circle-s1000 outlier (accuracy): rmse" in line, line
+    assert "> 0.001" in line
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"]["passed"] is False and len(report["verdict"]["failed_runs"]) == 2
+    assert "Verdict: FAIL" in (out / "report.md").read_text()

@@ -10,6 +10,9 @@ from typing import Any
 
 from harness.campaign.plan import CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, parse_shard
 from harness.campaign.runner import ExecOptions, plan_and_run
+from harness.campaign.store import CampaignDir
+from harness.campaign.verdict import BASELINE_CONFIG, check_judged, default_judged, judge_campaign
+from harness.cli_verdict import EXIT_PASS, EXIT_VERDICT, add_verdict_options, criteria_from
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
@@ -59,6 +62,11 @@ def add_parser(sub: Any) -> None:
                         "`uwb-hil run --set`); part of each run's fingerprint")
     p.add_argument("--keep-jsonl", action="store_true",
                    help="keep each run's per-measurement JSON Lines (gzip) besides its binary rows (.npy)")
+    p.add_argument("--judge", type=_csv, default=None, metavar="CONFIGS",
+                   help=f"configurations whose runs the verdict judges (default: every one flown except "
+                        f"'{BASELINE_CONFIG}', the no-rejection baseline, which exists to be compared against and "
+                        "legitimately diverges on real NLOS/TDoA3 data)")
+    add_verdict_options(p)
     p.set_defaults(func=cmd_campaign)
 
 
@@ -72,6 +80,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                            sim_model=Path(args.sim_model).resolve() if args.sim_model else None,
                            recorded_models=args.recorded_models, radio=tuple(args.radio), settings=tuple(args.set))
     ex = ExecOptions(jobs=args.jobs, timeout_s=args.timeout, keep_jsonl=args.keep_jsonl)
+    criteria = criteria_from(args)          # refused (exit 2) before any run starts
+    judged = check_judged(args.judge, opts.configs) if args.judge is not None else default_judged(opts.configs)
     shard = parse_shard(args.shard) if args.shard else None
     try:
         outcome = plan_and_run(Path(args.out), opts, ex, shard=shard,
@@ -81,7 +91,18 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         return 2
     print(f"campaign: {outcome.total} runs: {outcome.skipped} resumed, {outcome.ok} ran ok, "
           f"{len(outcome.failed)} failed", file=sys.stderr)
+    verdict = judge_campaign(CampaignDir(Path(args.out).resolve()), outcome.runs, criteria, judged)
     if args.report:
         from harness.report.cli import write_report
         write_report(Path(args.out), as_json=False)
-    return 0 if outcome.all_ok else 1
+    print(f"verdict: {'PASS' if verdict.passed else 'FAIL'} ({len(verdict.runs)} runs of "
+          f"{', '.join(judged) or 'no configuration'} judged, {verdict.not_judged} not judged)")
+    code = EXIT_PASS
+    if not outcome.all_ok:
+        print(f"uwb-hil: campaign failed: {len(outcome.failed)} runs did not complete: "
+              + ", ".join(f["run_id"] for f in outcome.failed), file=sys.stderr)
+        code = EXIT_VERDICT
+    if not verdict.passed:
+        print(f"uwb-hil: verdict failed: {verdict.reason()}", file=sys.stderr)
+        code = EXIT_VERDICT
+    return code

@@ -104,4 +104,24 @@ def merge_shards(dirs: list[Path], out: Path) -> Path:
     merged["merged_from"] = [{"dir": str(d), "shard": m.get("shard"), "provenance": m.get("provenance")}
                              for d, m in zip(dirs, manifests)]
     write_json_atomic(target.manifest, merged)
+    verdict = _merged_verdict([CampaignDir(d) for d in dirs])
+    if verdict is not None:
+        write_json_atomic(target.verdict, verdict)
+    return out
+
+
+def _merged_verdict(shards: list[CampaignDir]) -> dict[str, Any] | None:
+    """The shards' verdicts as one (each shard judged its own runs), if every shard was judged under the same
+    criteria and configurations; else none (the merged report says nothing rather than something partial)."""
+    vs = [read_json(c.verdict) if c.verdict.is_file() else None for c in shards]
+    if any(not isinstance(v, dict) for v in vs) or any(
+            (v["criteria"], v["judged_configs"]) != (vs[0]["criteria"], vs[0]["judged_configs"]) for v in vs):
+        return None
+    out = {k: vs[0][k] for k in ("criteria", "judged_configs")}
+    out["runs"] = sorted((r for v in vs for r in v.get("runs") or []), key=lambda r: str(r.get("run_id")))
+    out["failed_runs"] = sorted(x for v in vs for x in v.get("failed_runs") or [])
+    out["passed"] = all(v.get("passed") for v in vs)
+    out["judged_runs"] = len(out["runs"])
+    out["not_judged"] = sum(int(v.get("not_judged") or 0) for v in vs)
+    out["unavailable"] = sorted(x for v in vs for x in v.get("unavailable") or [])
     return out

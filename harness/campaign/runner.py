@@ -51,6 +51,7 @@ class ExecOptions:
 class CampaignOutcome:
     total: int
     skipped: int                                   # complete before this invocation (resumed)
+    runs: list[RunSpec] = field(default_factory=list)   # this invocation's runs (a shard: its own)
     ok: int = 0
     failed: list[dict[str, Any]] = field(default_factory=list)
 
@@ -157,7 +158,7 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
         skipped += len(group) - len(todo)
         if todo:
             pending_groups.append(todo)
-    outcome = CampaignOutcome(total=len(runs), skipped=skipped)
+    outcome = CampaignOutcome(total=len(runs), skipped=skipped, runs=list(runs))
     n_pending = sum(len(g) for g in pending_groups)
     shard_text = f" (shard {shard[0]}/{shard[1]} of {len(plan)})" if shard is not None else ""
     log(f"campaign {cdir.root}: {len(runs)} runs{shard_text}, {skipped} already complete, {n_pending} to run "

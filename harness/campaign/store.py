@@ -9,6 +9,7 @@
     DIR/runs/<run_id>.json       small per-run summary; "status" is "ok" or "failed" (written last, atomically)
     DIR/flights/<flight_id>.npz  what the report needs of the flight: truth, measurements, anchors
     DIR/logs/                    device logs and worker output
+    DIR/verdict.json             the campaign's verdict (harness/campaign/verdict.py): each judged run's checks
 
 A run is complete when its summary says "ok" and carries the fingerprint of the current RunSpec.
 """
@@ -29,6 +30,7 @@ from harness.flight.data import KIND_TDOA, Flight
 
 STATUS_OK = "ok"
 STATUS_FAILED = "failed"
+VERDICT_FILE = "verdict.json"
 
 
 class CampaignDataError(ValueError):
@@ -73,6 +75,10 @@ class CampaignDir:
 
     def array_path(self, run_id: str) -> Path:
         return self.runs / f"{run_id}.npy"
+
+    @property
+    def verdict(self) -> Path:
+        return self.root / VERDICT_FILE
 
     def summary_path(self, run_id: str) -> Path:
         return self.runs / f"{run_id}.json"

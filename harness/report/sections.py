@@ -171,6 +171,14 @@ def failures(ctx: ReportContext) -> Section | None:
         sec.tables.append(Table(["run", "error"], [[f["run_id"], f"{f['error_type']}: "
                                                     f"{str(f['error']).splitlines()[0] if f['error'] else ''}"]
                                                    for f in runs["failed_runs"]], "Failed runs"))
+    v = ctx.summary.get("verdict")
+    if v:
+        crit = ", ".join(f"{k} {x}" for k, x in (v.get("criteria") or {}).items())
+        sec.paragraphs.append(
+            f"Verdict: {'PASS' if v.get('passed') else 'FAIL'}: {v.get('judged_runs', 0)} runs of "
+            f"{', '.join(v.get('judged_configs') or []) or 'no configuration'} judged (filter health"
+            + (f"; {crit}" if crit else "") + f"), {v.get('not_judged', 0) } not judged"
+            + (": failed " + "; ".join(v["failed_runs"]) if v.get("failed_runs") else "") + ".")
     if runs.get("missing_runs"):
         sec.paragraphs.append("Not run (interrupted?): " + ", ".join(runs["missing_runs"][:50])
                               + (" ..." if len(runs["missing_runs"]) > 50 else ""))

@@ -4,10 +4,12 @@ outlier rejection alone), per trajectory, on recorded flights, and latency per m
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from harness.campaign.store import CampaignDataError, CampaignDir, read_json
 from harness.report.data import CampaignData, RunMetrics
 from harness.report.metrics import DEFAULT_BUDGET_S, latency_summary
 from harness.report.radio_level import radio_level_summary
@@ -152,4 +154,17 @@ def campaign_summary(data: CampaignData) -> dict[str, Any]:
         out["radio_level"] = radio
     out["provenance"] = provenance_section(data)
     out["notes"] = list(data.manifest.get("notes") or [])
+    verdict = stored_verdict(data)
+    if verdict is not None:
+        out["verdict"] = verdict
     return out
+
+
+def stored_verdict(data: CampaignData) -> dict[str, Any] | None:
+    """DIR/verdict.json of `uwb-hil campaign` (each judged run's checks), None if never judged."""
+    path = CampaignDir(Path(data.root)).verdict
+    try:
+        v = read_json(path) if path.exists() else None
+    except CampaignDataError:
+        return None
+    return v if isinstance(v, dict) else None
