@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Collection
 
 from harness import errors, options
 from harness.report import jsonsafe
@@ -50,9 +50,11 @@ def add_planar_options(p: argparse.ArgumentParser) -> None:
                    help="standard deviation of the height pseudo-measurement [m] (default 0.05)")
 
 
-def criteria_from(args: argparse.Namespace) -> Criteria:
-    """The criteria of a command: the --criteria file, overridden by the options (ValueError if invalid)."""
-    base = Criteria.from_toml(Path(args.criteria)) if getattr(args, "criteria", None) else Criteria()
+def criteria_from(args: argparse.Namespace, applicable: Collection[str] | None = None, command: str = "") -> Criteria:
+    """The criteria of a command: the --criteria file, overridden by the options (ValueError if invalid). With
+    `applicable` (a command that judges fewer figures, e.g. fly), other criteria in the file are refused."""
+    base = (Criteria.from_toml(Path(args.criteria), applicable, command) if getattr(args, "criteria", None)
+            else Criteria())
     given = {name: getattr(args, name, None) for name, _ in _CRITERIA_OPTIONS}
     given["vdop_threshold"] = getattr(args, "vdop_threshold", None)
     try:

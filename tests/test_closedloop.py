@@ -383,3 +383,24 @@ def test_fly_set_overrides_the_estimator_of_every_flight(tmp_path, capsys) -> No
     assert code == 0
     spec = json.loads(out.read_text())["spec"]
     assert spec["estimator"]["std_tdoa"] == pytest.approx(0.3) and spec["estimator"]["chi2_tdoa"] == pytest.approx(9.0)
+
+
+def test_fly_criteria_file(tmp_path, capsys) -> None:  # noqa: ANN001
+    from harness.cli import main
+    bad = tmp_path / "bad.toml"
+    bad.write_text("max_rmse = 1.0\nmax_p99_rtt_us = 2000\nmax_lost = 0\n")
+    assert main(["fly", "--criteria", str(bad), "--quiet"]) == 2         # refused before any flight
+    err = capsys.readouterr().err
+    assert "max_lost, max_p99_rtt_us not applicable to uwb-hil fly (it judges: max_rmse)" in err, err
+    assert main(["fly", "--criteria", str(tmp_path / "none.toml"), "--quiet"]) == 2
+    assert "criteria file not found" in capsys.readouterr().err
+    assert main(["fly", "--max-rmse", "-1", "--quiet"]) == 2
+    assert "--max-rmse must be a finite number >= 0" in capsys.readouterr().err
+    strict = tmp_path / "strict.toml"
+    strict.write_text("[criteria]\nmax_rmse = 0.000001\n")
+    hover = ["fly", "--mode", "tdoa", "--mission", "hover", "--hover-s", "1", "--seeds", "1", "--config", "outlier",
+             "--quiet", "--criteria", str(strict)]
+    assert main(hover) == 1
+    err = capsys.readouterr().err
+    assert "verdict failed: tdoa/hover/outlier:tracking_rmse_max" in err and "> 1e-06" in err, err
+    assert main([*hover, "--max-rmse", "100"]) == 0                       # the option wins over the file

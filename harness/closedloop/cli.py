@@ -16,11 +16,12 @@ from harness.closedloop.fly import FlySpec, fly_on_device
 from harness.closedloop.cosim import PACINGS, LoopConfig
 from harness.closedloop.mission import MISSIONS
 from harness.closedloop.sensors import NOISE_KINDS
+from harness.cli_verdict import criteria_from
 from harness.config import PAPER_PRESETS, PRESETS, config_with
 from harness.device_args import add_device_options, model_device_spec
 from harness.flight.measurement_errors import PROFILES
 from harness.report import jsonsafe
-from harness.report.verdict import Criteria, fly_verdict
+from harness.report.verdict import FLY_CRITERIA, fly_verdict
 
 
 # ------------------------------------------------------------------------------------------ output
@@ -106,6 +107,9 @@ def add_fly_parser(sub: Any) -> None:
     p.add_argument("--max-rmse", type=float, default=None, metavar="X",
                    help="verdict: worst seed's tracking RMSE per cell [m] (take-off and completion always checked; "
                         "exit 1 if a check fails)")
+    p.add_argument("--criteria", metavar="FILE.toml",
+                   help="criteria from a TOML file (as `uwb-hil run --criteria`; fly judges max_rmse only, other "
+                        "criteria are refused as not applicable); --max-rmse wins over the file")
     p.add_argument("--json", action="store_true", help="print everything (incl. per-flight figures) as JSON")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--markdown", action="store_true", help="print the table as Markdown (for docs)")
@@ -117,6 +121,7 @@ def add_fly_parser(sub: Any) -> None:
 def cmd_fly(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         raise ValueError("--seeds must be >= 1")
+    criteria = criteria_from(args, FLY_CRITERIA, "uwb-hil fly")    # refused (exit 2) before any flight
     loop = LoopConfig(pacing=args.pacing, speed=args.speed, timeout_s=args.timeout, imu_every=args.imu_every)
     spec = FlySpec(modes=args.mode, missions=args.mission, configs=args.config,
                    seeds=tuple(range(args.seed0, args.seed0 + args.seeds)), laps=args.laps,
@@ -126,7 +131,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     device_spec, want_hash = model_device_spec(args)
     result = fly_on_device(device_spec, want_hash, spec, progress)
     result["command"] = "uwb-hil " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("uwb-hil") else None
-    verdict = fly_verdict(result, Criteria(max_rmse=args.max_rmse))
+    verdict = fly_verdict(result, criteria)
     result["verdict"] = verdict.as_dict()
     if args.out:
         Path(args.out).write_text(jsonsafe.dumps(result, indent=1))

@@ -22,7 +22,7 @@ import math
 import tomllib
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Collection, Mapping
 
 DEFAULT_VDOP_THRESHOLD = 5.0
 
@@ -52,8 +52,9 @@ class Criteria:
                 raise CriteriaError(f"{f.name} must be a finite number >= 0, got {v!r}")
 
     @classmethod
-    def from_toml(cls, path: Path) -> "Criteria":
-        """Read criteria from a TOML file (top level or a [criteria] table)."""
+    def from_toml(cls, path: Path, applicable: Collection[str] | None = None, command: str = "") -> "Criteria":
+        """Read criteria from a TOML file (top level or a [criteria] table); with `applicable`, a known
+        criterion outside it is refused as not applicable to `command` (e.g. fly has no compute figures)."""
         try:
             data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
         except FileNotFoundError:
@@ -65,14 +66,19 @@ class Criteria:
         table = data.get("criteria", data)
         if not isinstance(table, dict):
             raise CriteriaError(f"{path}: [criteria] must be a table")
-        return cls.from_mapping(table, where=str(path))
+        return cls.from_mapping(table, where=str(path), applicable=applicable, command=command)
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, Any], where: str = "criteria") -> "Criteria":
+    def from_mapping(cls, values: Mapping[str, Any], where: str = "criteria", applicable: Collection[str] | None = None,
+                     command: str = "") -> "Criteria":
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:
             raise CriteriaError(f"{where}: unknown criterion {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+        foreign = sorted(set(values) - set(applicable)) if applicable is not None else []
+        if foreign:
+            raise CriteriaError(f"{where}: {', '.join(foreign)} not applicable to {command or 'this command'} "
+                                f"(it judges: {', '.join(sorted(applicable or ())) or 'nothing'})")
         try:
             return cls(**dict(values))
         except CriteriaError as exc:
@@ -208,6 +214,10 @@ def assert_verdict(summary: Mapping[str, Any], criteria: Criteria | None = None,
     if not verdict.passed:
         raise AssertionError(f"verdict failed: {verdict.reason()}")
     return verdict
+
+
+#: The criteria `uwb-hil fly` judges (the closed loop has no run summary: its cells carry tracking RMSE).
+FLY_CRITERIA = ("max_rmse",)
 
 
 def fly_verdict(result: Mapping[str, Any], criteria: Criteria = Criteria()) -> Verdict:
