@@ -296,3 +296,29 @@ def test_replay_all_rcv_twr_keeps_the_contract() -> None:
 def test_bad_criterion_option_is_named() -> None:
     r = uwb_hil("run", "--duration", "2", "--max-rmse", "nan")
     assert r.returncode == 2 and "uwb-hil: error: --max-rmse must be a finite number >= 0" in r.stderr
+
+
+def test_device_refusals_fail_the_verdict_naming_the_counter(uwb_device: Any) -> None:
+    """IMU frames the device refuses (here non-finite samples, which nothing on the way stops) fail the run
+    even though every measurement was answered; the counters are the run's own (STATS after minus before)."""
+    from dataclasses import replace
+    from harness.flight.scenarios import scenario_flight
+    from harness.flight.run_config import config_for
+    from harness.report.metrics import run_summary
+    from harness.stream.streamer import Streamer
+    flight = scenario_flight("circle", mode="twr", duration_s=3.0, seed=2)
+    clean = run_summary(Streamer(uwb_device).run(flight, config_for(flight, stages=6)), flight)
+    assert clean["device_refusals"] == dict.fromkeys(clean["device_refusals"], 0)
+    assert {c.name: c for c in evaluate(clean).checks}["device_refusals"].passed
+    assert flight.imu is not None
+    acc = flight.imu.acc.copy()
+    acc[100:105] = np.nan
+    bad = replace(flight, imu=replace(flight.imu, acc=acc))
+    s = run_summary(Streamer(uwb_device).run(bad, config_for(bad, stages=6)), bad)
+    assert s["lost"] == 0 and s["device_refusals"]["non_finite"] == 5
+    v = evaluate(s)
+    check = {c.name: c for c in v.checks}["device_refusals"]
+    assert not v.passed and check.value == 5 and check.threshold == 0
+    assert "device_refusals 5 > 0 (the device refused frames the harness sent as valid: non_finite 5)" in v.reason()
+    # a run over a link that injects faults on purpose reports its refusals without failing
+    assert evaluate({**s, "faults_injected": True}).passed

@@ -207,6 +207,9 @@ class _Injector:
 class FaultyLink(Link):
     """A `Link` that injects seeded faults into what is written (tx) and/or read (rx)."""
 
+    #: Runs over this link expect device refusals (CRC, framing, ...): the verdict does not fail them.
+    injects_faults = True
+
     def __init__(self, inner: Link, tx: FaultRates = FaultRates(), rx: FaultRates = FaultRates(),
                  seed: int = 0, tx_types: frozenset[int] = DATA_TO_DEVICE,
                  rx_types: frozenset[int] = DATA_TO_HOST) -> None:

@@ -137,6 +137,19 @@ def health_summary(run: RunResult) -> dict[str, object]:
             "height_fused": int(np.count_nonzero(flags & ResultFlag.HEIGHT_FUSED))}
 
 
+#: STATS counters of input frames the device refused (or could not read). The harness validates what it
+#: sends, so in a run without injected faults each of them is a defect (of the link, the encoder or the device).
+REFUSAL_COUNTERS = ("crc_errors", "framing_errors", "unknown_types", "bad_lengths", "non_finite", "unknown_anchors",
+                    "time_backwards", "bad_configs", "bad_values")
+
+
+def device_refusals(run: RunResult) -> dict[str, int] | None:
+    """The refusal counters over this run (STATS after minus before; None when the start is unknown)."""
+    if run.stats is None or run.stats_start is None:
+        return None
+    return {c: int(getattr(run.stats, c)) - int(getattr(run.stats_start, c)) for c in REFUSAL_COUNTERS}
+
+
 def run_summary(run: RunResult, flight: Flight, budget_s: float = DEFAULT_BUDGET_S,
                 cost_unit: int = 0, vdop_threshold: float = 5.0) -> dict[str, object]:
     """Everything a report or `--json` needs about one run. In windowed pacing the round trip includes
@@ -177,5 +190,7 @@ def run_summary(run: RunResult, flight: Flight, budget_s: float = DEFAULT_BUDGET
         "sim_s": run.sim_s,
         "realtime_factor": run.realtime_factor,
         "device_stats": asdict(stats) if stats is not None else None,
+        "device_refusals": device_refusals(run),
+        "faults_injected": run.faults_injected,
         "host_decoder_errors": asdict(run.decoder_errors),
     }

@@ -10,8 +10,10 @@ Criteria (all optional; from options `--max-rmse ...` or a TOML file with the sa
   vdop_threshold       z counts as unobservable when VDOP is above this for most of the flight (5)
 
 The filter's health is always checked, criteria or not: no supervisor reset (DIVERGED), no non-finite
-estimate, no sign that P is not positive definite (a variance <= 0, or S = H P H^T + R below R), and at
-least one measurement fused. A restart after a gap without measurements (RESULT.flags GAP_RESTART: the
+estimate, no sign that P is not positive definite (a variance <= 0, or S = H P H^T + R below R), at
+least one measurement fused, and no input frame refused by the device ("device_refusals": its STATS counters
+of CRC, framing, length, non-finite, time-backwards, ... errors over the run; the harness validates what it
+sends, so a refusal is a defect, unless the run injects link faults on purpose). A restart after a gap without measurements (RESULT.flags GAP_RESTART: the
 covariance outgrew its bound while nothing was measured) is reported as the check "measurement_gaps",
 which always passes: it says the data has holes, not that the filter diverged.
 """
@@ -147,6 +149,7 @@ def health_checks(summary: Mapping[str, Any]) -> list[Check]:
         _at_most("covariance_not_pd", h.get("not_pd", 0), 0,
                  "results with a variance <= 0 or S = H P H^T + R below R"),
     ]
+    out += _refusal_checks(summary)
     gaps = int(h.get("gap_restarts", 0) or 0)
     if gaps:   # reported, never failed: no measurements is the data's state, not the filter's fault
         out.append(Check("measurement_gaps", None, gaps, True,
@@ -156,6 +159,20 @@ def health_checks(summary: Mapping[str, Any]) -> list[Check]:
     out.append(Check("measurements_fused", 1, accepted, bool(accepted and accepted >= 1),
                      "" if accepted else "the filter fused no measurement"))
     return out
+
+
+def _refusal_checks(summary: Mapping[str, Any]) -> list[Check]:
+    """'device_refusals': input frames the device refused over the run (STATS counters), 0 allowed; a run
+    over a link that injects faults on purpose reports them without failing."""
+    counts = summary.get("device_refusals")
+    if not isinstance(counts, Mapping):
+        return []      # not measured (a resumed run: the counters before it are unknown)
+    total = sum(int(v) for v in counts.values())
+    named = ", ".join(f"{k} {int(v)}" for k, v in counts.items() if v)
+    if summary.get("faults_injected"):
+        return [Check("device_refusals", None, total, True, f"faults injected on purpose: {named}")] if total else []
+    return [_at_most("device_refusals", total, 0,
+                     f"the device refused frames the harness sent as valid: {named}" if total else "")]
 
 
 def evaluate(summary: Mapping[str, Any], criteria: Criteria = Criteria()) -> Verdict:

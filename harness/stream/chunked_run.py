@@ -113,6 +113,7 @@ def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
     first: Flight | None = None
     cfg: EstimatorConfig | None = None
     last: RunResult | None = None
+    opening: RunResult | None = None    # the first slice's run: the device counters before the whole run
     done = slices = 0
     t0 = time.perf_counter()
     try:
@@ -137,6 +138,7 @@ def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
             else:
                 rows.append(last.results)
             errors += last.errors
+            opening = opening or last
             compact.add(piece)
             slices += 1
             done += len(piece.uwb)
@@ -154,7 +156,8 @@ def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
     t = flight.uwb.t_us
     sim = (int(t[-1]) - int(t[0])) * 1e-6 if len(t) else 0.0
     run = RunResult(flight=first.name, config=cfg, pacing=pacing, results=results, stats=last.stats,
-                    decoder_errors=last.decoder_errors, errors=errors, wall_s=time.perf_counter() - t0, sim_s=sim)
+                    decoder_errors=last.decoder_errors, errors=errors, wall_s=time.perf_counter() - t0, sim_s=sim,
+                    stats_start=opening.stats_start if opening else None, faults_injected=last.faults_injected)
     return ChunkedRun(run=run, flight=flight, chunks=slices)
 
 

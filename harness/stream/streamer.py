@@ -74,6 +74,10 @@ class RunResult:
     errors: list[m.Error] = field(default_factory=list)
     wall_s: float = 0.0
     sim_s: float = 0.0
+    # Device counters before the run (STATS counts since power-up): the run's own refusals are the
+    # difference. None when not asked: a resumed run, or a link that injects faults (it may drop the query).
+    stats_start: m.Stats | None = None
+    faults_injected: bool = False            # the link injects faults on purpose (harness.link.faulty)
 
     @property
     def n_received(self) -> int:
@@ -179,6 +183,8 @@ class Streamer:
                                                   "pacing": asdict(pacing), "n_measurements": n,
                                                   **(header_extra or {})}, overwrite=overwrite)
         t_start = time.perf_counter()
+        faulty = bool(getattr(ch.link, "injects_faults", False))
+        stats_start = None if faulty else ch.stats(self.timeout_s)
         try:
             ch.configure(config, None if radio else flight.anchors, reset=reset)
             prep = prepare(flight, ch.reserve(n_frames), include_imu=include_imu, radio=radio)
@@ -195,7 +201,8 @@ class Streamer:
         wall = time.perf_counter() - t_start
         sim = (int(flight.uwb.t_us[-1]) - int(flight.uwb.t_us[0])) * 1e-6 if n else 0.0
         return RunResult(flight=flight.name, config=config, pacing=pacing, results=results, stats=state.stats,
-                         decoder_errors=replace(ch.errors), errors=state.errors, wall_s=wall, sim_s=sim)
+                         decoder_errors=replace(ch.errors), errors=state.errors, wall_s=wall, sim_s=sim,
+                         stats_start=stats_start, faults_injected=faulty)
 
     def _absorb(self, replies: Replies, state: _State, writer: ResultsWriter) -> None:
         got, frames, now_ns = replies.results, replies.frames, replies.t_ns
