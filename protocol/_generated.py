@@ -8,7 +8,7 @@ from typing import ClassVar
 
 from protocol.config_check import ConfigError, ConfigField, check_field  # noqa: F401
 
-PROTOCOL_VERSION = 6
+PROTOCOL_VERSION = 7
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16

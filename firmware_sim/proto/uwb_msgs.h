@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 6u
+#define UWB_PROTO_VERSION 7u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
