@@ -305,3 +305,20 @@ def test_cli_timeout_holds_while_board_floods(payload: bytes) -> None:
     assert re.search(r"uwb-hil: error: device did not answer HELLO within 2\.[0-4]\d s", out.stderr), out.stderr
     assert "Traceback" not in out.stderr
     assert took < 15.0, took               # + interpreter start-up and flight build, on a loaded machine
+
+
+@pytest.mark.parametrize("payload", [GARBAGE, UNRELATED], ids=["bytes", "valid-frames"])
+def test_streamer_setup_holds_its_timeout_while_peer_floods(payload: bytes) -> None:
+    """The set-up barrier (CONFIG + ANCHOR + STATS_REQ) waits the streamer's timeout, not a fixed 5 s: over
+    a link that injects faults the STATS probe before the run is skipped, so the barrier is the first wait."""
+    with PtyPair(PtyOptions(write_timeout_s=1.0)) as pair:
+        assert pair.slave_fd is not None
+        pair.injects_faults = True     # type: ignore[attr-defined]
+        flight = scenario_flight("hover", mode="twr", duration_s=3.0, seed=1, noise="none")
+        with FloodPeer(pair.slave_fd, payload):
+            t0 = time.monotonic()
+            with pytest.raises(DeviceTimeout, match="CONFIG"):
+                Streamer(DeviceChannel(pair), timeout_s=1.0).run(flight, config_for(flight, EstimatorConfig()),
+                                                                  Pacing("windowed", 8))
+            took = time.monotonic() - t0
+        assert took < 1.0 + 1.0, took

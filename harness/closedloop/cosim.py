@@ -182,7 +182,7 @@ class ClosedLoop:
         ctrl_us = int(round(lp.control_dt * 1e6))
         lo, hi = np.asarray(arena.lo) - lp.abort_margin_m, np.asarray(arena.hi) + lp.abort_margin_m
         thrust, rates = 0.0, (0.0, 0.0, 0.0)
-        self.channel.configure(cfg, arena.anchors, reset=True)
+        self.channel.configure(cfg, arena.anchors, reset=True, timeout=lp.timeout_s)
         wall0 = time.perf_counter()
         late = 0
         aborted: str | None = None

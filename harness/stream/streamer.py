@@ -186,7 +186,7 @@ class Streamer:
         faulty = bool(getattr(ch.link, "injects_faults", False))
         stats_start = None if faulty else ch.stats(self.timeout_s)
         try:
-            ch.configure(config, None if radio else flight.anchors, reset=reset)
+            ch.configure(config, None if radio else flight.anchors, reset=reset, timeout=self.timeout_s)
             prep = prepare(flight, ch.reserve(n_frames), include_imu=include_imu, radio=radio)
             assert len(prep.meas_end) == n
             if pacing.mode == "realtime":
