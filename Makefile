@@ -64,7 +64,7 @@ test-fuzz:
 
 # The full 1-hour simulated flight through the firmware (NLOS, IMU glitches, UWB outage).
 longflight: $(STAMP) firmware
-	UWB_LONGFLIGHT_S=3600 $(PY) -m pytest -q -s tests/test_long_flight.py --timeout=7200
+	UWB_LONGFLIGHT_S=3600 $(PY) -m pytest -q -s tests/device/test_long_flight.py --timeout=7200
 
 test: test-c test-fuzz stm32 net-tools test-py test-light-install
 
@@ -72,14 +72,14 @@ bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench
 	$(PY) -m harness.bench_qemu
 
-# STM32F405 (Crazyflie MCU) build, run under QEMU by tests/test_qemu.py and harness/bench_qemu.py
+# STM32F405 (Crazyflie MCU) build, run under QEMU by tests/mcu/test_qemu.py and harness/bench_qemu.py
 # (docs/qemu.md). The ARM toolchain and QEMU come from Debian when missing: the script runs
 # apt-get update + install (root or password-less sudo; UWB_NO_INSTALL=1 only checks).
 .PHONY: arm-tools stm32 size net-tools
 arm-tools:
 	bash scripts/ensure_arm_tools.sh
 
-# ser2net (Debian) serves the host firmware's pty as RFC 2217 for tests/test_remote_link.py; when it
+# ser2net (Debian) serves the host firmware's pty as RFC 2217 for tests/device/test_remote_link.py; when it
 # cannot be installed (not root, no apt) those tests are skipped with the reason, `make test` goes on.
 net-tools:
 	-bash scripts/ensure_ser2net.sh

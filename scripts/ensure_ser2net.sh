@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Make sure ser2net (a serial-port server with RFC 2217, Debian package `ser2net`) is present: the
-# `rfc2217://` link is tested against it (tests/test_remote_link.py). Idempotent and non-interactive:
+# `rfc2217://` link is tested against it (tests/device/test_remote_link.py). Idempotent and non-interactive:
 # does nothing when ser2net is found; otherwise runs `apt-get update` once and installs it.
 # Exit status: 0 when ser2net is available afterwards, 1 otherwise (with the reason on stderr; the tests
 # that need it are then skipped with that reason). UWB_NO_INSTALL=1 only checks.

@@ -1,7 +1,7 @@
 /* Compile-time checks that the core's own codes equal the protocol's (protocol/messages.toml, generated into
  * uwb_msgs.h). The core does not include the protocol header, so it names these values itself; the app
  * copies them onto the wire unchanged, and the build fails here if one side drifts. Included once, by
- * firmware.c. tests/test_protocol_enums.py checks that every such core constant has its line here. */
+ * firmware.c. tests/protocol/test_protocol_enums.py checks that every such core constant has its line here. */
 #ifndef UWB_PROTO_CHECKS_H
 #define UWB_PROTO_CHECKS_H
 

@@ -1,7 +1,7 @@
 /* cov_health: feed a wire byte stream (stdin) to the firmware in-process and check the FULL covariance
  * after every RESULT, which the wire only shows as a diagonal: finite, exactly symmetric, bounded
  * (|P_ij| <= EKF_P_MAX, P_ii >= EKF_P_MIN) and positive definite (Cholesky in double).
- * Used by tests/test_long_flight.py. Output (stdout), one line:
+ * Used by tests/device/test_long_flight.py. Output (stdout), one line:
  *   results N checks N asym_max X max_abs X min_pivot X not_pd N non_finite N out_of_bounds N
  *   diverged_errors N */
 #include <math.h>

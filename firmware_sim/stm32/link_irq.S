@@ -4,7 +4,7 @@
  * Under QEMU -icount a counter read returns the number of instructions executed before it. The
  * wrapper reads the counter (t0) as its 3rd instruction and again (t1) 8 instructions before its end:
  * the interrupt's whole length is (t1 - t0) + 2 (the instructions before t0) + 8 (the t1 load and the
- * 7 after it), hence ISR_UNCOUNTED = 10 (checked by tests/test_qemu.py with the self-test ELF). Exception entry is not an instruction. On silicon (DWT cycles)
+ * 7 after it), hence ISR_UNCOUNTED = 10 (checked by tests/mcu/test_qemu.py with the self-test ELF). Exception entry is not an instruction. On silicon (DWT cycles)
  * the 12-cycle entry and the wrapper's few outer cycles are not subtracted: interrupt time is removed
  * to within ~20 cycles per interrupt there. */
 #if UWB_USART == 1

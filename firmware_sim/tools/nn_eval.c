@@ -1,5 +1,5 @@
 /* nn_eval: evaluate the compiled-in bias networks on feature vectors read from stdin.
- * Used by tests/test_biasnet.py to compare C, PyTorch and numpy on the same exported header
+ * Used by tests/unit/test_biasnet.py to compare C, PyTorch and numpy on the same exported header
  * (build with -DBIAS_MODEL_HEADER='"path/to/header.h"' to test any model).
  *
  * First output line: "H hash_hex layout_twr layout_tdoa".

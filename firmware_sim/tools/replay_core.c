@@ -1,5 +1,5 @@
 /* replay_core: drive the estimator core from a text event stream, without the wire protocol.
- * Used by tests/test_core_vs_twin.py to compare the C core with the numpy twin.
+ * Used by tests/unit/test_core_vs_twin.py to compare the C core with the numpy twin.
  *
  * Input lines (stdin), fields separated by blanks:
  *   C name=value ...            configure with reset: the power-up defaults with these CONFIG fields

@@ -1,5 +1,5 @@
 /* tdoa_replay: drive lps_parse + the TDoA engine from a text packet stream, without the wire protocol.
- * Used by tests/test_tdoa_engine.py to compare the C engine with its twin (harness/twin/tdoa_engine.py).
+ * Used by tests/unit/test_tdoa_engine.py to compare the C engine with its twin (harness/twin/tdoa_engine.py).
  * Input lines (stdin): `P t_us rx_ts sender hexpayload` (hexpayload "-" for an empty payload).
  * Output per packet: `M a b diff` (a measurement; diff with 17 significant digits) or `D reason`
  * (drop_reason: 4 malformed, 5 unknown type, else the engine's); finally `C id bucket cc packets` per

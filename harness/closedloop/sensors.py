@@ -5,7 +5,7 @@ The simulator evaluates its models vectorised over a whole pre-computed flight; 
 state is known only step by step, where numpy's per-call overhead on a handful of rows dominates. So the
 per-link bias b_i, the TDoA pair term and the multipath probability of measurement_errors are evaluated here in
 scalar form, from the same HardwareParams (same hardware_seed: the same radios the bias network was
-trained on). tests/test_closedloop.py checks the scalar bias against measurement_errors to 1e-9 m.
+trained on). tests/device/test_closedloop.py checks the scalar bias against measurement_errors to 1e-9 m.
 
 Schedule (as the simulator's): TWR round-robin over the anchors, TDoA2 consecutive pairs
 (N-1, 0), (0, 1), ...; periodic at `rate_hz` with a uniform jitter of +-`schedule_jitter` periods.

@@ -4,7 +4,7 @@
 its arrays: the trajectory, the measurement schedule (compact: times and anchor ids), and the random
 generators' starting states. `plan.whole()` builds the flight in one piece (what `scenario_flight`
 returns); `plan.chunks(chunk_s)` yields consecutive slices (`Flight`s) that, put together, are exactly
-that flight: same truth, IMU samples and measurements, bit for bit (tests/test_streaming.py).
+that flight: same truth, IMU samples and measurements, bit for bit (tests/device/test_streaming.py).
 
 How the randomness stays the same: the whole flight draws from one generator per purpose in a fixed
 order of bulk draws (segments, e.g. "a.multipath" then "a.delayed" ... then "noise"). numpy's

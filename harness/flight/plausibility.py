@@ -6,7 +6,7 @@ the truth, pose/measurement time overlap) and name the likely cause ("looks like
 `check_recording(flight, path)` raises `ImplausibleRecording` (a RecordingError, exit code 2 in the CLI)
 with every finding; `findings(flight)` lists them without raising. `--force` skips the check.
 The thresholds are deliberately loose (a factor of ~10 from every shared recording, see
-tests/test_plausibility.py): they catch unit and survey mistakes, not noisy data.
+tests/unit/test_plausibility.py): they catch unit and survey mistakes, not noisy data.
 """
 
 from __future__ import annotations

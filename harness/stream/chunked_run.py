@@ -1,7 +1,7 @@
 """Stream a flight given as consecutive slices (harness/flight/chunked.py) through one device.
 
 Each slice goes out as a Streamer run; the first resets the filter, the next ones send their CONFIG
-without reset, so the device sees one continuous flight (tests/test_streaming.py: same estimates as the
+without reset, so the device sees one continuous flight (tests/device/test_streaming.py: same estimates as the
 whole flight). What is kept across slices is compact: the RESULT rows (one per measurement), and for
 the summary a `Flight` holding only the measurements and the true position at each measurement time
 (so `run_summary` computes the same accuracy as with the whole flight). The 1 kHz IMU samples and the

@@ -1,6 +1,6 @@
 """Twin of firmware_sim/core/tdoa_engine.c: the tag's TDoA engine (float64, Python integers for the
 32/40-bit tick arithmetic). Same storage, eviction, bucket rule and matching order as the C, so both
-form the same measurements from the same packets (tests/test_tdoa_engine.py)."""
+form the same measurements from the same packets (tests/unit/test_tdoa_engine.py)."""
 
 from __future__ import annotations
 

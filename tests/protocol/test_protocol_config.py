@@ -26,12 +26,12 @@ from protocol import messages as m
 from protocol.config_check import ConfigField, as_float32
 from protocol.spec import SpecError, load_spec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware_sim"
 CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-Wshadow", "-Wpointer-arith", "-Wstrict-prototypes",
           "-Wmissing-prototypes", "-Icore", "-Iproto", "-Iapp", "-Imodels", "-O0", "-D_POSIX_C_SOURCE=200809L"]
 #: The field the one-edit test adds (appended to CONFIG's fields in a copy of messages.toml).
-EXTRA = ('  ["gate_test_k", "f32", "a field added by tests/test_protocol_config.py", '
+EXTRA = ('  ["gate_test_k", "f32", "a field added by tests/protocol/test_protocol_config.py", '
          '{unit = "m", default = 1.5, gt = 0, le = 4}],\n')
 
 

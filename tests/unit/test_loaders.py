@@ -23,7 +23,7 @@ from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream,
 from harness.flight.run_config import config_for
 from harness.paths import shared_data_dir
 
-FIX = Path(__file__).parent / "fixtures" / "recordings"
+FIX = Path(__file__).parents[1] / "fixtures" / "recordings"
 REDUCED = FIX / "const1-fixture-tdoa2.csv"
 OFFICIAL = FIX / "const2-fixture-official.csv"
 DATA = shared_data_dir()

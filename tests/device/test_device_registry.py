@@ -17,7 +17,7 @@ from harness.device.serial_device import SerialDevice
 from harness.errors import InputError, UsageError
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _image(tmp_path: Path, name: str) -> Path:

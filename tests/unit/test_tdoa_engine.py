@@ -20,7 +20,7 @@ from harness.twin import lps_packets as lp
 from harness.twin.tdoa_engine import (DROP_CLOCK, DROP_MALFORMED, DROP_NO_REFERENCE, DROP_UNKNOWN_TYPE,
                                       MASK32, MEASUREMENT, TdoaEngine, replay)
 
-FW = Path(__file__).resolve().parents[1] / "firmware_sim"
+FW = Path(__file__).resolve().parents[2] / "firmware_sim"
 
 
 @pytest.fixture(scope="session")

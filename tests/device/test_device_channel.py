@@ -20,7 +20,7 @@ from protocol import PROTOCOL_VERSION
 from protocol import messages as m
 from protocol.framing import FrameDecoder, encode_frame
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HELLO_REPLY = dict(proto_version=PROTOCOL_VERSION, fw_major=1, fw_minor=2, fw_patch=3, cost_unit=1, layout_twr=1,
                    layout_tdoa=2, model_hash=0xABC, build_id=b"bid", target=b"mem")
 

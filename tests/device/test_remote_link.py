@@ -129,7 +129,7 @@ def test_cli_flight_through_rfc2217(ser2net: Ser2net) -> None:
 
 def test_pytest_plugin_uwb_port_rfc2217(ser2net: Ser2net) -> None:
     out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:hypothesispytest",
-                          "tests/test_e2e_emulator.py", "-k", "noiseless", "--uwb-port", ser2net.url],
+                          "tests/device/test_end_to_end.py", "-k", "noiseless", "--uwb-port", ser2net.url],
                          capture_output=True, text=True, timeout=110, cwd=REPO_ROOT)
     assert out.returncode == 0, out.stdout[-3000:] + ser2net.log.read_text()
     assert "2 passed" in out.stdout, out.stdout[-2000:]

@@ -25,7 +25,7 @@ from harness.paths import DEFAULT_FIRMWARE
 
 pytestmark = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_FIRMWARE} not built (make firmware)")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FLIGHT = ["--scenario", "circle", "--mode", "twr", "--duration", "20", "--seed", "3", "--stages", "outlier"]
 COMPARED = ("status", "innovation", "px", "py", "pz", "vx", "vy", "vz", "var_x", "var_y", "var_z")
 

@@ -11,7 +11,7 @@ from harness.errors import UwbHilError
 from harness.firmware_build import BuildError, build_firmware, install_header
 from harness.stm32_build import ProbeSpec, probe_model
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_one_build_error_class_that_the_cli_reports() -> None:

@@ -19,7 +19,7 @@ from harness.twin import features
 from protocol.messages import MAX_ANCHORS, EkfMode, Layout, MeasKind, ResultFlag, Stage, Status
 from protocol.spec import load_spec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware_sim"
 CHECKS = FW / "app" / "proto_checks.h"
 #: Constants of the C core that mirror a protocol enum (core headers do not include uwb_msgs.h).

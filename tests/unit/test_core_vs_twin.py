@@ -21,7 +21,7 @@ from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStre
 from harness.twin.estimator import (ACCEPTED, FLAG_COVARIANCE, FLAG_DIVERGED, FLAG_GAP_RESTART, FLAG_HEIGHT_FUSED,
                                     FLAG_OUT_OF_BOX, FLAG_SPEED, REJECTED_CHI2, REJECTED_KINEMATIC, TwinResult, run_flight)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware_sim"
 GRAVITY = 9.81
 

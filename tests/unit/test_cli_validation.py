@@ -21,7 +21,7 @@ from harness.biasnet.network import BiasModel, init_network
 from harness.paths import DEFAULT_FIRMWARE
 from harness.twin.features import LAYOUT_TDOA_POS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FIX = ROOT / "tests" / "fixtures" / "recordings"
 REDUCED = FIX / "const1-fixture-tdoa2.csv"
 needs_fw = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_FIRMWARE} not built (make firmware)")

@@ -20,7 +20,7 @@ from harness.flight.loaders import load_recording
 from harness.flight.plausibility import ImplausibleRecording, findings
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 
-FIX = Path(__file__).parent / "fixtures" / "recordings"
+FIX = Path(__file__).parents[1] / "fixtures" / "recordings"
 DATA = shared_data_dir()
 SHARED = (sorted((DATA / "util").glob("const*/*.csv")) + sorted((DATA / "rcv_twr").glob("sequence*"))
           if DATA.is_dir() else [])
