@@ -245,3 +245,16 @@ def test_every_c_include_is_one_the_folder_table_allows() -> None:
                  if rules[folder] is not None and h not in rules[folder])  # type: ignore[operator]
     assert not bad, "includes the folder table of docs/ARCHITECTURE.md does not allow:\n  " + "\n  ".join(bad)
 
+
+
+TEST_GROUPS = ("unit", "protocol", "device", "campaign", "mcu")
+
+
+def test_tests_are_grouped_by_what_they_exercise() -> None:
+    """Every test module lives in one of the groups of the folder table (tests/unit, tests/protocol, ...)."""
+    tests = ROOT / "tests"
+    stray = sorted(str(p.relative_to(ROOT)) for p in tests.rglob("test_*.py")
+                   if p.parent.parent != tests or p.parent.name not in TEST_GROUPS)
+    assert not stray, f"move into one of tests/{{{','.join(TEST_GROUPS)}}}/: {stray}"
+    rules = folder_rules(ARCHITECTURE.read_text())
+    assert {f"tests/{g}/" for g in TEST_GROUPS} <= set(rules)
