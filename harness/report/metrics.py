@@ -122,7 +122,11 @@ def health_summary(run: RunResult) -> dict[str, object]:
     s_low = (res["innovation_var"] < r_var * (1 - 1e-3)) | (res["innovation_var"] <= 0)
     not_pd = (np.any(var <= 0, axis=1) | (answered & s_low)) & finite
     from_errors = sum(1 for e in run.errors if e.code == ErrorCode.DIVERGED)
+    # STATS counts from power-up: a device that flew earlier runs (a campaign flies every configuration of a
+    # flight on one device) carries their resets, so take the difference over this run where it is known.
     from_stats = int(getattr(run.stats, "divergences", 0)) if run.stats is not None else 0
+    if run.stats is not None and run.stats_start is not None:
+        from_stats -= int(getattr(run.stats_start, "divergences", 0))
     reasons = {name: int(np.count_nonzero(flags & bit))
                for name, bit in (("non_finite", ResultFlag.NON_FINITE), ("out_of_box", ResultFlag.OUT_OF_BOX),
                                  ("speed", ResultFlag.SPEED), ("covariance", ResultFlag.COVARIANCE))
