@@ -1,7 +1,7 @@
 """`uwb-hil calibrate`: the simulator's measurement errors next to the real recordings in ../shared/data.
 
 Real error = measured - geometric truth (UTIL: the tag 0.0908 m above the Vicon pose; rcv_twr: anchors
-moved by the source's antenna offset (0, -0.05, +0.045) m). Statistics are per trial (one flight file or
+moved by the source's antenna offset, read from the data README). Statistics are per trial (one flight file or
 one simulated flight) and then averaged over trials, so no single file decides a number:
 
 * UTIL TDoA groups: LOS TDoA2 (const1 + const2), LOS TDoA3 (const1), NLOS TDoA2 (const3). The simulated

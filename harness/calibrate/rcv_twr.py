@@ -17,7 +17,6 @@ from harness.flight.arena import Arena
 from harness.flight.data import KIND_TWR, Anchors
 from harness.flight.measurement_errors import SimConfig, azimuth_elevation, link_directions, sim_config, uwb_errors
 
-RCV_ANCHOR_OFFSET = np.array([0.0, -0.05, 0.045])   # data README: the source's antenna offset
 
 
 @dataclass(frozen=True)
@@ -69,6 +68,7 @@ def read_rcv_ranges(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
 
 def rcv_twr_links(data_dir: Path, config: SimConfig | None = None, seed: int = 7) -> TwrLinks:
     from harness.flight.formats.anchors import load_anchors
+    from harness.flight.formats.rcv_twr import readme_anchor_offset
     root = data_dir / "rcv_twr"
     seqs = sorted(p for p in root.glob("sequence*") if p.is_dir())
     if not seqs:
@@ -80,7 +80,7 @@ def rcv_twr_links(data_dir: Path, config: SimConfig | None = None, seed: int = 7
         anchors = load_anchors(seq / "anchor.yaml")
         if anchors.orientations is None:
             raise CalibrationError(f"{seq / 'anchor.yaml'}: anchors have no orientation")
-        moved = Anchors(ids=anchors.ids, positions=anchors.positions + RCV_ANCHOR_OFFSET,
+        moved = Anchors(ids=anchors.ids, positions=anchors.positions + readme_anchor_offset(seq),
                         orientations=anchors.orientations)
         arena = Arena(anchors=moved)
         for k, aid in enumerate(moved.ids):

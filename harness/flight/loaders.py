@@ -20,7 +20,7 @@ import numpy as np
 from harness.flight.formats.anchors import (load_anchor_yaml, load_anchors, load_anchors_csv, load_survey_npz,
                                             load_survey_txt)
 from harness.flight.formats.common import RecordingError
-from harness.flight.formats.rcv_twr import (ANCHOR_COLUMNS, DEFAULT_ANCHOR_OFFSET, GT_COLUMNS, is_rcv_twr_dir,
+from harness.flight.formats.rcv_twr import (ANCHOR_COLUMNS, FROM_DATA_README, GT_COLUMNS, is_rcv_twr_dir,
                                             load_rcv_twr)
 from harness.flight.formats.util import constellation_from_name, load_util_csv, util_layout
 from harness.flight.data import KIND_TWR, Anchors, Flight, FlightError
@@ -29,13 +29,13 @@ from harness.flight.plausibility import ImplausibleRecording, check_recording
 
 __all__ = ["RecordingError", "ImplausibleRecording", "load_recording", "load_anchors", "load_anchors_csv", "load_survey_npz",
            "load_survey_txt", "load_anchor_yaml", "load_util_csv", "load_rcv_twr", "load_flight", "save_flight",
-           "find_anchor_file", "time_slice", "DEFAULT_ANCHOR_OFFSET"]
+           "find_anchor_file", "time_slice", "FROM_DATA_README"]
 
 AnchorsArg = Anchors | Path | str | None
 
 
 def load_recording(path: Path | str, anchors: AnchorsArg = None, *, constellation: int | None = None,
-                   anchor_offset: tuple[float, float, float] | None = DEFAULT_ANCHOR_OFFSET,
+                   anchor_offset: tuple[float, float, float] | str | None = FROM_DATA_README,
                    check: bool = True) -> Flight:
     """Load any supported recording, then check it is plausible (harness/flight/plausibility.py: units,
     anchor geometry, gross errors, time overlap; `ImplausibleRecording` names the file and the likely
@@ -55,7 +55,7 @@ def load_recording(path: Path | str, anchors: AnchorsArg = None, *, constellatio
 
 
 def _load(path: Path, anchors: AnchorsArg, constellation: int | None,
-          anchor_offset: tuple[float, float, float] | None) -> Flight:
+          anchor_offset: tuple[float, float, float] | str | None) -> Flight:
     if not path.exists():
         raise FileNotFoundError(f"recording {path} not found")
     if path.is_dir():
@@ -212,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         flight = load_recording(args.recording, args.anchors, constellation=args.constellation,
-                                anchor_offset=None if args.no_anchor_offset else DEFAULT_ANCHOR_OFFSET,
+                                anchor_offset=None if args.no_anchor_offset else FROM_DATA_README,
                                 check=not args.force)
     except (RecordingError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)

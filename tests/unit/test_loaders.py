@@ -161,7 +161,9 @@ def write_rcv_twr_mini(d: Path) -> Path:
     robin every 40 ms, gt at 10 ms, one failed ranging (-1.5) on anchor 2."""
     d.mkdir(parents=True, exist_ok=True)
     anchors = {1: (2.0, 2.0, 1.0), 2: (-2.0, 2.0, 1.2), 3: (-2.0, -2.0, 0.8), 4: (2.0, -2.0, 1.1)}
-    offset = np.array([0.0, -0.05, 0.045])   # the loader's default antenna offset
+    offset = np.array([0.0, -0.05, 0.045])   # the antenna offset this data folder's README states
+    (d.parent / "README.md").write_text("- `anchor.yaml`: anchor positions.\n  The source's own analysis adds "
+                                        "(0, -0.05, +0.045) m to the anchor positions (antenna offset).\n")
 
     def ts(t: float) -> str:
         s = 13.0 + t
@@ -211,6 +213,20 @@ def test_rcv_twr_fixture_sequence(rcv: Path) -> None:
     plain = load_recording(rcv, anchor_offset=None)
     np.testing.assert_allclose(plain.anchors.position(1), [2.0, 2.0, 1.0])
     assert np.max(np.abs(plain.uwb.true_value - plain.uwb.value)) > 0.01
+
+
+def test_rcv_twr_antenna_offset_comes_from_the_data_readme(tmp_path: Path) -> None:
+    """The offset is the data README's, not a constant in the code: none without such a README, a clear error
+    when the README states it unreadably."""
+    seq = write_rcv_twr_mini(tmp_path / "data" / "rcv_twr" / "seq")
+    readme = seq.parent / "README.md"
+    readme.replace(tmp_path / "data" / "README.md")          # one level up, as ../shared/data/README.md
+    np.testing.assert_allclose(load_recording(seq).anchors.position(1), [2.0, 1.95, 1.045])
+    (tmp_path / "data" / "README.md").write_text("no offset stated here\n")
+    np.testing.assert_allclose(load_recording(seq, check=False).anchors.position(1), [2.0, 2.0, 1.0])
+    (tmp_path / "data" / "README.md").write_text("adds (0, -0.05) m to the anchor positions\n")
+    with pytest.raises(RecordingError, match="not three numbers"):
+        load_recording(seq)
 
 
 def _rcv_copy(tmp_path: Path) -> Path:

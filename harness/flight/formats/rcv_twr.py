@@ -11,8 +11,9 @@ The four anchors' ranges are merged in time order into one TWR stream (anchor id
 microseconds since the earliest timestamp of the sequence. Truth is gt.csv (pose as recorded, taken as the
 tag: the source's analysis does the same). `true_value` uses the pose matched in the anchor file itself.
 
-The source's analysis adds an antenna offset (0, -0.05, +0.045) m (world frame) to the surveyed anchor
-positions; we do the same by default (`anchor_offset`). Ranges <= 0 are impossible values (failed
+The source's analysis adds an antenna offset (world frame) to the surveyed anchor positions; the data
+folder's README.md states it, and by default (`anchor_offset`) it is read from there (the README beside the
+sequence folder or one level up), never typed into the code; without such a README no offset is added. Ranges <= 0 are impossible values (failed
 ranging, not noisy measurements; the source's analysis discards them too) and are dropped and counted.
 """
 
@@ -32,7 +33,9 @@ ANCHOR_COLUMNS = ("Time", "Address", "Range", "Rxpower", "Position X", "Position
                   "Orientation X", "Orientation Y", "Orientation Z", "Orientation W")
 GT_COLUMNS = ("Time", "Position X", "Position Y", "Position Z", "Orientation X", "Orientation Y",
               "Orientation Z", "Orientation W")
-DEFAULT_ANCHOR_OFFSET = (0.0, -0.05, 0.045)
+#: anchor_offset default: the antenna offset the data folder's README.md states (see readme_anchor_offset)
+FROM_DATA_README = "readme"
+_README_OFFSET = re.compile(r"adds\s*\(([^)]*)\)\s*m\s+to\s+the\s+anchor\s+positions", re.IGNORECASE)
 _ANCHOR_FILE = re.compile(r"^anchor_(\d+)\.csv$")
 
 
@@ -41,10 +44,31 @@ def is_rcv_twr_dir(path: Path) -> bool:
         _ANCHOR_FILE.match(p.name) for p in path.iterdir()))
 
 
+def readme_anchor_offset(directory: Path) -> np.ndarray:
+    """The antenna offset [m] the data README states ("... adds (x, y, z) m to the anchor positions"), from
+    README.md beside the sequence folder or one level up (../shared/data/README.md for rcv_twr/sequenceN);
+    zero when neither README says so. A README that states it unreadably is a RecordingError."""
+    for readme in (directory.parent / "README.md", directory.parent.parent / "README.md"):
+        if not readme.is_file():
+            continue
+        found = _README_OFFSET.search(readme.read_text(encoding="utf-8", errors="replace"))
+        if found is None:
+            continue
+        try:
+            offset = np.array([float(v) for v in found.group(1).split(",")])
+        except ValueError:
+            offset = np.array([])
+        if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+            raise RecordingError(f"antenna offset ({found.group(1)}) is not three numbers [m]", path=readme)
+        return offset
+    return np.zeros(3)
+
+
 def load_rcv_twr(directory: Path, anchors: Anchors | None = None,
-                 anchor_offset: tuple[float, float, float] | None = DEFAULT_ANCHOR_OFFSET,
+                 anchor_offset: tuple[float, float, float] | str | None = FROM_DATA_README,
                  drop_nonpositive: bool = True) -> Flight:
-    """One sequence directory -> Flight. `anchors` overrides anchor.yaml (the offset is applied to either)."""
+    """One sequence directory -> Flight. `anchors` overrides anchor.yaml (the offset is applied to either);
+    `anchor_offset`: FROM_DATA_README (the data README's), a vector [m], or None (no offset)."""
     directory = Path(directory)
     if not directory.exists():
         raise FileNotFoundError(f"recording {directory} not found")
@@ -53,7 +77,10 @@ def load_rcv_twr(directory: Path, anchors: Anchors | None = None,
         if not yaml.exists():
             raise FileNotFoundError(f"anchor file {yaml} not found (an rcv_twr sequence needs anchor.yaml)")
         anchors = load_anchor_yaml(yaml)
-    offset = np.zeros(3) if anchor_offset is None else np.asarray(anchor_offset, dtype=np.float64)
+    if anchor_offset == FROM_DATA_README:
+        offset = readme_anchor_offset(directory)
+    else:
+        offset = np.zeros(3) if anchor_offset is None else np.asarray(anchor_offset, dtype=np.float64)
     anchors = Anchors(ids=anchors.ids, positions=anchors.positions + offset, orientations=anchors.orientations)
     gt, gt_t, tables = _read_tables(directory, set(int(i) for i in anchors.ids))
     t0 = min([int(gt_t[0])] + [int(t[0]) for _, _, t in tables if len(t)])
