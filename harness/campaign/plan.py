@@ -283,9 +283,9 @@ def _needs_attitude(model: str | None, mode: str) -> bool:
     if model is None:
         return False
     from harness.biasnet.network import BiasModel
-    from protocol.messages import Layout
+    from harness.flight.run_config import takes_attitude
     net = getattr(BiasModel.load(Path(model)), mode)
-    return net is not None and net.layout in (Layout.TWR_POSE, Layout.TDOA_POSE)
+    return net is not None and takes_attitude(net.layout)
 
 
 def radio_runs(opts: CampaignOptions, flights: list[FlightSpec], models: dict[str, str | None]) -> list[RunSpec]:

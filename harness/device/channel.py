@@ -253,8 +253,9 @@ class DeviceChannel:
             return self.identity
 
     def configure(self, config: EstimatorConfig, anchors: AnchorsLike | None, reset: bool = True,
-                  timeout: float = 5.0) -> None:
-        """CONFIG (with or without filter reset) and the anchors, in one write with a STATS_REQ behind them.
+                  timeout: float = 5.0) -> m.Stats:
+        """CONFIG (with or without filter reset) and the anchors, in one write with a STATS_REQ behind them;
+        returns that STATS (the counters once the set-up is done).
         CONFIG and ANCHOR are answered only when refused, and the device handles frames in order: once its
         STATS is back, every refusal has arrived. A refusal is a DeviceError (without the barrier, one that
         came after the first read let the run go on with the device's previous configuration and pass);
@@ -280,7 +281,7 @@ class DeviceChannel:
             if rest:
                 self._keep(rest)
             if barrier is not None:
-                return
+                return barrier.msg
 
     def stats(self, timeout: float = 5.0) -> m.Stats:
         """The device counters (STATS_REQ -> STATS); also the liveness probe after a silence."""

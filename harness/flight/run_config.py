@@ -38,18 +38,23 @@ def position_only_hint(kind: int) -> str:
     return train
 
 
+def takes_attitude(layout: int) -> bool:
+    """Whether a network of this input layout takes roll, pitch and yaw (which a UWB-only replay lacks)."""
+    from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
+    return layout in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE)
+
+
 def check_network_inputs(flight: Flight, cfg: EstimatorConfig, layouts: tuple[int, int]) -> None:
     """Refuse to run a bias network that takes the attitude (pose layout) where the firmware has none: a
     UWB-only replay (no IMU, or --uwb-only) feeds it a level attitude, and its correction is then made up.
     `layouts` = the device's (TWR, TDoA) network layouts from HELLO."""
     from harness.config import STAGE_BIAS_NN
     from harness.errors import InputError
-    from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
     if not cfg.stages & STAGE_BIAS_NN or cfg.mode != MODE_UWB_ONLY:
         return
     kind = flight.uwb.kind
     layout = layouts[0] if kind == KIND_TWR else layouts[1]
-    if layout not in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE):
+    if not takes_attitude(layout):
         return
     why = "has no IMU" if not flight.has_imu else "is replayed with --uwb-only"
     raise InputError(f"the device's {kind_name(kind).upper()} bias network takes roll, pitch and yaw (pose layout "

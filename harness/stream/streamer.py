@@ -184,9 +184,12 @@ class Streamer:
                                                   **(header_extra or {})}, overwrite=overwrite)
         t_start = time.perf_counter()
         faulty = bool(getattr(ch.link, "injects_faults", False))
-        stats_start = None if faulty else ch.stats(self.timeout_s)
+        stats_start: m.Stats | None = None
         try:
-            ch.configure(config, None if radio else flight.anchors, reset=reset, timeout=self.timeout_s)
+            # the set-up barrier's STATS are the counters before this run's frames (a fault-injecting link
+            # may have mangled the set-up itself: no start counters then)
+            setup_stats = ch.configure(config, None if radio else flight.anchors, reset=reset, timeout=self.timeout_s)
+            stats_start = None if faulty else setup_stats
             prep = prepare(flight, ch.reserve(n_frames), include_imu=include_imu, radio=radio)
             assert len(prep.meas_end) == n
             if pacing.mode == "realtime":
