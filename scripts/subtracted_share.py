@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.biasnet.ceiling import fast_residual, share_of_ceiling
+from harness.biasnet.ceiling import fast_part, share_of_ceiling
 from harness.biasnet.dataset import flight_samples
 from harness.biasnet.recipes import load_recordings
 
@@ -46,11 +46,13 @@ def main() -> None:
     keep = np.isfinite(bias)
     s = s.subset(keep)
     raw, corr = s.bias, s.bias - bias[keep]
-    floor = float(np.sqrt(np.mean(fast_residual(s) ** 2)))
+    part = fast_part(s)
+    floor, floor_u = part.floor(), part.floor_unbiased()
     r_raw, r_corr = float(np.sqrt(np.mean(raw ** 2))), float(np.sqrt(np.mean(corr ** 2)))
     print(f"{args.recording.name}: n {len(raw)}  RMSE raw {r_raw:.4f}  after {r_corr:.4f} m "
           f"({100 * (1 - r_corr / r_raw):.1f} % cut)  floor {floor:.4f}  "
-          f"share of ceiling {100 * share_of_ceiling(r_raw, r_corr, floor):.0f} %")
+          f"share of ceiling {100 * share_of_ceiling(r_raw, r_corr, floor):.0f} %  "
+          f"(unbiased floor {floor_u:.4f}: {100 * share_of_ceiling(r_raw, r_corr, floor_u):.0f} %)")
 
 
 if __name__ == "__main__":

@@ -77,21 +77,23 @@ def _print_compare(res: dict[str, Any]) -> None:
     from rich.table import Table
     table = Table(title=f"{res['kind'].upper()} measurement error on {', '.join(Path(t).name for t in res['test'])} "
                         f"(|e| < {XI_DEFAULT} m, model {res['model_hash']}; floor: error minus its per-pair "
-                        f"moving average over +-{res['half_window_s']:g} s)")
-    for col in ("method", "n", "RMSE raw", "RMSE corr.", "floor", "MAE raw", "MAE corr.", "reduction",
-                "share of ceiling"):
+                        f"moving average over +-{res['half_window_s']:g} s; unbiased: each window's residual "
+                        f"scaled by n/(n-1), windows of one sample left out)")
+    for col in ("method", "n", "RMSE raw", "RMSE corr.", "MAE raw", "MAE corr.", "reduction", "floor",
+                "share of ceiling", "floor (unbiased)", "share (unbiased)"):
         table.add_column(col, justify="left" if col == "method" else "right")
     for name, m in res["methods"].items():
-        table.add_row(name, str(m["n"]), f"{m['rmse_raw']:.4f}", f"{m['rmse_corrected']:.4f}", f"{m['floor']:.4f}",
+        table.add_row(name, str(m["n"]), f"{m['rmse_raw']:.4f}", f"{m['rmse_corrected']:.4f}",
                       f"{m['mae_raw']:.4f}", f"{m['mae_corrected']:.4f}", f"{100 * m['reduction']:.1f} %",
-                      f"{100 * m['share_of_ceiling']:.1f} %")
+                      f"{m['floor']:.4f}", f"{100 * m['share_of_ceiling']:.1f} %",
+                      f"{m['floor_unbiased']:.4f}", f"{100 * m['share_of_ceiling_unbiased']:.1f} %")
     pairs = Table(title="network, per anchor pair")
     for col in ("pair", "n", "RMSE raw", "RMSE corr.", "MAE raw", "MAE corr."):
         pairs.add_column(col, justify="right")
     for pair, m in res["methods"]["network"]["per_pair"].items():
         pairs.add_row(pair, str(m["n"]), f"{m['rmse_raw']:.4f}", f"{m['rmse_corrected']:.4f}", f"{m['mae_raw']:.4f}",
                       f"{m['mae_corrected']:.4f}")
-    console = Console(width=120)
+    console = Console(width=140)
     console.print(table)
     console.print(pairs)
     cal = res.get("std_calibration")

@@ -105,7 +105,7 @@ def _repo_path(path: Path) -> str:
 
 def _short(m: dict[str, Any]) -> dict[str, Any]:
     return {k: m[k] for k in ("n", "rmse_raw", "rmse_corrected", "mae_raw", "mae_corrected", "reduction", "floor",
-                              "share_of_ceiling")}
+                              "share_of_ceiling", "floor_unbiased", "share_of_ceiling_unbiased")}
 
 
 def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: list[Path], layout: int,

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from harness.biasnet.baselines import PairConstant, VoxelTable
-from harness.biasnet.ceiling import HALF_WINDOW_S, fast_residual
+from harness.biasnet.ceiling import HALF_WINDOW_S, fast_part
 from harness.biasnet.dataset import XI_DEFAULT, Samples, build_samples
 from harness.biasnet.evaluate import Evaluation, evaluate
 from harness.biasnet.network import BiasModel
@@ -57,13 +57,14 @@ def train_kind(flights: list[Flight], layout: int | None, cfg: TrainConfig, labe
 def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float = XI_DEFAULT,
             half_window_s: float = HALF_WINDOW_S) -> dict[str, Any]:
     """The network and the two baselines (fitted on ``train``) on the measurements of ``test``, each with
-    the floor and its share of the ceiling (ceiling.py, moving average over +-half_window_s)."""
+    the floor and its share of the ceiling (ceiling.py, moving average over +-half_window_s), literal and
+    unbiased."""
     kind = "twr" if test[0].uwb.kind == KIND_TWR else "tdoa"
     net = model.network(kind)
     if net is None:
         raise ValueError(f"the model has no {kind} network")
     ts = build_samples(test, net.layout, xi)
-    fast = fast_residual(ts, half_window_s)
+    fast = fast_part(ts, half_window_s)
     out: dict[str, Any] = {"kind": kind, "layout": net.layout, "model_hash": model.hash_hex,
                            "test": [f.name for f in test], "half_window_s": half_window_s}
     evals: list[Evaluation] = [evaluate("network", ts, lambda s: net.predict_batch(s.x), fast=fast)]
@@ -79,7 +80,9 @@ def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float
     net_eval = evals[0].overall
     out.update(n=net_eval.n, rmse_raw=net_eval.rmse_raw, rmse_corrected=net_eval.rmse_corrected,
                mae_raw=net_eval.mae_raw, mae_corrected=net_eval.mae_corrected, reduction=net_eval.reduction,
-               floor=net_eval.rmse_floor, share_of_ceiling=net_eval.share_of_ceiling)
+               floor=net_eval.rmse_floor, share_of_ceiling=net_eval.share_of_ceiling,
+               floor_unbiased=net_eval.rmse_floor_unbiased,
+               share_of_ceiling_unbiased=net_eval.share_of_ceiling_unbiased)
     return out
 
 

@@ -38,13 +38,15 @@ def _heldout_rows(summary: dict[str, Any]) -> list[list[str]]:
             rows.append([label, str(net.get("n", "-")), f"{net.get('rmse_raw', float('nan')):.4f}"]
                         + [f"{100 * methods[m]['reduction']:.1f} %" if m in methods else "-"
                            for m in ("network", "pair-constant", "voxel-table")]
-                        + [_share(methods.get(m, {})) for m in ("network", "voxel-table")])
+                        + [_share(methods.get(m, {}), key) for key in ("share_of_ceiling", "share_of_ceiling_unbiased")
+                           for m in ("network", "voxel-table")])
     return rows
 
 
-def _share(m: dict[str, Any]) -> str:
-    """share_of_ceiling (ceiling.py) when the summary has it (models.json written since it exists)."""
-    v = m.get("share_of_ceiling")
+def _share(m: dict[str, Any], key: str = "share_of_ceiling") -> str:
+    """share_of_ceiling or share_of_ceiling_unbiased (ceiling.py) when the summary has it (models.json
+    written since it exists)."""
+    v = m.get(key)
     return f"{100 * v:.0f} %" if isinstance(v, (int, float)) and v == v else "-"
 
 
@@ -74,8 +76,15 @@ def bias_section(ctx: "ReportContext") -> "Section | None":
     summary = index.get("summary") or {}
     rows = _heldout_rows(summary)
     if rows:
+        sec.paragraphs.append("Share of ceiling = (RMSE raw - RMSE corrected) / (RMSE raw - floor); floor = RMSE of "
+                              "the error minus its per-pair moving average over +-0.25 s (the issue's definition). "
+                              "That average includes the sample itself, so with n samples in the window white noise "
+                              "leaves only sqrt(1 - 1/n) of its std: the unbiased floor scales each residual's square "
+                              "by n/(n-1) (windows of one sample left out), a lower ceiling where windows are short "
+                              "(TDoA3).")
         sec.tables.append(Table(["network / held-out data", "n", "RMSE raw [m]", "network", "pair constant",
-                                 "voxel table", "network: share of ceiling", "voxel table: share of ceiling"],
+                                 "voxel table", "network: share of ceiling", "voxel table: share of ceiling",
+                                 "network: share (unbiased floor)", "voxel table: share (unbiased floor)"],
                                 rows))
     sec.data = {"models": {k: v for k, v in sorted((index.get("families") or {}).items())},
                 "default_model": index.get("default")}
