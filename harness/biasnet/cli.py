@@ -11,7 +11,7 @@ from harness.biasnet.ceiling import HALF_WINDOW_S
 from harness.biasnet.dataset import XI_DEFAULT
 from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
 from harness.biasnet.network import BiasModel
-from harness.biasnet.recipes import SimRecipe
+from harness.biasnet.recipes import STD_HEAD_RECIPE, SimRecipe
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.uncertainty import StdHeadConfig
 from harness.biasnet.workflow import EvalOptions, evaluate_model, fit_std_head, flights_for, train_into_model
@@ -122,7 +122,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 def cmd_fit_std(args: argparse.Namespace) -> int:
     """Fit (or refit) the std head of one network of a model on flights its body never saw."""
     model = BiasModel.load(Path(args.model))
-    recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0, spins=1)
+    recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
+                       spins=STD_HEAD_RECIPE.spins)
     flights, kind, _ = flights_for(_paths(args.recording), Path(args.anchors) if args.anchors else None, True,
                                    recipe, _flights_progress(f"simulating {args.mode}"))
     out = fit_std_head(model, args.model, flights, kind, StdHeadConfig(std_min=args.std_min, std_max=args.std_max,
@@ -215,11 +216,12 @@ def add_commands(sub: Any) -> None:
     fs.add_argument("--recording", nargs="+", help="recorded flights (else simulated ones)")
     fs.add_argument("--anchors", help="anchor file for the recordings")
     fs.add_argument("--mode", choices=("twr", "tdoa"), default="tdoa", help="simulated: which network")
-    fs.add_argument("--flights", type=int, default=4, help="simulated flights")
-    fs.add_argument("--duration", type=float, default=120.0, help="simulated: seconds per flight")
-    fs.add_argument("--seed0", type=int, default=500,
-                    help="simulated: first seed (default 500: neither the shipped training seeds 0-23 nor the "
-                         "evaluation seeds >= 1000)")
+    fs.add_argument("--flights", type=int, default=STD_HEAD_RECIPE.flights, help="simulated flights")
+    fs.add_argument("--duration", type=float, default=STD_HEAD_RECIPE.duration_s,
+                    help="simulated: seconds per flight")
+    fs.add_argument("--seed0", type=int, default=STD_HEAD_RECIPE.seed0,
+                    help=f"simulated: first seed (default {STD_HEAD_RECIPE.seed0}: neither the shipped training "
+                         "seeds 0-23 nor the evaluation seeds >= 1000; what `make models` fits the default's head on)")
     fs.add_argument("--std-min", type=float, default=StdHeadConfig.std_min, help="lower bound of the std [m]")
     fs.add_argument("--std-max", type=float, default=StdHeadConfig.std_max, help="upper bound of the std [m]")
     fs.add_argument("--xi", type=float, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")

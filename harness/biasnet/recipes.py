@@ -51,6 +51,11 @@ class SimRecipe:
         return out
 
 
+#: The flights the compiled-in network's std head is fitted on (`make models`, and `uwb-hil fit-std`'s
+#: defaults): seeds 500-503, neither the training seeds (SimRecipe's 0-23) nor evaluation seeds (>= 1000).
+STD_HEAD_RECIPE = SimRecipe(flights=4, duration_s=120.0, spins=1, seed0=500)
+
+
 def util_files(data: Path, trials: tuple[int, ...], constellations: tuple[int, ...] = (1, 2),
                variants: tuple[str, ...] = ("tdoa2", "tdoa3")) -> list[Path]:
     """UTIL reduced CSVs of the given trials that exist under ``data``/util."""

@@ -1,7 +1,8 @@
 """`make models`: train the networks the project ships, reproducibly, and record how well they do.
 
 * ``sim``  -> firmware_sim/models/bias_model_default.{npz,h}: TWR and TDoA pose networks trained on
-  simulated flights (seeds < 1000), compiled into the firmware that `make demo` builds.
+  simulated flights (seeds < 1000), compiled into the firmware that `make demo` builds, each with a
+  constant std head (stage NN_STD) fitted on further simulated flights (recipes.STD_HEAD_RECIPE).
 * ``util`` -> firmware_sim/models/util_tdoa_pos.npz: position-only TDoA network on UTIL const1/const2
   trials 1-4 (the reduced data has no attitude); evaluated on trial 5 and const3.
 * ``rcv``  -> firmware_sim/models/rcv_twr.npz: TWR pose network on rcv_twr sequences 1-4, evaluated on 5.
@@ -20,15 +21,17 @@ import json
 import platform
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from harness.biasnet.dataset import XI_DEFAULT
+from harness.biasnet.dataset import XI_DEFAULT, build_samples
 from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
-from harness.biasnet.network import BiasModel
-from harness.biasnet.recipes import (FIRST_EVAL_SEED, SimRecipe, load_recordings, rcv_heldout_dirs, rcv_train_dirs,
-                                     util_heldout_files, util_train_files)
+from harness.biasnet.network import BiasModel, BiasNetwork
+from harness.biasnet.recipes import (FIRST_EVAL_SEED, STD_HEAD_RECIPE, SimRecipe, load_recordings, rcv_heldout_dirs,
+                                     rcv_train_dirs, util_heldout_files, util_train_files)
 from harness.biasnet.train import TrainConfig
+from harness.biasnet.uncertainty import StdHeadConfig, with_std_head
 from harness.biasnet.workflow import compare, train_kind
 from harness.paths import REPO_ROOT
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TWR_POSE
@@ -70,6 +73,8 @@ def build_sim(quick: bool, profile: str = "los") -> dict[str, Any]:
         sim_s = time.perf_counter() - t0
         net, report, samples = train_kind(flights, None, _train_cfg(quick, 80 if profile == "los" else 160),
                                           f"sim {profile} {mode}", xi=xi)
+        if profile == "los":  # the compiled-in network: its std head for the NN_STD stage
+            net, meta[f"{mode}_std_head"] = _default_std_head(net, recipe, quick, xi)
         nets[mode] = net
         from harness.flight.scenarios import scenario_flight
         extra = {"radius": 1.5} if profile == "nlos" else {}  # the 2 m circle crosses a box of that arena
@@ -86,6 +91,8 @@ def build_sim(quick: bool, profile: str = "los") -> dict[str, Any]:
         out[mode] = {"training": meta[f"{mode}_training"],
                      "heldout": {k: _short(v) for k, v in res["methods"].items()},
                      "heldout_flights": res["test"]}
+        if f"{mode}_std_head" in meta:
+            out[mode]["std_head"] = meta[f"{mode}_std_head"] | {"heldout_calibration": res.get("std_calibration")}
         _log(f"sim {profile} {mode}: held-out RMSE {res['rmse_raw']:.4f} -> {res['rmse_corrected']:.4f} m "
              f"({100 * res['reduction']:.1f} %), trained in {report.seconds:.1f} s")
     name = "default-sim" if profile == "los" else f"{profile}-sim"
@@ -96,6 +103,26 @@ def build_sim(quick: bool, profile: str = "los") -> dict[str, Any]:
         export_c(model, DEFAULT_HEADER)
     out["file"], out["hash"] = _repo_path(npz), model.hash_hex
     return out
+
+
+def _default_std_head(net: BiasNetwork, train: SimRecipe, quick: bool, xi: float) -> tuple[BiasNetwork, dict[str, Any]]:
+    """The network with one std per kind: the RMS of its corrected residual on STD_HEAD_RECIPE's flights, which
+    neither its training (``train``) nor any evaluation used. Constant, not pose-dependent: on held-out simulated
+    flights both give the same calibration and the same campaign figures (docs/bias-network.md): the simulator's
+    residual has no pose-dependent spread to learn, and a constant cannot extrapolate wrongly."""
+    recipe = replace(STD_HEAD_RECIPE, mode=train.mode, flights=1 if quick else STD_HEAD_RECIPE.flights,
+                     duration_s=30.0 if quick else STD_HEAD_RECIPE.duration_s)
+    if set(recipe.seeds()) & set(train.seeds()):
+        raise ValueError(f"std head seeds {recipe.seeds()} overlap the training seeds {train.seeds()}")
+    samples = build_samples(recipe.build(), net.layout, xi)
+    model = with_std_head(BiasModel(**{train.mode: net}), train.mode, samples,  # type: ignore[arg-type]
+                          StdHeadConfig(constant=True))
+    head = model.meta[f"{train.mode}_std_head"]
+    head["seeds"] = f"sim:{train.mode}:{recipe.profile}:seeds {recipe.seed0}-{recipe.seed0 + recipe.flights - 1}"
+    fitted = model.network(train.mode)
+    assert fitted is not None
+    _log(f"sim {train.mode} std head (constant) on {head['seeds']}: {head['calibration']['std_rms']:.4f} m")
+    return fitted, head
 
 
 def _repo_path(path: Path) -> str:

@@ -16,6 +16,7 @@ from harness.biasnet.dataset import Samples, build_samples, flight_samples, spli
 from harness.biasnet.evaluate import evaluate
 from harness.biasnet.export import DEFAULT_NPZ, export_c, header_text
 from harness.biasnet.network import BiasModel, BiasNetwork, ModelFormatError, init_network
+from harness.biasnet.recipes import FIRST_EVAL_SEED, STD_HEAD_RECIPE, SimRecipe
 from harness.biasnet.train import TrainConfig, to_torch, train_network
 from harness.errors import ModelMismatch
 from harness.flight.data import KIND_TDOA, Anchors, Flight, Truth, UwbStream
@@ -153,6 +154,8 @@ def test_c_torch_numpy_agree_on_10000_inputs(nn_eval_for, which: str) -> None:  
         header, c, c_std = c_predict(exe, kind, x)
         assert header.split()[1] == model.hash_hex
         _, n_std = net.predict_with_std_batch(x)
+        if which == "shipped":  # the compiled-in network carries its std head (stage NN_STD)
+            assert net.has_std, f"{kind}: `make models` fits the default network's std head"
         if net.has_std:  # float32 expf vs float64 exp: relative agreement
             assert np.max(np.abs(c_std - n_std) / n_std) <= 1e-5, kind
             at_min, at_max = np.isclose(c_std, net.std_min, rtol=1e-7), np.isclose(c_std, net.std_max, rtol=1e-7)
@@ -172,6 +175,23 @@ def test_c_torch_numpy_agree_on_10000_inputs(nn_eval_for, which: str) -> None:  
         if which == "random":  # the comparison must not be vacuous: most outputs are unclamped and varied
             inside = (n > net.out_min) & (n < net.out_max)
             assert inside.mean() > 0.5 and np.std(n[inside]) > 0.01
+
+
+def test_shipped_std_head_was_fitted_on_flights_neither_trained_nor_evaluated_on() -> None:
+    """The default network's head is the RMS of its corrected residual on STD_HEAD_RECIPE's simulated flights
+    (recipes.py): seeds below the evaluation seeds and outside the training recipe's."""
+    model = BiasModel.load(DEFAULT_NPZ)
+    train_seeds = set(SimRecipe().seeds())
+    for kind in ("twr", "tdoa"):
+        head = model.meta[f"{kind}_std_head"]
+        seeds = {int(name.rsplit("-s", 1)[1]) for name in head["fitted_on"]}
+        assert seeds == set(STD_HEAD_RECIPE.seeds()) and not seeds & train_seeds
+        assert max(seeds) < FIRST_EVAL_SEED
+        net = model.network(kind)
+        assert net is not None and net.w3s is not None and head["constant"] and not np.any(net.w3s)
+        # calibrated there: mean (r/std)^2 = 1 for the maximum-likelihood constant
+        assert abs(head["calibration"]["mean_z2"] - 1.0) < 1e-3
+        assert 0.02 < head["calibration"]["std_rms"] < 0.1
 
 
 def test_header_is_deterministic_and_names_the_hash() -> None:
