@@ -34,7 +34,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="flights in parallel")
     p.add_argument("--modes", type=_csv, default=MODES, help="twr,tdoa")
     p.add_argument("--trajectories", type=_csv, default=TRAJECTORIES, help="circle,circle-z")
-    p.add_argument("--configs", type=_csv, default=CONFIGS, help="comma list of configurations (default none,outlier,outlier+nn; also outlier+nn+std, robust, "
+    p.add_argument("--configs", type=_csv, default=CONFIGS, help=f"comma list of configurations (default {','.join(CONFIGS)}; also robust, "
                         "robust+nn, outlier+nn+states, ...: harness/config.py PRESETS)")
     p.add_argument("--recorded", action=argparse.BooleanOptionalAction, default=True,
                    help="also replay the held-out recorded flights of the shared data")

@@ -34,7 +34,7 @@ class ExecOptions:
     jobs: int = max(1, os.cpu_count() or 1)
     window: int = 64               # measurements in flight (windowed pacing)
     timeout_s: float = 10.0        # device silence before a run fails
-    # Wall-clock limit of one worker (a flight in three configurations); None: derived from the flight
+    # Wall-clock limit of one worker (a flight in every configuration); None: derived from the flight
     # length, generously (a loaded 2-core machine replays far slower than the unloaded figure).
     group_timeout_s: float | None = None
     python: str = sys.executable

@@ -13,8 +13,9 @@ from harness.report.data import CampaignData, RunMetrics
 from harness.stream.streamer import OUTCOME_RESULT
 from protocol.messages import MeasKind, Status
 
-COLORS = {"none": "#8c8c8c", "outlier": "#ff7f0e", "outlier+nn": "#1f77b4"}
-LABELS = {"none": "no rejection", "outlier": "outlier rejection", "outlier+nn": "outlier rejection + NN"}
+COLORS = {"none": "#8c8c8c", "outlier": "#ff7f0e", "outlier+nn": "#1f77b4", "outlier+nn+std": "#2ca02c"}
+LABELS = {"none": "no rejection", "outlier": "outlier rejection", "outlier+nn": "outlier rejection + NN",
+          "outlier+nn+std": "outlier rejection + NN + its std"}
 MODES = ("twr", "tdoa")
 
 

@@ -64,8 +64,21 @@ def headline(ctx: ReportContext) -> Section | None:
     if traj_rows:
         sec.tables.append(Table(["flight set", "no rejection", "outlier rejection", "outlier rejection + NN",
                                  "change (means)"], traj_rows, "Per trajectory"))
+    _other_configs_table(sec, {mode: s[mode] for mode in ("twr", "tdoa") if mode in s}, "simulated")
     sec.data = {mode: s[mode] for mode in ("twr", "tdoa") if mode in s}
     return sec
+
+
+def _other_configs_table(sec: Section, by_mode: dict[str, Any], what: str) -> None:
+    """The configurations flown besides the paper's three (summary.other_configs), one row per mode and
+    configuration; their filter consistency is in the consistency section."""
+    rows = [[mode.upper(), cfg, f"{_f(m['rmse'])} ± {_f(m['std'])} (n={m['n']})",
+             f"{_f(m['median'])}" + (f"; {m['diverged']} diverged" if m.get("diverged") else ""),
+             _pct(m["change_vs_outlier_nn_pct"])]
+            for mode, entry in by_mode.items() for cfg, m in (entry.get("other_configs") or {}).items()]
+    if rows:
+        sec.tables.append(Table(["mode", "configuration", "RMSE", "median", "change vs outlier rejection + NN"],
+                                rows, f"Further configurations ({what})"))
 
 
 def rmse_boxes(ctx: ReportContext) -> Section | None:
@@ -118,8 +131,12 @@ def recorded(ctx: ReportContext) -> Section | None:
               _pct(-100.0 * (f["rmse_outlier"] - f["rmse_outlier_nn"]) / f["rmse_outlier"])
               if f.get("rmse_outlier") and f.get("rmse_outlier_nn") is not None else "-"]
              for f in rec.get("flights", [])]
+    extra = list(dict.fromkeys(c for f in rec.get("flights", []) for c in f.get("other_configs") or {}))
+    for row, f in zip(frows, rec.get("flights", [])):
+        row += [_f((f.get("other_configs") or {}).get(c)) for c in extra]
     sec.tables.append(Table(["flight", "no rejection", "outlier rejection", "outlier rejection + NN",
-                             "change"], frows, "Per flight"))
+                             "change", *extra], frows, "Per flight"))
+    _other_configs_table(sec, {m: v for m, v in rec.items() if m in ("twr", "tdoa")}, "recorded")
     sec.figures += ctx.figure(plots.recorded_bars(ctx.data), "recorded_rmse", "RMSE per recorded flight.")
     sec.data = rec
     return sec

@@ -55,6 +55,22 @@ def rmse_table(runs: list[RunMetrics]) -> dict[str, Any]:
     return out
 
 
+def other_configs(runs: list[RunMetrics]) -> dict[str, dict[str, Any]]:
+    """The configurations flown besides the paper's three (e.g. outlier+nn+std, robust), in the order flown:
+    RMSE mean/std/n/median/diverged over flights, and the change of the means against outlier+nn."""
+    nn, _, _ = _mean_std([r.rmse for r in runs if r.config == "outlier+nn"])
+    out: dict[str, dict[str, Any]] = {}
+    for cfg in dict.fromkeys(r.config for r in runs if r.config not in CONFIG_KEYS):
+        rs = [r.rmse for r in runs if r.config == cfg]
+        mean, std, n = _mean_std(rs)
+        finite = [x for x in rs if math.isfinite(x)]
+        out[cfg] = {"rmse": mean, "std": std, "n": n, "median": float(np.median(finite)) if finite else float("nan"),
+                    "diverged": int(sum(1 for x in finite if x > DIVERGED_RMSE_M)),
+                    "change_vs_outlier_nn_pct": 100.0 * (mean - nn) / nn
+                    if math.isfinite(mean) and math.isfinite(nn) and nn > 0 else float("nan")}
+    return out
+
+
 def accuracy_section(data: CampaignData) -> dict[str, Any]:
     out: dict[str, Any] = {}
     sim = [r for r in data.accuracy_runs if r.source == "sim"]
@@ -67,7 +83,9 @@ def accuracy_section(data: CampaignData) -> dict[str, Any]:
         entry["by_trajectory"] = {t: rmse_table([r for r in runs if r.trajectory == t])
                                   for t in sorted({r.trajectory for r in runs})}
         entry["seeds"] = sorted({int(r.seed) for r in runs if r.seed is not None})
-        entry["divergences"] = {cfg: int(sum(r.divergences for r in runs if r.config == cfg)) for cfg in CONFIG_KEYS}
+        entry["other_configs"] = other_configs(runs)
+        entry["divergences"] = {cfg: int(sum(r.divergences for r in runs if r.config == cfg))
+                                for cfg in [*CONFIG_KEYS, *entry["other_configs"]]}
         out[mode] = entry
     rec = [r for r in data.accuracy_runs if r.source == "recorded"]
     if rec:
@@ -75,12 +93,13 @@ def accuracy_section(data: CampaignData) -> dict[str, Any]:
         for mode in ("twr", "tdoa"):
             runs = [r for r in rec if r.mode == mode]
             if runs:
-                recorded[mode] = rmse_table(runs)
+                recorded[mode] = rmse_table(runs) | {"other_configs": other_configs(runs)}
         flights = []
         for fid in sorted({r.flight_id for r in rec}):
             rs = [r for r in rec if r.flight_id == fid]
             row: dict[str, Any] = {"flight_id": fid, "mode": rs[0].mode, "trajectory": rs[0].trajectory}
-            row.update({f"rmse_{CONFIG_KEYS[r.config]}": r.rmse for r in rs})
+            row.update({f"rmse_{CONFIG_KEYS[r.config]}": r.rmse for r in rs if r.config in CONFIG_KEYS})
+            row["other_configs"] = {r.config: r.rmse for r in rs if r.config not in CONFIG_KEYS}
             flights.append(row)
         recorded["flights"] = flights
         out["recorded"] = recorded

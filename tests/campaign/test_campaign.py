@@ -77,7 +77,7 @@ def _raw_rmse(root: Path, run_id: str, flight_id: str) -> float:
 
 def test_campaign_runs_all_but_the_broken_run(campaign: dict[str, Any]) -> None:
     out = campaign["outcome"]
-    assert out.total == len(campaign["runs"]) == 2 * 2 * 2 * 3 + 2   # + one real-time latency run per mode
+    assert out.total == len(campaign["runs"]) == 2 * 2 * 2 * 4 + 2   # + one real-time latency run per mode
     assert out.skipped == 0
     assert out.ok == out.total - 1
     assert [f["run_id"] for f in out.failed] == [campaign["bogus"]]
@@ -143,6 +143,18 @@ def test_report_numbers_match_a_recomputation_from_raw_results(campaign: dict[st
                                   "tdoa": {"rmse_outlier_nn": 0.21, "reduction_pct": 48.0}}[mode]
         assert set(entry["by_trajectory"]) == {"circle", "circle-z"}
         assert entry["seeds"] == [FIRST_EVAL_SEED, FIRST_EVAL_SEED + 1]
+        # the network with its own std (NN_STD) is flown by default and has its own row
+        std_runs = [r for r in campaign["runs"] if r.flight.mode == mode and r.config == "outlier+nn+std"
+                    and r.role == "accuracy"]
+        vals = [_raw_rmse(root, r.run_id, r.flight.flight_id) for r in std_runs]
+        other = entry["other_configs"]
+        assert list(other) == ["outlier+nn+std"] and other["outlier+nn+std"]["n"] == len(vals) == 4
+        assert other["outlier+nn+std"]["rmse"] == pytest.approx(np.mean(vals), rel=1e-9)
+        assert other["outlier+nn+std"]["change_vs_outlier_nn_pct"] == pytest.approx(
+            100.0 * (np.mean(vals) - b) / b, rel=1e-9)
+        assert entry["divergences"]["outlier+nn+std"] == 0
+    md = (root / "report.md").read_text()
+    assert "Further configurations (simulated)" in md and "| TDOA | outlier+nn+std |" in md
 
 
 def test_report_latency_matches_raw_results(campaign: dict[str, Any]) -> None:
@@ -219,7 +231,11 @@ def test_report_nees_matches_a_recomputation_from_raw_results(campaign: dict[str
     root = campaign["root"]
     groups = json.loads((root / "report.json").read_text())["sections"]["consistency"]["groups"]
     # every simulated flight set with at least two complete seeds (the bogus run leaves one)
-    assert len(groups) == 2 * 2 * 3 - 1
+    assert len(groups) == 2 * 2 * 4 - 1
+    assert {(g["mode"], g["trajectory"]) for g in groups if g["config"] == "outlier+nn+std"} == {
+        (m, t) for m in ("twr", "tdoa") for t in ("circle", "circle-z")}
+    md = (root / "report.md").read_text()
+    assert re.search(r"\| TWR \| circle \| outlier\+nn\+std \| 2 \|", md)
     for g in groups:
         runs = [r for r in campaign["runs"] if r.flight.mode == g["mode"] and r.flight.trajectory == g["trajectory"]
                 and r.config == g["config"] and r.role == "accuracy"]
@@ -257,13 +273,13 @@ def test_rerun_resumes_and_retries_only_what_is_not_done(campaign: dict[str, Any
 def test_plan_covers_the_paper_grid_with_unseen_seeds() -> None:
     runs, notes = plan_campaign(CampaignOptions(recorded=False))
     acc = [r for r in runs if r.role == "accuracy"]
-    assert len(acc) == 2 * 2 * 10 * 3 and len(runs) == len(acc) + 2
-    assert {r.config for r in acc} == {"none", "outlier", "outlier+nn"}
+    assert len(acc) == 2 * 2 * 10 * 4 and len(runs) == len(acc) + 2
+    assert {r.config for r in acc} == {"none", "outlier", "outlier+nn", "outlier+nn+std"}
     assert min(r.flight.seed for r in acc) == FIRST_EVAL_SEED and notes == []
     assert all(r.model is None for r in runs)            # simulated flights: the firmware's default model
     assert all(60.0 <= r.flight.duration_s <= 80.0 and r.flight.takeoff for r in acc)
     assert len({r.run_id for r in runs}) == len(runs)
-    assert all(len(g) == 3 or (len(g) == 4 and g[-1].role == "latency") for g in group_by_flight(runs))
+    assert all(len(g) == 4 or (len(g) == 5 and g[-1].role == "latency") for g in group_by_flight(runs))
     assert RunSpec.from_dict(runs[-1].as_dict()) == runs[-1]
     assert replace(runs[0], config="outlier").fingerprint() != runs[0].fingerprint()
     with pytest.raises(PlanError, match="--modes"):
@@ -367,5 +383,5 @@ def test_uwb_only_replays_leave_out_a_network_that_needs_the_attitude(tmp_path: 
             assert configs == ["none", "outlier"], configs
             assert any("takes roll, pitch and yaw" in n for n in notes), notes
         else:
-            assert configs == ["none", "outlier", "outlier+nn"], configs
+            assert configs == ["none", "outlier", "outlier+nn", "outlier+nn+std"], configs
             assert not any("takes roll, pitch and yaw" in n for n in notes), notes
