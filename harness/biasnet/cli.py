@@ -9,6 +9,7 @@ from typing import Any, Callable
 
 from harness.biasnet.ceiling import HALF_WINDOW_S
 from harness.biasnet.dataset import XI_DEFAULT
+from harness.biasnet.distill import DistillConfig
 from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
 from harness.biasnet.network import BiasModel
 from harness.biasnet.recipes import STD_HEAD_RECIPE, SimRecipe
@@ -47,8 +48,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     flights, kind, sources = flights_for(_paths(args.recording), Path(args.anchors) if args.anchors else None,
                                          not args.force, recipe, _flights_progress(f"simulating {args.mode}"))
     base = BiasModel.load(Path(args.into)) if args.into else BiasModel(name=args.name or Path(args.out).stem)
+    ensemble = DistillConfig(teachers=args.ensemble, jitter=args.jitter) if args.ensemble is not None else None
     model, report, samples = train_into_model(flights, kind, sources, args.layout, _train_config(args), args.xi,
-                                              base, args.name)
+                                              base, args.name, ensemble)
     model.save(Path(args.out))
     if args.header:
         export_c(model, Path(args.header))
@@ -56,10 +58,16 @@ def cmd_train(args: argparse.Namespace) -> int:
     if args.json:
         print(jsonsafe.dumps(out))
     else:
+        dist = model.meta[f"{kind}_training"].get("distilled")
         print(f"trained {kind} network (layout {samples.layout}) on {report.n_train} samples, validated on "
-              f"{report.n_val} from other flights: {report.epochs} epochs ({report.stopped_by}, best {report.best_epoch}), "
-              f"{report.seconds:.1f} s")
-        print(f"validation bias RMSE {report.val_rmse_before_m:.4f} m -> residual {report.val_rmse_after_m:.4f} m")
+              f"{report.n_val} " + ("(jittered inputs, against the teacher)" if dist else "from other flights")
+              + f": {report.epochs} epochs ({report.stopped_by}, best {report.best_epoch}), {report.seconds:.1f} s")
+        if dist:
+            print(f"distilled from {dist['teachers']} networks validated on {', '.join(dist['folds'])} (best epochs "
+                  f"{dist['teacher_best_epochs']}): student - teacher RMS {dist['student_vs_teacher_m']:.4f} m; "
+                  f"out-of-fold residual {dist['out_of_fold_rmse_m']:.4f} m; the student's 'validation' is the teacher")
+        else:
+            print(f"validation bias RMSE {report.val_rmse_before_m:.4f} m -> residual {report.val_rmse_after_m:.4f} m")
         print(f"wrote {args.out} (hash {model.hash_hex})" + (f" and {args.header}" if args.header else ""))
     return 0
 
@@ -162,6 +170,16 @@ def _add_train_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--xi", type=float, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")
 
 
+def _add_ensemble_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("ensemble (harness/biasnet/distill.py)")
+    g.add_argument("--ensemble", type=int, default=None, metavar="K",
+                   help="train K networks, network k validated on flight group k mod G (UTIL trial, rcv_twr "
+                        "sequence) and seeded apart, and distil their mean into one network of the same size")
+    g.add_argument("--jitter", type=float, default=0.0,
+                   help="with --ensemble: also fit the student on a copy of the inputs jittered by this fraction "
+                        "of each input's range")
+
+
 def add_commands(sub: Any) -> None:
     tr = sub.add_parser("train", help="train a bias network (simulated flights or recordings)")
     src = tr.add_argument_group("data")
@@ -177,6 +195,7 @@ def add_commands(sub: Any) -> None:
     src.add_argument("--layout", choices=("pose", "pos"), help="features: pose (dp + roll/pitch/yaw) or pos "
                                                                  "(dp only); default: pose when attitude is known")
     _add_train_options(tr)
+    _add_ensemble_options(tr)
     out = tr.add_argument_group("output")
     out.add_argument("--out", required=True, help="model file (.npz)")
     out.add_argument("--into", help="start from this model (keeps its network of the other kind)")

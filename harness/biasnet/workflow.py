@@ -13,6 +13,7 @@ from typing import Any, Callable
 from harness.biasnet.baselines import PairConstant, VoxelTable
 from harness.biasnet.ceiling import HALF_WINDOW_S, fast_part
 from harness.biasnet.dataset import XI_DEFAULT, Samples, build_samples
+from harness.biasnet.distill import DistillConfig, DistillReport, distill
 from harness.biasnet.evaluate import Evaluation, evaluate
 from harness.biasnet.network import BiasModel
 from harness.biasnet.train import TrainConfig, TrainReport, train_network
@@ -52,6 +53,36 @@ def train_kind(flights: list[Flight], layout: int | None, cfg: TrainConfig, labe
     finally:
         stop()
     return net, report, samples
+
+
+def distill_kind(flights: list[Flight], layout: int | None, cfg: TrainConfig, dcfg: DistillConfig, label: str,
+                 xi: float = XI_DEFAULT) -> tuple[Any, DistillReport, Samples]:
+    """train_kind's counterpart for an ensemble distilled into one network (distill.py): the student, the
+    report (its `student` is the TrainReport of the shipped network) and the samples."""
+    samples = build_samples(flights, layout, xi)
+    stops: list[Callable[[], None]] = []
+
+    def member(name: str) -> Callable[[int, float, float], None]:
+        for stop in stops:   # one progress display at a time
+            stop()
+        stops.clear()
+        update, stop = epoch_progress(f"training {label} {name}")
+        stops.append(stop)
+        return update
+    try:
+        net, _, report = distill(samples, cfg, dcfg, progress=member)
+    finally:
+        for stop in stops:
+            stop()
+    return net, report, samples
+
+
+def distill_dict(report: DistillReport, dcfg: DistillConfig) -> dict[str, Any]:
+    """What a model's metadata says about how its network was distilled."""
+    return {"teachers": dcfg.teachers, "jitter": dcfg.jitter, "copies": dcfg.copies, "folds": report.folds,
+            "teacher_best_epochs": [t.best_epoch for t in report.teachers],
+            "teacher_seconds": round(sum(t.seconds for t in report.teachers), 2),
+            "student_vs_teacher_m": report.student_vs_teacher_m, "out_of_fold_rmse_m": report.oof_rmse_m}
 
 
 def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float = XI_DEFAULT,
@@ -119,14 +150,22 @@ def report_dict(report: TrainReport) -> dict[str, Any]:
 
 
 def train_into_model(flights: list[Flight], kind: str, sources: list[str], layout: str | None, cfg: TrainConfig,
-                     xi: float, base: BiasModel, name: str | None) -> tuple[BiasModel, TrainReport, Samples]:
-    """Train the `kind` network on `flights` and return `base` with it (the other kind's network kept),
-    its metadata naming the training sources and figures."""
-    net, report, samples = train_kind(flights, LAYOUTS[(kind, layout)] if layout else None, cfg, kind, xi=xi)
+                     xi: float, base: BiasModel, name: str | None,
+                     ensemble: DistillConfig | None = None) -> tuple[BiasModel, TrainReport, Samples]:
+    """Train the `kind` network on `flights` (with `ensemble`: distilled from that many teachers) and return
+    `base` with it (the other kind's network kept), its metadata naming the training sources and figures."""
+    lay = LAYOUTS[(kind, layout)] if layout else None
+    extra: dict[str, Any] = {}
+    if ensemble is None:
+        net, report, samples = train_kind(flights, lay, cfg, kind, xi=xi)
+    else:
+        net, dreport, samples = distill_kind(flights, lay, cfg, ensemble, kind, xi=xi)
+        assert dreport.student is not None
+        report, extra = dreport.student, {"distilled": distill_dict(dreport, ensemble)}
     meta = dict(base.meta)
     meta[f"{kind}_trained_on"] = sources
     meta[f"{kind}_training"] = report_dict(report) | {"layout": samples.layout, "optimizer": cfg.optimizer,
-                                                       "seed": cfg.seed, "xi": xi}
+                                                       "seed": cfg.seed, "xi": xi} | extra
     model = BiasModel(twr=net if kind == "twr" else base.twr, tdoa=net if kind == "tdoa" else base.tdoa,
                       name=name or base.name, meta=meta)
     return model, report, samples
