@@ -333,9 +333,10 @@ def test_cli_run_with_model_builds_matching_firmware(tmp_path: Path) -> None:
 
 
 #: how far the rebuilt network's held-out RMSE may be from the one models.json records. Training is
-#: reproducible bit for bit on one machine only (another CPU's float kernels give other weights: hash
-#: 0b1a156d9dfb20ca here, 589c642569e8b819 where models.json was written, both 0.0575 m on sequence 5);
-#: other training seeds on one machine range 0.060-0.160 m, so 10 % still catches a broken recipe.
+#: reproducible bit for bit on one machine only (another CPU's float kernels give other weights: the
+#: one-network recipe gave 0b1a156d9dfb20ca on one machine, 589c642569e8b819 on another, both 0.0575 m on
+#: sequence 5); the distilled recipe's seeds 0-3 give 0.058-0.076 m on one machine (one network's 0.058-0.160 m),
+#: so 10 % still catches a broken recipe.
 HELDOUT_RTOL = 0.10
 
 
