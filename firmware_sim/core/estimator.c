@@ -175,13 +175,16 @@ static float corrected_bias(estimator_t *est, int tdoa, uint8_t id_a, uint8_t id
     return bias;
 }
 
-/* The gates' verdict on innovation y (variance S): kinematic first, then chi-square. */
-static uint8_t gate_status(const estimator_config_t *cfg, float y, float d_max, float S, int tdoa)
+/* The gates' verdict on innovation y (variance S): kinematic first, then chi-square, which lets a link
+ * through whose anchors have been rejected for longer than GATE_CHI2_REOPEN_US (rejected_us). */
+static uint8_t gate_status(const estimator_config_t *cfg, float y, float d_max, float S, int tdoa,
+                           int64_t rejected_us)
 {
     if ((cfg->stages & EST_STAGE_KINEMATIC_GATE) && !gate_kinematic_pass(y, d_max, tdoa ? 2.0f : 1.0f)) {
         return EST_REJECTED_KINEMATIC;
     }
-    if ((cfg->stages & EST_STAGE_CHI2_GATE) && !gate_chi2_pass(y, S, tdoa ? cfg->chi2_tdoa : cfg->chi2_twr)) {
+    if ((cfg->stages & EST_STAGE_CHI2_GATE) && !gate_chi2_pass(y, S, tdoa ? cfg->chi2_tdoa : cfg->chi2_twr) &&
+        !gate_chi2_reopened(rejected_us)) {
         return EST_REJECTED_CHI2;
     }
     return EST_ACCEPTED;
@@ -260,7 +263,7 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
 
     /* 3./4. gates (S is needed by the chi-square gate and reported in every case) */
     ekf_scalar_prepare(ekf, &m, H, y, std * std + var_st);
-    out->status = gate_status(cfg, y, out->d_max, m.S, tdoa);
+    out->status = gate_status(cfg, y, out->d_max, m.S, tdoa, est->kin.rejected_us);
     /* the monitor compares what the filter sees with and without the correction, whatever the gates said */
     if ((cfg->stages & EST_STAGE_NN_MONITOR) && bias != 0.0f &&
         nn_monitor_observe(&est->nnmon, id_a, id_b, y, bias, m.S)) {

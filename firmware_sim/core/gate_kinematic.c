@@ -44,8 +44,9 @@ float gate_kinematic_window(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, ui
      * the estimate off along their direction they alone disagree, and the filter-wide reference above,
      * kept fresh by the others, would hold them out for hundreds of seconds (the hour-long flight). An
      * isolated outlier (the anchor's previous measurement fused) meets the nominal bound. */
+    g->rejected_us = rej_a > rej_b ? rej_a : rej_b;
     if (have_ref) {
-        since_us += rej_a > rej_b ? rej_a : rej_b;
+        since_us += g->rejected_us;
     }
     return gate_kinematic_dt(since_us, have_ref, dt_min);
 }

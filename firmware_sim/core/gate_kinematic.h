@@ -16,6 +16,9 @@ typedef struct {
      * how long its links have been rejected; the window widens by it. */
     uint64_t t_anchor_seen_us[GATE_KIN_ANCHORS];
     uint64_t t_anchor_fused_us[GATE_KIN_ANCHORS];
+    /* Set by gate_kinematic_window for its measurement: how long the links of its anchors (the longer of
+     * the two) had been rejected up to their previous measurement; the chi-square gate re-opens on it. */
+    int64_t rejected_us;
 } gate_kinematic_t;
 
 /* Nothing fused yet (a new flight: the filter was reset). */
@@ -23,8 +26,8 @@ void gate_kinematic_reset(gate_kinematic_t *g);
 
 /* The gate's dt [s] for a measurement at t_us between anchors id_a and id_b (TWR: id_b = id_a; ids <
  * GATE_KIN_ANCHORS): from the filter's reference time t_ref (have_ref = 0: none yet, then dt_min) or the
- * last fusion, whichever is older, plus how long these anchors had been rejected; at least dt_min. Marks
- * the anchors as measured at t_us. */
+ * last fusion, whichever is older, plus how long these anchors had been rejected (also left in
+ * g->rejected_us); at least dt_min. Marks the anchors as measured at t_us. */
 float gate_kinematic_window(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint8_t id_b, uint64_t t_ref,
                             int have_ref, float dt_min);
 

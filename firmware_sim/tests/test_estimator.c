@@ -268,6 +268,45 @@ static void test_statuses(void)
     CHECK(r.status == EST_ACCEPTED);
 }
 
+/* The chi-square gate cannot lock an anchor out: with a sustained 1 m offset on anchor 0 (the others
+ * exact, round robin every 10 ms) its ranges are rejected until its links have been rejected for longer
+ * than GATE_CHI2_REOPEN_US, then let through; an isolated outlier is rejected. */
+static void test_chi2_lockout_guard(void)
+{
+    estimator_result_t r;
+    const float p0[3] = {0.5f, -0.5f, 1.0f};
+    uint64_t t = 10000;
+    int k, rejected = 0, first_accept = -1;
+    setup(EST_MODE_IMU, EST_STAGE_CHI2_GATE, p0[0], p0[1], p0[2]);
+    for (k = 0; k < 80; k++, t += 10000) { /* converge on exact ranges */
+        CHECK(estimator_on_twr(&est, t, (uint8_t)(k % 8), range_to(&est, (uint8_t)(k % 8), p0), &r) == EST_OK);
+        CHECK(r.status == EST_ACCEPTED);
+    }
+    CHECK(estimator_on_twr(&est, t, 0, range_to(&est, 0, p0) + 1.0f, &r) == EST_OK); /* isolated */
+    CHECK(r.status == EST_REJECTED_CHI2);
+    for (k = 1; k < 8; k++) {
+        t += 10000;
+        CHECK(estimator_on_twr(&est, t, (uint8_t)k, range_to(&est, (uint8_t)k, p0), &r) == EST_OK);
+    }
+    for (k = 0; k < 6; k++) { /* anchor 0 now every 80 ms, always 1 m long */
+        int j;
+        t += 10000;
+        CHECK(estimator_on_twr(&est, t, 0, range_to(&est, 0, p0) + 1.0f, &r) == EST_OK);
+        if (r.status == EST_REJECTED_CHI2 && first_accept < 0) {
+            rejected++;
+        } else if (r.status == EST_ACCEPTED && first_accept < 0) {
+            first_accept = k;
+        }
+        for (j = 1; j < 8; j++) {
+            t += 10000;
+            CHECK(estimator_on_twr(&est, t, (uint8_t)j, range_to(&est, (uint8_t)j, p0), &r) == EST_OK);
+        }
+    }
+    /* its links rejected since the isolated outlier (its last fusion 80 ms before it): at its 3rd
+     * measurement in the loop they had been for 0.24 s > 0.2 s */
+    CHECK(rejected == 2 && first_accept == 2);
+}
+
 static void test_gate_dt_references(void)
 {
     estimator_result_t r;
@@ -694,6 +733,7 @@ int main(void)
     RUN(test_uwb_only_constant_velocity_tracking);
     RUN(test_statuses);
     RUN(test_gate_dt_references);
+    RUN(test_chi2_lockout_guard);
     RUN(test_bias_network_wiring);
     RUN(test_robust_update);
     RUN(test_nn_monitor);

@@ -36,8 +36,10 @@ static void test_window_state(void)
     CHECK_NEAR(gate_kinematic_window(&g, 1020000, 1, 1, 1015000, 1, 0.01f), 1.0, 1e-6);
     gate_kinematic_fused(&g, 1020000, 2, 2); /* anchor 2 fused, anchor 1 (measured at 1.02 s) was not */
     CHECK_NEAR(gate_kinematic_window(&g, 1030000, 2, 2, 1025000, 1, 0.01f), 0.01, 1e-9);
+    CHECK(g.rejected_us == 0);
     /* anchor 1: 20 ms since the last fusion + 1 s its links had been rejected */
     CHECK_NEAR(gate_kinematic_window(&g, 1040000, 1, 1, 1035000, 1, 0.01f), 1.02, 1e-6);
+    CHECK(g.rejected_us == 1000000); /* what the chi-square gate's guard sees */
     /* TDoA (2, 1): the longer rejection of the two */
     CHECK_NEAR(gate_kinematic_window(&g, 1050000, 2, 1, 1045000, 1, 0.01f), 1.05, 1e-6);
     gate_kinematic_fused(&g, 1050000, 2, 1);
@@ -74,6 +76,16 @@ static void test_chi2_boundary(void)
     CHECK(!gate_chi2_pass(1.0f, 1.0f, NAN));
 }
 
+/* The chi-square gate's lock-out guard: open only beyond GATE_CHI2_REOPEN_US of rejection. */
+static void test_chi2_reopen(void)
+{
+    CHECK(!gate_chi2_reopened(0));
+    CHECK(!gate_chi2_reopened(-1000000));
+    CHECK(!gate_chi2_reopened(GATE_CHI2_REOPEN_US));
+    CHECK(gate_chi2_reopened(GATE_CHI2_REOPEN_US + 1));
+    CHECK(gate_chi2_reopened(INT64_MAX));
+}
+
 int main(void)
 {
     RUN(test_dmax);
@@ -81,5 +93,6 @@ int main(void)
     RUN(test_window_state);
     RUN(test_kinematic_boundary);
     RUN(test_chi2_boundary);
+    RUN(test_chi2_reopen);
     return UNIT_DONE();
 }

@@ -18,6 +18,7 @@ class KinematicGate:
     # per anchor: when last measured / last part of a fused measurement (0 = never)
     t_anchor_seen_us: list[int] = field(default_factory=lambda: [0] * MAX_ANCHORS)
     t_anchor_fused_us: list[int] = field(default_factory=lambda: [0] * MAX_ANCHORS)
+    rejected_us: int = 0             # set by window(): how long its anchors' links had been rejected
 
     def reset(self) -> None:
         """Nothing fused yet (a new flight)."""
@@ -35,6 +36,7 @@ class KinematicGate:
         filter's reference time (None: none yet); marks the anchors as measured (gate_kinematic_window)."""
         valid = all(0 <= i < MAX_ANCHORS for i in ids)
         rejected = max(self._rejected_us(i) for i in ids) if valid else 0
+        self.rejected_us = rejected
         for i in ids if valid else ():
             self.t_anchor_seen_us[i] = t_us
         if t_ref is None:
@@ -84,6 +86,16 @@ def kinematic_pass(innovation: float, d_max: float, factor: float) -> bool:
 def chi2_pass(innovation: float, S: float, threshold: float) -> bool:
     """Normalised innovation squared test ``y^2 / S <= threshold`` (1 degree of freedom)."""
     return bool(innovation * innovation / S <= threshold)
+
+
+#: gate_chi2.h GATE_CHI2_REOPEN_US: a link with an anchor rejected for longer skips the chi-square gate
+CHI2_REOPEN_US = 200_000
+
+
+def chi2_reopened(rejected_us: int, reopen_us: int = CHI2_REOPEN_US) -> bool:
+    """The chi-square gate's lock-out guard (gate_chi2_reopened): open for a link whose anchors' links had
+    been rejected for longer than ``reopen_us`` (KinematicGate.rejected_us)."""
+    return rejected_us > reopen_us
 
 
 #: robust_update.h: Cauchy constant, iterations, smallest weight

@@ -19,7 +19,8 @@ from harness.config import (MODE_IMU, MODE_UWB_ONLY, STAGE_CHI2_GATE, STAGE_KINE
                             EstimatorConfig)
 from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStream, ImuStream, Truth, UwbStream
 from harness.twin.estimator import (ACCEPTED, FLAG_COVARIANCE, FLAG_DIVERGED, FLAG_GAP_RESTART, FLAG_HEIGHT_FUSED,
-                                    FLAG_OUT_OF_BOX, FLAG_SPEED, REJECTED_CHI2, REJECTED_KINEMATIC, TwinResult, run_flight)
+                                    FLAG_OUT_OF_BOX, FLAG_SPEED, REJECTED_CHI2, REJECTED_KINEMATIC, TwinEstimator,
+                                    TwinResult, run_flight)
 
 ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware_sim"
@@ -220,6 +221,49 @@ def test_chi2_gate_alone_matches_twin(replay_core: Path, mode: int) -> None:
     assert np.sum(t_status == REJECTED_CHI2) >= 2 * (len(flight.uwb) // 97)  # +1 m and -0.4 m outliers
     assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
     assert rmse(c.pos, flight) < 0.15
+
+
+class _TwinWithoutGuard(TwinEstimator):
+    """The twin with the chi-square gate's lock-out guard off (the gates before it)."""
+
+    def _chi2_reopened(self) -> bool:
+        return False
+
+
+@pytest.mark.parametrize("mode", [MODE_IMU, MODE_UWB_ONLY], ids=["imu", "uwb_only"])
+@pytest.mark.parametrize("kind", [KIND_TWR, KIND_TDOA], ids=["twr", "tdoa"])
+def test_chi2_lockout_guard_matches_twin(replay_core: Path, mode: int, kind: int) -> None:
+    """Anchor 3's range 1 m too long from 3 s to 5 s (a blocked line of sight): the chi-square gate rejects
+    its links at first and, once they have been rejected for GATE_CHI2_REOPEN_US, lets one through (then the
+    clock starts again), C and twin alike; without the guard they stay rejected to the end of the episode."""
+    flight = synthetic_flight(kind, noise=0.05, seed=13)
+    u = flight.uwb
+    on = (u.t_us >= 3_000_000) & (u.t_us < 5_000_000)
+    offset = 1.0 * ((u.anchor_b == 3).astype(float) - (u.anchor_a == 3)) if kind == KIND_TDOA else 1.0 * (u.anchor_a == 3)
+    flight = replace(flight, uwb=replace(u, value=f32(u.value + np.where(on, offset, 0.0))))
+    cfg = base_config(flight, mode, stages=STAGE_CHI2_GATE)
+    twin = run_flight(flight, cfg)
+    c = run_c(replay_core, flight, cfg)
+    t_status = np.array([r.status for r in twin])
+    np.testing.assert_array_equal(c.status, t_status)
+    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
+    hit = on & (offset != 0)
+    first = hit & (u.t_us < 3_150_000)       # within the guard time: rejected
+    late = hit & (u.t_us >= 3_500_000)
+    assert np.all(t_status[first] == REJECTED_CHI2)
+    accepted = u.t_us[late & (t_status == ACCEPTED)]
+    assert len(accepted) >= 4 and np.max(np.diff(accepted)) <= 300_000   # one at least every 0.3 s
+    before = _TwinWithoutGuard(cfg, flight.anchors.as_dict())
+    imu, uf, no_guard = flight.imu, flight.uwb, []
+    assert imu is not None
+    for t, source, i in flight.events():
+        if source == 0:
+            before.on_imu(t, imu.acc[i], imu.gyro[i])
+        elif kind == KIND_TWR:
+            no_guard.append(before.on_twr(t, int(uf.anchor_a[i]), float(uf.value[i])).status)
+        else:
+            no_guard.append(before.on_tdoa(t, int(uf.anchor_a[i]), int(uf.anchor_b[i]), float(uf.value[i])).status)
+    assert not np.any(np.array(no_guard)[late] == ACCEPTED)   # locked out to the end of the episode
 
 
 @pytest.mark.parametrize("mode", [MODE_IMU, MODE_UWB_ONLY], ids=["imu", "uwb_only"])
