@@ -10,8 +10,10 @@ and configuration otherwise), the way `uwb-hil run --uwb-only --stages none|outl
 from the recorded ground truth): per gate the count, the median |true error| of what it rejected and the
 share of good links among them (|true error| < 0.15 m); the share of true outliers (|true error| > 0.3 m)
 the gates let through; how much of the excess squared error over no rejection the three worst seconds
-carry (capture episodes); and an oracle bound: no rejection with every measurement of |true error| > 0.3 m
-dropped (truth used: a bound, not a method).
+carry (capture episodes); an oracle bound: no rejection with every measurement of |true error| > 0.3 m
+dropped; and no rejection with only the slowly varying error left (slow_only; both use the truth: bounds,
+not methods). `--dump T0:T1` also prints every measurement of that stretch (status, true error,
+innovation, z error, estimated vertical speed).
 
 `variants` prints the position RMSE of gate designs (all keep the kinematic and chi-square tests and
 change what follows from them):
@@ -43,10 +45,11 @@ from harness.flight.data import KIND_TWR, Flight
 from harness.flight.run_config import config_for
 from harness.flight.scenarios import scenario_flight
 from harness.twin import gates
-from harness.twin.estimator import ACCEPTED, REJECTED_CHI2, REJECTED_KINEMATIC, TwinEstimator
+from harness.twin.estimator import ACCEPTED, REJECTED_CHI2, REJECTED_KINEMATIC, TwinEstimator, TwinResult
 
 GOOD = 0.15      # |true error| below this: a good link [m]
 OUTLIER = 0.3    # |true error| above this: a true outlier [m]
+SLOW = 0.25      # slow_only(): errors farther than this from their pair's median are not slow [m]
 
 
 class NoGuard(TwinEstimator):
@@ -125,22 +128,28 @@ VARIANTS: dict[str, type[TwinEstimator]] = {"none": TwinEstimator, "outlier": Gu
                                             "integrator": Integrator, "rate-open": RateOpen, "culprit": Culprit}
 
 
-def replay(flight: Flight, cfg: EstimatorConfig, cls: type[TwinEstimator] = TwinEstimator,
-           keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (M, 3), statuses (M,)) of the UWB measurements (those in ``keep``) through ``cls``."""
+def replay_results(flight: Flight, cfg: EstimatorConfig, cls: type[TwinEstimator] = TwinEstimator,
+                   keep: np.ndarray | None = None, value: np.ndarray | None = None) -> list[TwinResult]:
+    """The twin's results for the UWB measurements (those in ``keep``; values ``value`` if given)."""
     twin = cls(cfg, flight.anchors.as_dict())
     u = flight.uwb
-    pos, status = [], []
+    z = np.asarray(u.value, dtype=np.float64) if value is None else value
+    out = []
     for t_us, source, i in flight.events():
         if source != 1 or (keep is not None and not keep[i]):
             continue
         if u.kind == KIND_TWR:
-            r = twin.on_twr(t_us, int(u.anchor_a[i]), float(u.value[i]))
+            out.append(twin.on_twr(t_us, int(u.anchor_a[i]), float(z[i])))
         else:
-            r = twin.on_tdoa(t_us, int(u.anchor_a[i]), int(u.anchor_b[i]), float(u.value[i]))
-        pos.append(r.pos)
-        status.append(r.status)
-    return np.array(pos), np.array(status)
+            out.append(twin.on_tdoa(t_us, int(u.anchor_a[i]), int(u.anchor_b[i]), float(z[i])))
+    return out
+
+
+def replay(flight: Flight, cfg: EstimatorConfig, cls: type[TwinEstimator] = TwinEstimator,
+           keep: np.ndarray | None = None, value: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (M, 3), statuses (M,)) of :func:`replay_results`."""
+    res = replay_results(flight, cfg, cls, keep, value)
+    return np.array([r.pos for r in res]), np.array([r.status for r in res])
 
 
 def true_error(flight: Flight) -> np.ndarray:
@@ -180,6 +189,34 @@ def log(flight: Flight) -> None:
     keep = ~bad
     po, _ = replay(flight, config(flight, "none"), keep=keep)
     print(f"  oracle (none, true outliers dropped): {rmse(flight, po, keep):.4f} m")
+    print(f"  slow error only (none, every error beyond {SLOW} m of its pair's median set to that median): "
+          f"{rmse(flight, replay(flight, config(flight, 'none'), value=slow_only(flight))[0]):.4f} m")
+
+
+def slow_only(flight: Flight) -> np.ndarray:
+    """The measurements with every error farther than SLOW from its anchor pair's median error replaced by
+    that median: what is left is the slowly varying error (truth used: a bound)."""
+    u = flight.uwb
+    err = true_error(flight)
+    keys = np.asarray(u.anchor_a, dtype=np.int64) * 4096 + np.asarray(u.anchor_b, dtype=np.int64)
+    med = np.zeros_like(err)
+    for k in np.unique(keys):
+        med[keys == k] = np.median(err[keys == k])
+    out = np.asarray(u.value, dtype=np.float64)
+    return np.where(np.abs(err - med) > SLOW, out - err + med, out)
+
+
+def dump(flight: Flight, t0_s: float, t1_s: float) -> None:
+    """Per measurement in [t0, t1) s after the first one, through the gates without the guard."""
+    res = replay_results(flight, config(flight, "outlier"), NoGuard)
+    u, err = flight.uwb, true_error(flight)
+    t = (u.t_us - u.t_us[0]) * 1e-6
+    truth = flight.truth.position_at(u.t_us)
+    names = {ACCEPTED: "accepted", REJECTED_KINEMATIC: "kinematic", REJECTED_CHI2: "chi-square"}
+    for i in np.flatnonzero((t >= t0_s) & (t < t1_s)):
+        r = res[i]
+        print(f"  {t[i]:8.3f} s  pair {u.anchor_a[i]}-{u.anchor_b[i]}  {names.get(r.status, '?'):10s} true error "
+              f"{err[i]:+.2f}  innovation {r.innovation:+.2f}  z error {r.pos[2] - truth[i, 2]:+.2f}  vz {r.vel[2]:+.2f}")
 
 
 def main() -> None:
@@ -189,6 +226,8 @@ def main() -> None:
     ap.add_argument("--sim-nlos", type=int, default=0, metavar="N",
                     help="also N seeds (1000...) of simulated obstacle-arena flights (error profile nlos, 40 s): "
                          "TDoA and TWR, circle and random")
+    ap.add_argument("--dump", default=None, metavar="T0:T1",
+                    help="log: also every measurement from T0 to T1 s after the first one")
     ap.add_argument("--reopen-ms", type=float, default=gates.CHI2_REOPEN_US / 1000, help="guard time of 'outlier'")
     ap.add_argument("--anchors", type=Path, default=None)
     ap.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated, of: " + ", ".join(VARIANTS))
@@ -204,6 +243,9 @@ def main() -> None:
     for flight in flights:
         if args.what == "log":
             log(flight)
+            if args.dump:
+                t0, _, t1 = args.dump.partition(":")
+                dump(flight, float(t0), float(t1))
             continue
         cells = [f"{v} {rmse(flight, replay(flight, config(flight, v), VARIANTS[v])[0]):.4f}" for v in names]
         print(f"{flight.name}: " + ", ".join(cells), flush=True)
