@@ -213,7 +213,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--model", help="bias model (.npz) the device must carry; the host build is built "
                                      "with it, any other device is refused if its HELLO reports another model")
     run.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                     help="override an estimator setting, e.g. --set std_tdoa=0.1 (repeatable)")
+                     help="override an estimator setting, e.g. --set std_tdoa=0.1 (repeatable); --set @FILE.toml "
+                          "takes the [settings] table of a settings file (harness/settings/)")
     run.add_argument("--results", help="write per-measurement results as JSON Lines here (locked while written; "
                                        "a file holding an unfinished run is kept unless --overwrite)")
     run.add_argument("--overwrite", action="store_true",

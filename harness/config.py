@@ -7,7 +7,9 @@ validate()) and the firmware's C struct, defaults and checks from them. Here: th
 
 from __future__ import annotations
 
+import tomllib
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Sequence
 
 from protocol.messages import ConfigError, EkfMode, EstimatorConfigBase, Stage  # noqa: F401 (ConfigError re-exported)
@@ -58,12 +60,31 @@ class EstimatorConfig(EstimatorConfigBase):
         return replace(self, init_x=float(x), init_y=float(y), init_z=float(z))
 
 
+def settings_file(path: str | Path) -> list[str]:
+    """The ``[settings]`` table of a settings file (e.g. harness/settings/*.toml) as ``FIELD=VALUE`` items:
+    a documented, named set of estimator overrides instead of --set flags typed by hand."""
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ValueError(f"settings file {path}: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"settings file {path}: {exc}") from None
+    table = data.get("settings")
+    if not isinstance(table, dict) or not table:
+        raise ValueError(f"settings file {path}: no [settings] table of FIELD = VALUE")
+    return [f"{k}={v}" for k, v in table.items()]
+
+
 def config_with(settings: Sequence[str]) -> EstimatorConfig:
     """EstimatorConfig() with `FIELD=VALUE` overrides (numeric fields; mode, stages and the initial position
-    come from their own options and the flight)."""
+    come from their own options and the flight). An item `@FILE.toml` stands for that file's settings
+    (settings_file); later items win."""
     allowed = [k for k in vars(EstimatorConfig()) if k not in ("mode", "stages", "init_x", "init_y", "init_z")]
     overrides: dict[str, float] = {}
+    items: list[str] = []
     for item in settings:
+        items += settings_file(item[1:]) if item.startswith("@") else [item]
+    for item in items:
         name, sep, text = item.partition("=")
         if not sep or name.strip() not in allowed:
             raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(allowed)}")

@@ -13,8 +13,14 @@
 #include <stdint.h>
 
 #define BIAS_ST_ANCHORS 16   /* = ESTIMATOR_MAX_ANCHORS */
-#define BIAS_ST_TAU_S 0.3f   /* correlation time [s]; both chosen on UTIL training flights (docs/bias-network.md) */
+/* Both chosen on UTIL training flights (docs/bias-network.md); -D overrides them for sweeps only
+ * (scripts/replay_cv.py builds with DEFS=...), the twin keeps these values. */
+#ifndef BIAS_ST_TAU_S
+#define BIAS_ST_TAU_S 0.3f   /* correlation time [s] */
+#endif
+#ifndef BIAS_ST_STD
 #define BIAS_ST_STD 0.12f    /* stationary std [m] of what the network leaves slowly varying */
+#endif
 
 typedef struct {
     float b[BIAS_ST_ANCHORS];        /* estimated bias of each anchor's range [m] */
