@@ -1,0 +1,50 @@
+"""scripts/replay_cv.py: the grid, the out-of-fold flights (never trial 5) and its refusal without folds."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "replay_cv.py"
+
+
+@pytest.fixture(scope="module")
+def rcv() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("replay_cv", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["replay_cv"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_grid_is_the_cartesian_product(rcv: ModuleType) -> None:
+    grid = rcv.parse_grid(["proc_cv_acc=1,2", "std_tdoa=0.1,0.2,0.3"])
+    assert len(grid) == 6
+    assert {"proc_cv_acc": "2", "std_tdoa": "0.3"} in grid
+    assert rcv.parse_grid([]) == [{}]
+    with pytest.raises(SystemExit):
+        rcv.parse_grid(["proc_cv_acc"])
+
+
+def test_training_flights_are_trials_1_to_4_with_their_mode(rcv: ModuleType, tmp_path: Path) -> None:
+    for c, modes in ((1, ("tdoa2", "tdoa3")), (2, ("tdoa2",))):
+        d = tmp_path / "util" / f"const{c}"
+        d.mkdir(parents=True)
+        for t in range(1, 6):
+            for m in modes:
+                (d / f"const{c}-trial{t}-{m}-extracted.csv").write_text("")
+    flights = rcv.training_flights(tmp_path)
+    assert len(flights) == 12
+    assert all("trial5" not in f.path.name and f.trial in (1, 2, 3, 4) for f in flights)
+    assert sum(f.mode == "tdoa3" for f in flights) == 4
+    assert flights[0].label == "const1-trial1-tdoa2"
+
+
+def test_without_fold_networks_it_exits_2(rcv: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sys, "argv", ["replay_cv.py", "--data", str(tmp_path), "--folds", str(tmp_path / "none")])
+    assert rcv.main() == 2
