@@ -2,7 +2,7 @@
 
     python scripts/truth_motion.py RECORDING... [--rate 20]
 
-Per recording: measurements per second, and the RMS of the ground truth's velocity and acceleration per
+Per recording: measurements per second, the truth's height range, and the RMS of the ground truth's velocity and acceleration per
 axis (positions resampled at --rate Hz, central differences). The UWB-only CV model's process noise is one
 white-acceleration std for all axes (proc_cv_acc); docs/bias-network.md, "Filter settings ...".
 """
@@ -32,7 +32,9 @@ def main() -> None:
         a = np.gradient(v, dt, axis=0)
         rate = len(flight.uwb.t_us) / ((flight.uwb.t_us[-1] - flight.uwb.t_us[0]) * 1e-6)
         rms = lambda x: " ".join(f"{s:.3f}" for s in np.sqrt(np.mean(x ** 2, axis=0)))  # noqa: E731
-        print(f"{path.name}: {rate:.0f} meas/s, velocity RMS x y z {rms(v)} m/s, acceleration RMS x y z {rms(a)} m/s^2")
+        z = flight.truth.position_at(t)[:, 2]
+        print(f"{path.name}: {rate:.0f} meas/s, z {z.min():.2f}-{z.max():.2f} m, below 0.5 m "
+              f"{100 * np.mean(p[:, 2] < 0.5):.0f} % of the time, velocity RMS x y z {rms(v)} m/s, acceleration RMS x y z {rms(a)} m/s^2")
 
 
 if __name__ == "__main__":
