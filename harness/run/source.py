@@ -51,7 +51,9 @@ class RunSource:
     def as_header(self) -> dict[str, Any]:
         """For the results header: file paths made absolute, so a resume works from any directory."""
         src = asdict(self)
-        src["set"] = list(self.set)
+        # a settings file (`--set @FILE.toml`) too; the resume re-reads it (its values are not in the header,
+        # but the resume compares the configuration they give with the recorded run's)
+        src["set"] = [f"@{Path(item[1:]).resolve()}" if item.startswith("@") else item for item in self.set]
         for k in ("recording", "anchors", "model", "range_offset"):
             if src[k]:
                 src[k] = str(Path(src[k]).resolve())

@@ -46,3 +46,13 @@ def test_shipped_settings_files_are_valid() -> None:
         items = settings_file(f)
         cfg = config_with([f"@{f}"])
         assert items and cfg != EstimatorConfig(), f"{f.name} changes nothing"
+
+
+def test_results_header_names_the_settings_file_absolutely(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from harness.run.source import RunSource
+    (tmp_path / "s.toml").write_text("[settings]\nstd_tdoa = 0.2\n")
+    monkeypatch.chdir(tmp_path)
+    header = RunSource(set=["@s.toml", "proc_cv_acc=1"]).as_header()
+    assert header["set"] == [f"@{tmp_path / 's.toml'}", "proc_cv_acc=1"]
+    monkeypatch.chdir("/")
+    assert config_with(header["set"]).std_tdoa == pytest.approx(0.2)   # a resume elsewhere finds it
