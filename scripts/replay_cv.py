@@ -47,9 +47,9 @@ class Flight:
         return re.sub(r"-extracted\.csv$", "", self.path.name)
 
 
-def training_flights(data: Path) -> list[Flight]:
+def training_flights(data: Path, trials: tuple[int, ...] = TRIALS) -> list[Flight]:
     out = []
-    for t in TRIALS:
+    for t in trials:
         for c in (1, 2):
             out += [Flight(t, p) for p in sorted((data / "util" / f"const{c}").glob(f"const{c}-trial{t}-tdoa*-extracted.csv"))]
     return out
@@ -99,10 +99,16 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
     ap.add_argument("--states", default=None, help="TAU:STD,... bias-state constants to try (rebuilds)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--trials", default="1,2,3,4", help="training trials to replay (a subset of 1-4)")
+    ap.add_argument("--fold-suffix", default="", help="fold networks util_fold_trialT{SUFFIX}.npz (e.g. _distilled)")
     args = ap.parse_args()
-    flights = training_flights(args.data)
+    trials = tuple(int(t) for t in args.trials.split(","))
+    if not set(trials) <= set(TRIALS):
+        print(f"--trials must be among {TRIALS}, got {trials}", file=sys.stderr)
+        return 2
+    flights = training_flights(args.data, trials)
     anchors = args.data / "util" / "anchors.csv"
-    models = {t: args.folds / f"util_fold_trial{t}.npz" for t in TRIALS}
+    models = {t: args.folds / f"util_fold_trial{t}{args.fold_suffix}.npz" for t in trials}
     missing = [str(p) for p in models.values() if not p.is_file()]
     if missing or not flights:
         print(f"missing fold networks {missing} (python scripts/replay_cv_folds.py) or flights", file=sys.stderr)
@@ -110,7 +116,7 @@ def main() -> int:
     states = [tuple(s.split(":")) for s in args.states.split(",")] if args.states else [None]
     rows = []
     for st in states:
-        exes = {t: firmware(models[t], st) for t in TRIALS}  # type: ignore[arg-type]
+        exes = {t: firmware(models[t], st) for t in trials}  # type: ignore[arg-type]
         for setting in parse_grid(args.grid):
             sets = list(args.set) + [f"{k}={v}" for k, v in setting.items()]
             acc = {f.label: replay(f, *exes[f.trial], models[f.trial], anchors, args.stages, sets) for f in flights}

@@ -48,3 +48,8 @@ def test_training_flights_are_trials_1_to_4_with_their_mode(rcv: ModuleType, tmp
 def test_without_fold_networks_it_exits_2(rcv: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(sys, "argv", ["replay_cv.py", "--data", str(tmp_path), "--folds", str(tmp_path / "none")])
     assert rcv.main() == 2
+
+
+def test_trials_outside_1_to_4_are_refused(rcv: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sys, "argv", ["replay_cv.py", "--data", str(tmp_path), "--trials", "5"])
+    assert rcv.main() == 2
