@@ -72,6 +72,14 @@ def settings_file(path: str | Path) -> list[str]:
     table = data.get("settings")
     if not isinstance(table, dict) or not table:
         raise ValueError(f"settings file {path}: no [settings] table of FIELD = VALUE")
+    # a key above the [settings] header would otherwise be dropped without a word (other tables, e.g. a
+    # [source] with provenance, are the file's own business)
+    stray = [k for k, v in data.items() if not isinstance(v, dict)]
+    if stray:
+        raise ValueError(f"settings file {path}: {', '.join(stray)} outside the [settings] table")
+    for k, v in table.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f"settings file {path}: {k} = {v!r} is not a number")
     return [f"{k}={v}" for k, v in table.items()]
 
 

@@ -240,6 +240,8 @@ def main() -> None:
     flights = load_recordings(args.recordings, args.anchors) if args.recordings else []
     flights += [scenario_flight(scen, mode=mode, duration_s=40.0, seed=1000 + k, profile="nlos")
                 for mode in ("tdoa", "twr") for scen in ("circle", "random") for k in range(args.sim_nlos)]
+    if not flights:
+        ap.error("no flights: give recordings and/or --sim-nlos N")
     for flight in flights:
         if args.what == "log":
             log(flight)

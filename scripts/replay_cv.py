@@ -122,7 +122,7 @@ def main() -> int:
             acc = {f.label: replay(f, *exes[f.trial], models[f.trial], anchors, args.stages, sets) for f in flights}
             rmse = {k: a["rmse"] for k, a in acc.items()}
             by_mode = {m: mean([rmse[f.label] for f in flights if f.mode == m]) for m in ("tdoa2", "tdoa3")}
-            row = {"setting": setting | ({"tau": st[0], "std": st[1]} if st else {}), "rmse": rmse, "accuracy": acc, "accuracy": acc,
+            row = {"setting": setting | ({"tau": st[0], "std": st[1]} if st else {}), "rmse": rmse, "accuracy": acc,
                    "mean_tdoa2": by_mode["tdoa2"], "mean_tdoa3": by_mode["tdoa3"], "mean": mean(list(rmse.values()))}
             rows.append(row)
             print(f"{json.dumps(row['setting'])}: tdoa2 {row['mean_tdoa2']:.4f} tdoa3 {row['mean_tdoa3']:.4f} "

@@ -16,6 +16,7 @@ from harness.biasnet.recipes import STD_HEAD_RECIPE, SimRecipe
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.uncertainty import StdHeadConfig
 from harness.biasnet.workflow import EvalOptions, evaluate_model, fit_std_head, flights_for, train_into_model
+from harness.errors import UsageError
 from harness.optional import require_torch
 from harness.paths import SHARED_DATA
 from harness.report import jsonsafe
@@ -43,6 +44,8 @@ def _paths(items: list[str] | None) -> list[Path] | None:
 
 def cmd_train(args: argparse.Namespace) -> int:
     require_torch("uwb-hil train")       # before loading any data: say at once what is missing
+    if args.jitter and args.ensemble is None:
+        raise UsageError("--jitter applies to the distilled student: it needs --ensemble K")
     recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
                        profile=args.profile)
     flights, kind, sources = flights_for(_paths(args.recording), Path(args.anchors) if args.anchors else None,

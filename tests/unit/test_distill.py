@@ -99,3 +99,5 @@ def test_train_ensemble_option_writes_one_distilled_network(tmp_path, capsys) ->
     assert dist["teachers"] == 2 and len(dist["folds"]) == 2 and dist["student_vs_teacher_m"] < 0.05
     assert cli.main([*argv, "--ensemble", "1"]) == 2           # an ensemble of one is refused, by name
     assert "at least 2 teachers" in capsys.readouterr().err
+    assert cli.main([*argv, "--jitter", "0.1"]) == 2             # jitter without a student to jitter for
+    assert "needs --ensemble" in capsys.readouterr().err

@@ -45,9 +45,15 @@ def test_training_flights_are_trials_1_to_4_with_their_mode(rcv: ModuleType, tmp
     assert flights[0].label == "const1-trial1-tdoa2"
 
 
-def test_without_fold_networks_it_exits_2(rcv: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_without_fold_networks_it_exits_2(rcv: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    d = tmp_path / "util" / "const1"
+    d.mkdir(parents=True)
+    for t in range(1, 5):                  # flights are there: the missing fold networks are the reason
+        (d / f"const1-trial{t}-tdoa2-extracted.csv").write_text("")
     monkeypatch.setattr(sys, "argv", ["replay_cv.py", "--data", str(tmp_path), "--folds", str(tmp_path / "none")])
     assert rcv.main() == 2
+    assert "util_fold_trial1.npz" in capsys.readouterr().err
 
 
 def test_trials_outside_1_to_4_are_refused(rcv: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -26,6 +26,9 @@ def test_file_settings_apply_and_later_items_win(tmp_path: Path) -> None:
     ("[settings]\nproc_cv_acc = -1.0\n", "proc_cv_acc"),
     ("[other]\nx = 1\n", "no \\[settings\\] table"),
     ("[settings\n", "settings file"),
+    ("nn_min_z = -1.0\n[settings]\nstd_tdoa = 0.3\n", "nn_min_z outside the \\[settings\\] table"),
+    ("[settings]\nstd_tdoa = \"0.3\"\n", "is not a number"),
+    ("[settings]\nstd_tdoa = true\n", "is not a number"),
 ])
 def test_bad_settings_files_are_refused_with_a_reason(tmp_path: Path, text: str, why: str) -> None:
     f = tmp_path / "bad.toml"

@@ -35,6 +35,7 @@ TWIN_OF = {
     "EKF_GYRO_NOISE_RP": ("ekf", "GYRO_NOISE_RP"),
     "EKF_GYRO_NOISE_YAW": ("ekf", "GYRO_NOISE_YAW"),
     "GATE_KIN_ANCHORS": ("gates", "MAX_ANCHORS"),
+    "GATE_CHI2_REOPEN_US": ("gates", "CHI2_REOPEN_US"),
     "ROBUST_CAUCHY_C": ("gates", "ROBUST_CAUCHY_C"),
     "ROBUST_ITERATIONS": ("gates", "ROBUST_ITERATIONS"),
     "ROBUST_W_MIN": ("gates", "ROBUST_W_MIN"),
