@@ -15,6 +15,7 @@ import numpy as np
 from harness.calibrate.stats import CalibrationError, error_stats, trial_summary
 from harness.flight.arena import Arena
 from harness.flight.data import KIND_TWR, Anchors
+from harness.flight.formats.rcv_twr import ORIENTATION_COLUMNS, POSITION_COLUMNS, RANGE_COLUMNS, readme_anchor_offset
 from harness.flight.measurement_errors import SimConfig, azimuth_elevation, link_directions, sim_config, uwb_errors
 
 
@@ -35,40 +36,42 @@ class TwrLinks:
 
 
 def read_rcv_ranges(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """rcv_twr anchor_K.csv -> (t_s, range, tag pos (N, 3), tag quat (N, 4) w, x, y, z)."""
-    want = ["Time", "Address", "Range", "Rxpower", "Position X", "Position Y", "Position Z",
-            "Orientation X", "Orientation Y", "Orientation Z", "Orientation W"]
+    """rcv_twr anchor_K.csv -> (t_s, range, tag pos (N, 3), tag quat (N, 4) w, x, y, z). The columns are
+    the loader's (formats/rcv_twr.py RANGE_COLUMNS), looked up by name in the file's header."""
+    numeric = ("Range", *POSITION_COLUMNS, *ORIENTATION_COLUMNS)
     if not path.is_file():
         raise CalibrationError(f"{path}: file not found")
     t, vals = [], []
     with path.open(newline="") as fh:
         reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None or [h.strip() for h in header] != want:
-            raise CalibrationError(f"{path}:1: expected header {','.join(want)}, got {header!r}")
+        header = [h.strip() for h in next(reader, [])]
+        if not set(RANGE_COLUMNS) <= set(header):
+            raise CalibrationError(f"{path}:1: expected header with {','.join(RANGE_COLUMNS)}, got {header!r}")
+        col = {name: header.index(name) for name in RANGE_COLUMNS}
         for lineno, row in enumerate(reader, start=2):
-            if len(row) != len(want):
-                raise CalibrationError(f"{path}:{lineno}: expected {len(want)} fields, got {len(row)}")
+            if len(row) != len(header):
+                raise CalibrationError(f"{path}:{lineno}: expected {len(header)} fields, got {len(row)}")
             try:
-                t.append(datetime.fromisoformat(row[0]).timestamp())
+                t.append(datetime.fromisoformat(row[col["Time"]]).timestamp())
             except ValueError:
-                raise CalibrationError(f"{path}:{lineno}: field Time is not a date-time: {row[0]!r}") from None
+                raise CalibrationError(f"{path}:{lineno}: field Time is not a date-time: {row[col['Time']]!r}"
+                                       ) from None
             try:
-                vals.append([float(x) for x in row[2:]])
+                vals.append([float(row[col[c]]) for c in numeric])
             except ValueError:
-                raise CalibrationError(f"{path}:{lineno}: a numeric field is not a number: {row[2:]}") from None
+                raise CalibrationError(f"{path}:{lineno}: a numeric field is not a number: "
+                                       f"{[row[col[c]] for c in numeric]}") from None
     if not vals:
         raise CalibrationError(f"{path}: no ranges")
     a = np.array(vals)
     if not np.all(np.isfinite(a)):
         raise CalibrationError(f"{path}: non-finite values")
-    q = a[:, [8, 5, 6, 7]]
-    return np.array(t), a[:, 0], a[:, 2:5], q / np.linalg.norm(q, axis=1, keepdims=True)
+    q = a[:, [7, 4, 5, 6]]
+    return np.array(t), a[:, 0], a[:, 1:4], q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 def rcv_twr_links(data_dir: Path, config: SimConfig | None = None, seed: int = 7) -> TwrLinks:
     from harness.flight.formats.anchors import load_anchors
-    from harness.flight.formats.rcv_twr import readme_anchor_offset
     root = data_dir / "rcv_twr"
     seqs = sorted(p for p in root.glob("sequence*") if p.is_dir())
     if not seqs:

@@ -20,7 +20,7 @@ import numpy as np
 from harness.flight.formats.anchors import (load_anchor_yaml, load_anchors, load_anchors_csv, load_survey_npz,
                                             load_survey_txt)
 from harness.flight.formats.common import RecordingError
-from harness.flight.formats.rcv_twr import (ANCHOR_COLUMNS, FROM_DATA_README, GT_COLUMNS, is_rcv_twr_dir,
+from harness.flight.formats.rcv_twr import (RANGE_COLUMNS, FROM_DATA_README, GT_COLUMNS, is_rcv_twr_dir,
                                             load_rcv_twr)
 from harness.flight.formats.util import constellation_from_name, load_util_csv, util_layout
 from harness.flight.data import KIND_TWR, Anchors, Flight, FlightError
@@ -80,7 +80,7 @@ def _load(path: Path, anchors: AnchorsArg, constellation: int | None,
     header = _header(path)
     if util_layout(header) is not None:
         return load_util_csv(path, _util_anchors(anchors, path, constellation))
-    if header == ANCHOR_COLUMNS or header == GT_COLUMNS:
+    if set(RANGE_COLUMNS) <= set(header) or set(GT_COLUMNS) <= set(header):
         raise RecordingError("this is one file of an rcv_twr sequence: pass the sequence directory", path=path)
     if "anchor_id" in header:
         raise RecordingError("this is an anchor file: pass it as the anchors, with a recording", path=path)

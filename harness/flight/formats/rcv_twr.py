@@ -2,10 +2,10 @@
 
 A sequence is a directory:
 * `anchor.yaml`: anchor positions [m] and orientation quaternions [x, y, z, w] (see formats/anchors.py);
-* `anchor_K.csv`: `Time,Address,Range,Rxpower,Position X,Position Y,Position Z,Orientation X,Orientation Y,
-  Orientation Z,Orientation W`: TWR ranges to anchor K (1 cm resolution) with the tag pose the source
-  matched to each (nearest motion-capture sample within 10 ms); Time is a wall-clock datetime string;
-* `gt.csv`: `Time,Position X,Position Y,Position Z,Orientation X..W`: the whole motion-capture stream.
+* `anchor_K.csv`: TWR ranges to anchor K (1 cm resolution) with the tag pose the source matched to each
+  (nearest motion-capture sample within 10 ms); the columns read are RANGE_COLUMNS (others, such as the
+  received power, are ignored); Time is a wall-clock datetime string;
+* `gt.csv`: the whole motion-capture stream (GT_COLUMNS).
 
 The four anchors' ranges are merged in time order into one TWR stream (anchor id = K). Times become
 microseconds since the earliest timestamp of the sequence. Truth is gt.csv (pose as recorded, taken as the
@@ -26,13 +26,15 @@ import numpy as np
 
 from harness.flight.formats.anchors import load_anchor_yaml
 from harness.flight.formats.common import (CsvTable, RecordingError, anchor_positions, check_not_backwards,
-                                           distinct_poses, normalised_quats, read_csv_table, repeated_rows)
+                                           distinct_poses, normalised_quats, read_csv_table, repeated_rows,
+                                           require_columns)
 from harness.flight.data import KIND_TWR, Anchors, Flight, FlightError, Truth, UwbStream
 
-ANCHOR_COLUMNS = ("Time", "Address", "Range", "Rxpower", "Position X", "Position Y", "Position Z",
-                  "Orientation X", "Orientation Y", "Orientation Z", "Orientation W")
-GT_COLUMNS = ("Time", "Position X", "Position Y", "Position Z", "Orientation X", "Orientation Y",
-              "Orientation Z", "Orientation W")
+POSITION_COLUMNS = tuple(f"Position {a}" for a in "XYZ")
+ORIENTATION_COLUMNS = tuple(f"Orientation {a}" for a in "XYZW")     # quaternion x, y, z, w
+#: the columns the readers use, looked up by name (a file may carry more; their order is the file's)
+RANGE_COLUMNS = ("Time", "Address", "Range", *POSITION_COLUMNS, *ORIENTATION_COLUMNS)
+GT_COLUMNS = ("Time", *POSITION_COLUMNS, *ORIENTATION_COLUMNS)
 #: anchor_offset default: the antenna offset the data folder's README.md states (see readme_anchor_offset)
 FROM_DATA_README = "readme"
 _README_OFFSET = re.compile(r"adds\s*\(([^)]*)\)\s*m\s+to\s+the\s+anchor\s+positions", re.IGNORECASE)
@@ -122,14 +124,14 @@ def _read_tables(directory: Path,
         raise RecordingError("no anchor_K.csv range files in this directory", path=directory)
     gt_path = directory / "gt.csv"
     gt = read_csv_table(gt_path, "rcv_twr ground-truth CSV")
-    _require(gt, GT_COLUMNS)
+    require_columns(gt, GT_COLUMNS, "rcv_twr ground-truth CSV")
     if len(gt) < 2:
         raise RecordingError(f"the ground truth needs at least 2 samples, got {len(gt)}", path=gt_path)
     gt_t = _datetimes(gt)
     tables: list[tuple[int, CsvTable, np.ndarray]] = []
     for k, path in files:
         table = read_csv_table(path, "rcv_twr range CSV")
-        _require(table, ANCHOR_COLUMNS)
+        require_columns(table, RANGE_COLUMNS, "rcv_twr range CSV")
         if k not in known:
             raise RecordingError(f"unknown anchor {k}: the anchor file has {sorted(known)}", path=path)
         tables.append((k, table, _datetimes(table)))
@@ -147,7 +149,7 @@ def _merged_ranges(tables: list[tuple[int, CsvTable, np.ndarray]], t0: int, drop
         check_not_backwards(t, table, "Time")
         rng = table.floats("Range")
         addr = table.ints("Address", hi=1 << 31)
-        pose = np.stack([table.floats(c) for c in ("Position X", "Position Y", "Position Z")], axis=1)
+        pose = np.stack([table.floats(c) for c in POSITION_COLUMNS], axis=1)
         rep = repeated_rows(t, rng, pose)
         if rep.any():
             dropped[f"duplicate_rows_anchor_{k}"] = int(rep.sum())
@@ -162,12 +164,6 @@ def _merged_ranges(tables: list[tuple[int, CsvTable, np.ndarray]], t0: int, drop
     t, aid, rng, matched = (np.concatenate([p[i] for p in parts]) for i in range(4))
     order = np.lexsort((aid, t))    # time order; equal times by anchor id, so the merge is deterministic
     return t[order], aid[order], rng[order], matched[order]
-
-
-def _require(table: CsvTable, columns: tuple[str, ...]) -> None:
-    if tuple(table.header) != columns:
-        raise RecordingError(f"expected the header {','.join(columns)}, got {','.join(table.header)}",
-                             path=table.path, line=1)
 
 
 def _datetimes(table: CsvTable) -> np.ndarray:
@@ -189,9 +185,8 @@ def _datetimes(table: CsvTable) -> np.ndarray:
 
 def _truth(gt: CsvTable, t: np.ndarray, dropped: dict[str, int]) -> Truth:
     check_not_backwards(t, gt, "Time")
-    pos = np.stack([gt.floats(c) for c in ("Position X", "Position Y", "Position Z")], axis=1)
-    q_xyzw = np.stack([gt.floats(c) for c in ("Orientation X", "Orientation Y", "Orientation Z",
-                                              "Orientation W")], axis=1)
+    pos = np.stack([gt.floats(c) for c in POSITION_COLUMNS], axis=1)
+    q_xyzw = np.stack([gt.floats(c) for c in ORIENTATION_COLUMNS], axis=1)
     quat = normalised_quats(q_xyzw[:, [3, 0, 1, 2]], gt, "Orientation W")
     keep, n_rep = distinct_poses(t, gt, "Time", pos, quat)
     if n_rep:
