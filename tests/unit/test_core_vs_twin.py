@@ -173,6 +173,15 @@ def run_c(exe: Path, flight: Flight, cfg: EstimatorConfig, with_model: bool = Fa
                 divergences=int(summary[2]), heights=int(summary[3]))
 
 
+def assert_core_equals_twin(c: CRun, twin: list[TwinResult], innovation_var: bool = False) -> None:
+    """Same statuses as the twin, positions within float32 noise (and S within 0.1 % when asked)."""
+    np.testing.assert_array_equal(c.status, np.array([r.status for r in twin]))
+    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
+    if innovation_var:
+        t_s = np.array([r.innovation_var for r in twin])
+        assert np.max(np.abs(c.S - t_s) / t_s) < 1e-3
+
+
 def rmse(pos: np.ndarray, flight: Flight) -> float:
     return float(np.sqrt(np.mean(np.sum((pos - flight.truth.pos) ** 2, axis=1))))
 
@@ -412,10 +421,8 @@ def test_core_matches_twin_with_a_std_head_network(replay_core_std: tuple[Path, 
     cfg = base_config(flight, MODE_IMU, stages=PRESETS[preset])
     twin = run_flight(flight, cfg, model)
     c = run_c(exe, flight, cfg, with_model=True)
-    np.testing.assert_array_equal(c.status, np.array([r.status for r in twin]))
-    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
+    assert_core_equals_twin(c, twin, innovation_var=True)
     t_s = np.array([r.innovation_var for r in twin])
-    assert np.max(np.abs(c.S - t_s) / t_s) < 1e-3
     assert rmse(c.pos, flight) < 0.15
     std_cfg = cfg.std_tdoa if kind == KIND_TDOA else cfg.std_twr
     airborne = np.array([r.pos[2] for r in twin]) > cfg.nn_min_z
@@ -440,8 +447,7 @@ def test_robust_update_matches_twin_and_resists_outliers(replay_core: Path, mode
     cfg = replace(base_config(flight, mode, stages=PRESETS["robust"]), std_twr=0.1)
     twin = run_flight(flight, cfg)
     c = run_c(replay_core, flight, cfg)
-    np.testing.assert_array_equal(c.status, np.array([r.status for r in twin]))
-    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
+    assert_core_equals_twin(c, twin)
     # Without any gate, the +1 m (10 sigma) and -0.4 m outliers are all fused: the weights alone must keep
     # them from pulling the estimate, the C core as the twin.
     alone = replace(cfg, stages=STAGE_ROBUST_UPDATE)
@@ -463,10 +469,8 @@ def test_correction_fades_outside_the_training_range_as_in_the_twin(tmp_path_fac
     cfg = base_config(flight, MODE_IMU, stages=PRESETS["outlier+nn+std"])
     twin = run_flight(flight, cfg, model)
     c = run_c(exe, flight, cfg, with_model=True)
-    np.testing.assert_array_equal(c.status, np.array([r.status for r in twin]))
-    assert np.max(np.abs(c.pos - np.array([r.pos for r in twin]))) < 1e-4
+    assert_core_equals_twin(c, twin, innovation_var=True)
     t_s = np.array([r.innovation_var for r in twin])
-    assert np.max(np.abs(c.S - t_s) / t_s) < 1e-3
     # Where the estimate's dp_x leaves [-3.6, 3.6] m by more than 10 % of the width the bias is exactly 0
     # and the std the configured one; inside it the network runs. Both happen on this flight.
     bias = np.array([r.bias for r in twin])
