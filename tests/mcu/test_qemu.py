@@ -23,16 +23,6 @@ pytestmark = pytest.mark.timeout(600)
 
 
 @pytest.fixture(scope="session")
-def arm_tools() -> None:
-    """The toolchain and QEMU, installed on demand (idempotent script); skip if that is impossible."""
-    from harness.stm32_build import BuildError, ensure_tools
-    try:
-        ensure_tools()
-    except BuildError as exc:
-        pytest.skip(str(exc))
-
-
-@pytest.fixture(scope="session")
 def stm32_selftest(arm_tools: None) -> Path:
     """selftest.elf: the board layer alone."""
     from harness.stm32_build import build_stm32

@@ -11,12 +11,8 @@ pytestmark = pytest.mark.timeout(600)
 
 
 @pytest.fixture(scope="module")
-def stm32_elf() -> Path:
-    from harness.stm32_build import BuildError, build_stm32, ensure_tools
-    try:
-        ensure_tools()
-    except BuildError as exc:
-        pytest.skip(str(exc))
+def stm32_elf(arm_tools: None) -> Path:
+    from harness.stm32_build import build_stm32
     return build_stm32(("fw",)) / "uwb-fw.elf"
 
 
