@@ -169,7 +169,7 @@ class Config:
     init_z: float
     init_std_xy: float  # initial horizontal position std
     init_std_z: float  # initial vertical position std
-    nn_min_z: float  # bias correction only when the estimated z is above this
+    nn_min_z: float  # bias correction only when the estimated z is above this (0.5: the paper's take-off rule; the power-up -1 corrects at every height)
     sup_margin: float  # supervisor: the position must stay inside the anchors' bounding box widened by this
     sup_max_speed: float  # supervisor: speed bound (as the Crazyflie's maxVel)
     sup_max_var: float  # supervisor: bound on each position variance (the covariance clamp is 100)
@@ -552,7 +552,7 @@ CONFIG_FIELDS: tuple[ConfigField, ...] = (
     ConfigField('init_z', 'f32', 0.0, unit='m'),
     ConfigField('init_std_xy', 'f32', 1.0, unit='m', doc='initial horizontal position std', gt=0.0),
     ConfigField('init_std_z', 'f32', 1.0, unit='m', doc='initial vertical position std', gt=0.0),
-    ConfigField('nn_min_z', 'f32', 0.5, unit='m', doc='bias correction only when the estimated z is above this'),
+    ConfigField('nn_min_z', 'f32', -1.0, unit='m', doc="bias correction only when the estimated z is above this (0.5: the paper's take-off rule; the power-up -1 corrects at every height)"),
     ConfigField('sup_margin', 'f32', 10.0, unit='m', doc="supervisor: the position must stay inside the anchors' bounding box widened by this", ge=0.0),
     ConfigField('sup_max_speed', 'f32', 10.0, unit='m/s', doc="supervisor: speed bound (as the Crazyflie's maxVel)", gt=0.0),
     ConfigField('sup_max_var', 'f32', 50.0, unit='m^2', doc='supervisor: bound on each position variance (the covariance clamp is 100)', gt=0.0),
@@ -583,7 +583,7 @@ class EstimatorConfigBase:
     init_z: float = 0.0  # [m]
     init_std_xy: float = 1.0  # initial horizontal position std [m], > 0
     init_std_z: float = 1.0  # initial vertical position std [m], > 0
-    nn_min_z: float = 0.5  # bias correction only when the estimated z is above this [m]
+    nn_min_z: float = -1.0  # bias correction only when the estimated z is above this (0.5: the paper's take-off rule; the power-up -1 corrects at every height) [m]
     sup_margin: float = 10.0  # supervisor: the position must stay inside the anchors' bounding box widened by this [m], >= 0
     sup_max_speed: float = 10.0  # supervisor: speed bound (as the Crazyflie's maxVel) [m/s], > 0
     sup_max_var: float = 50.0  # supervisor: bound on each position variance (the covariance clamp is 100) [m^2], > 0

@@ -102,7 +102,8 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
 }
 
 /* Bias (measured - true) from the network of this kind, or 0 when the stage is off, there is no
- * network, or the estimate is below nn_min_z (take-off: the paper does not correct there).
+ * network, or the estimate is below nn_min_z (power-up -1: every height; 0.5 m is the paper's take-off rule,
+ * the out-of-range fade below guards heights the network never saw).
  * Outside the network's training range the correction fades to 0 (bias_nn_ood_fade) and *std_out, the
  * predicted std, moves to cfg_std by the same factor. *std_out is 0 when the network has no std head or
  * did not run: the caller then uses the configured std. */

@@ -24,7 +24,7 @@ typedef struct {
     float init_z; /* [m] */
     float init_std_xy; /* initial horizontal position std [m], > 0 */
     float init_std_z; /* initial vertical position std [m], > 0 */
-    float nn_min_z; /* bias correction only when the estimated z is above this [m] */
+    float nn_min_z; /* bias correction only when the estimated z is above this (0.5: the paper's take-off rule; the power-up -1 corrects at every height) [m] */
     float sup_margin; /* supervisor: the position must stay inside the anchors' bounding box widened by this [m], >= 0 */
     float sup_max_speed; /* supervisor: speed bound (as the Crazyflie's maxVel) [m/s], > 0 */
     float sup_max_var; /* supervisor: bound on each position variance (the covariance clamp is 100) [m^2], > 0 */

@@ -54,7 +54,8 @@ static void test_default_config(void)
     estimator_default_config(&c);
     CHECK(estimator_config_valid(&c));
     CHECK(c.mode == EST_MODE_IMU && c.stages == EST_STAGES_ALL);
-    CHECK(c.std_twr == 0.25f && c.std_tdoa == 0.15f && c.nn_min_z == 0.5f);
+    /* nn_min_z: the network at every height at power-up (its out-of-range fade guards the ground) */
+    CHECK(c.std_twr == 0.25f && c.std_tdoa == 0.15f && c.nn_min_z == -1.0f);
     estimator_init(&est, &no_model);
     CHECK(memcmp(&est.cfg, &c, sizeof c) == 0);
 }
@@ -423,8 +424,9 @@ static void test_bias_network_wiring(void)
         estimator_configure(&est, &cfg, 1);
         CHECK(estimator_on_twr(&est, 1000, 7, h, &r_head) == EST_OK);
         CHECK_NEAR(r_head.innovation_var - s_plain, 0.02f * 0.02f - cfg.std_twr * cfg.std_twr, 1e-5);
-        /* below nn_min_z the network does not run: the configured std again */
+        /* below nn_min_z (0.5 m, the paper's take-off rule) the network does not run: the configured std again */
         cfg.init_z = 0.4f;
+        cfg.nn_min_z = 0.5f;
         estimator_configure(&est, &cfg, 1);
         CHECK(estimator_on_twr(&est, 1000, 7, 3.0f, &r_head) == EST_OK);
         CHECK(r_head.bias == 0.0f);
@@ -436,6 +438,7 @@ static void test_bias_network_wiring(void)
             CHECK_NEAR(r_head.innovation_var, r_nohead.innovation_var, 1e-7);
         }
         cfg.init_z = p0[2];
+        cfg.nn_min_z = -1.0f;
         cfg.stages = EST_STAGE_BIAS_NN;
         estimator_configure(&est, &cfg, 1);
     }
@@ -472,11 +475,23 @@ static void test_bias_network_wiring(void)
         CHECK_NEAR(r_out.bias, in_bias, 1e-7);
     }
 
-    /* below nn_min_z: no correction */
+    /* at 0.4 m with the power-up nn_min_z (-1): corrected; with the floor at 0.5 m: no correction */
     cfg.init_z = 0.4f;
     estimator_configure(&est, &cfg, 1);
     CHECK(estimator_on_twr(&est, 1000, 7, 3.0f, &r) == EST_OK);
+    {
+        const float p_low[3] = {p0[0], p0[1], 0.4f};
+        for (i = 0; i < 3; i++) {
+            dp[i] = est.anchors[7][i] - p_low[i];
+        }
+        CHECK(r.bias != 0.0f);
+        CHECK_NEAR(r.bias, expected_bias(dp), 1e-5);
+    }
+    cfg.nn_min_z = 0.5f;
+    estimator_configure(&est, &cfg, 1);
+    CHECK(estimator_on_twr(&est, 1000, 7, 3.0f, &r) == EST_OK);
     CHECK(r.bias == 0.0f);
+    cfg.nn_min_z = -1.0f;
     /* stage off: no correction */
     cfg.init_z = p0[2];
     cfg.stages = 0;

@@ -339,8 +339,11 @@ def test_bias_network_uses_the_estimate() -> None:
     assert r.bias == pytest.approx(0.01 * np.sum(ANCHORS[7] - p0))
     assert r.innovation == pytest.approx(-r.bias)
     assert twin.on_tdoa(2000, 6, 7, 0.1).bias == 0.0  # no TDoA network
+    p_low = np.array([0.0, 0.0, 0.4])
     low = TwinEstimator(config(init_z=0.4, stages=STAGE_BIAS_NN), ANCHORS, Model(twr=net))
-    assert low.on_twr(1000, 7, 3.0).bias == 0.0  # below nn_min_z
+    assert low.on_twr(1000, 7, 3.0).bias == pytest.approx(0.01 * np.sum(ANCHORS[7] - p_low))  # power-up: any height
+    floor = TwinEstimator(config(init_z=0.4, nn_min_z=0.5, stages=STAGE_BIAS_NN), ANCHORS, Model(twr=net))
+    assert floor.on_twr(1000, 7, 3.0).bias == 0.0  # below nn_min_z
     off = TwinEstimator(config(init_z=1.0, stages=0), ANCHORS, Model(twr=net))
     assert off.on_twr(1000, 7, 3.0).bias == 0.0
 
