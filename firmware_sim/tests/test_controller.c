@@ -5,7 +5,7 @@
 
 #include "cobs.h"
 #include "controller.h"
-#include "firmware.h"
+#include "fw_wire.h"
 #include "unit.h"
 #include "uwb_msgs.h"
 
@@ -476,34 +476,15 @@ static void test_circle_tracking(void)
 }
 
 /* ------------------------------------------------------------------------ firmware dispatch */
-typedef struct {
-    uint8_t data[1 << 14];
-    size_t len;
-} sink_t;
-
-static sink_t sink;
+static wire_sink_t sink;
 static firmware_t fw;
-
-static void sink_write(void *ctx, const uint8_t *d, size_t n)
-{
-    sink_t *s = (sink_t *)ctx;
-    if (s->len + n <= sizeof s->data) {
-        memcpy(s->data + s->len, d, n);
-        s->len += n;
-    }
-}
 
 static void send_msg(uint8_t type, uint16_t seq, const uwb_msg_t *m)
 {
-    uint8_t body[UWB_MAX_BODY], enc[UWB_MAX_ENCODED + 1];
     uwb_msg_t msg = *m;
-    size_t n, k;
     msg.type = type;
     msg.seq = seq;
-    n = uwb_body_encode(&msg, body);
-    k = cobs_encode(body, n, enc);
-    enc[k++] = 0;
-    firmware_feed(&fw, enc, k);
+    wire_send(&fw, &msg);
 }
 
 /* The single frame the firmware wrote since the sink was cleared (0 if not exactly one). */
@@ -525,7 +506,7 @@ static void test_firmware_setpoint_control(void)
     float pos[3], vel[3], quat[4];
     memset(&m, 0, sizeof m);
     sink.len = 0;
-    firmware_init(&fw, sink_write, &sink, "host");
+    firmware_init(&fw, wire_sink_write, &sink, "host");
     /* hover setpoint at the power-up estimate (origin, level): thrust = m g, estimate echoed */
     m.u.setpoint.t_us = 1000;
     m.u.setpoint.mode = UWB_CONTROL_MODE_POSITION;

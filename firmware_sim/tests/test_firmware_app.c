@@ -2,62 +2,29 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "cobs.h"
-#include "firmware.h"
+#include "fw_wire.h"
 #include "unit.h"
-#include "uwb_msgs.h"
 
-typedef struct {
-    uint8_t data[1 << 20];
-    size_t len;
-} sink_t;
-
-static sink_t sink;
+static wire_sink_t sink;
 static firmware_t fw;
-
-static void sink_write(void *ctx, const uint8_t *d, size_t n)
-{
-    sink_t *s = (sink_t *)ctx;
-    if (s->len + n <= sizeof s->data) {
-        memcpy(s->data + s->len, d, n);
-        s->len += n;
-    }
-}
-
-static size_t frame_of(const uwb_msg_t *msg, uint8_t *out)
-{
-    uint8_t body[UWB_MAX_BODY];
-    size_t n = uwb_body_encode(msg, body);
-    size_t m = cobs_encode(body, n, out);
-    out[m++] = 0;
-    return m;
-}
 
 static void send(const uwb_msg_t *msg)
 {
-    uint8_t f[UWB_MAX_ENCODED + 1];
-    firmware_feed(&fw, f, frame_of(msg, f));
+    wire_send(&fw, msg);
 }
 
 /* Decode everything in the sink; returns the number of frames, last one of `type` in *out. */
 static int replies(uint8_t type, uwb_msg_t *out, int *count_of_type)
 {
-    size_t i, start = 0;
+    size_t pos = 0;
     int frames = 0;
+    uwb_msg_t msg;
     *count_of_type = 0;
-    for (i = 0; i < sink.len; i++) {
-        if (sink.data[i] == 0) {
-            uint8_t body[UWB_MAX_BODY];
-            uwb_msg_t msg;
-            long n = cobs_decode(sink.data + start, i - start, body, sizeof body);
-            if (n > 0 && uwb_body_decode(body, (size_t)n, &msg) == UWB_DECODE_OK) {
-                frames++;
-                if (msg.type == type) {
-                    *out = msg;
-                    (*count_of_type)++;
-                }
-            }
-            start = i + 1;
+    while (wire_next(&sink, &pos, &msg)) {
+        frames++;
+        if (msg.type == type) {
+            *out = msg;
+            (*count_of_type)++;
         }
     }
     return frames;
@@ -66,7 +33,7 @@ static int replies(uint8_t type, uwb_msg_t *out, int *count_of_type)
 static void reset(void)
 {
     sink.len = 0;
-    firmware_init(&fw, sink_write, &sink, "test");
+    firmware_init(&fw, wire_sink_write, &sink, "test");
 }
 
 static uwb_msg_t twr(uint16_t seq, uint64_t t, uint8_t id, float r)

@@ -4,8 +4,7 @@
 #include <math.h>
 #include <string.h>
 
-#include "cobs.h"
-#include "firmware.h"
+#include "fw_wire.h"
 #include "lps_packets.h"
 #include "tdoa_engine.h"
 #include "unit.h"
@@ -166,38 +165,17 @@ static void test_eviction_and_malformed(void)
 }
 
 /* ------------------------------------------------------------------- the firmware's RADIO path */
-typedef struct {
-    uint8_t data[1 << 16];
-    size_t len;
-} sink_t;
-
-static sink_t sink;
+static wire_sink_t sink;
 static firmware_t fw;
-
-static void sink_write(void *ctx, const uint8_t *d, size_t n)
-{
-    sink_t *s = (sink_t *)ctx;
-    if (s->len + n <= sizeof s->data) {
-        memcpy(s->data + s->len, d, n);
-        s->len += n;
-    }
-}
 
 static void count_replies(int *results, int *drops)
 {
-    size_t i, start = 0;
+    size_t pos = 0;
+    uwb_msg_t msg;
     *results = *drops = 0;
-    for (i = 0; i < sink.len; i++) {
-        if (sink.data[i] == 0) {
-            uint8_t body[UWB_MAX_BODY];
-            uwb_msg_t msg;
-            long n = cobs_decode(sink.data + start, i - start, body, sizeof body);
-            if (n > 0 && uwb_body_decode(body, (size_t)n, &msg) == UWB_DECODE_OK) {
-                *results += msg.type == UWB_MSG_RESULT;
-                *drops += msg.type == UWB_MSG_RADIO_DROP;
-            }
-            start = i + 1;
-        }
+    while (wire_next(&sink, &pos, &msg)) {
+        *results += msg.type == UWB_MSG_RESULT;
+        *drops += msg.type == UWB_MSG_RADIO_DROP;
     }
 }
 
@@ -207,13 +185,11 @@ static void test_firmware_radio_path(void)
     int k, results, drops;
     memset(&s, 0, sizeof s);
     sink.len = 0;
-    firmware_init(&fw, sink_write, &sink, "test");
+    firmware_init(&fw, wire_sink_write, &sink, "test");
     for (k = 0; k < 20; k++) {
         uwb_msg_t msg;
-        uint8_t body[UWB_MAX_BODY], enc[UWB_MAX_ENCODED + 1];
         const int a = k % 2;
         const uint64_t t = 7000000000ull + (uint64_t)k * STEP_TICKS;
-        size_t n, m;
         memset(&msg, 0, sizeof msg);
         msg.type = UWB_MSG_RADIO;
         msg.seq = (uint16_t)k;
@@ -221,10 +197,7 @@ static void test_firmware_radio_path(void)
         msg.u.radio.rx_ts = (t + tag_range[a]) & MASK40;
         msg.u.radio.src_addr = 0xBCCF000000000000ull | (uint64_t)a;
         msg.u.radio.length = (uint8_t)tdoa3_packet(&s, a, t, 0, 1, msg.u.radio.payload);
-        n = uwb_body_encode(&msg, body);
-        m = cobs_encode(body, n, enc);
-        enc[m++] = 0;
-        firmware_feed(&fw, enc, m);
+        wire_send(&fw, &msg);
     }
     count_replies(&results, &drops);
     CHECK(results == 16 && drops == 4);
