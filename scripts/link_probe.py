@@ -268,19 +268,26 @@ def main() -> int:
     args = ap.parse_args()
     if not set(args.trials) <= {1, 2, 3, 4}:
         ap.error("--trials must be among 1-4 (trial 5 is the held-out set)")
-    if not util_files(args.data, tuple(args.trials)):
-        print(f"no UTIL recordings under {args.data}/util", file=sys.stderr)
-        return 2
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
     rows = []
     if args.rows_from:
-        for f in args.rows_from:
-            rows.extend(json.loads(f.read_text())["rows"])
+        try:
+            for f in args.rows_from:
+                rows.extend(json.loads(f.read_text())["rows"])
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            print(f"--rows-from: cannot read rows from {f}: {e!r}", file=sys.stderr)
+            return 2
+        if not rows:
+            print("--rows-from: the files hold no rows", file=sys.stderr)
+            return 2
         args.seeds = sorted({r["seed"] for r in rows})
         args.trials = sorted({r["trial"] for r in rows})
+    elif not util_files(args.data, tuple(args.trials)):
+        print(f"no UTIL recordings under {args.data}/util", file=sys.stderr)
+        return 2
     else:
         for seed in args.seeds:
             for j in args.trials:
