@@ -2,26 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
 from types import ModuleType
+from typing import Callable
 
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "link_probe.py"
-
 
 @pytest.fixture(scope="module")
-def lp() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("link_probe", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["link_probe"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+def lp(script_module: Callable[[str], ModuleType]) -> ModuleType:
+    return script_module("link_probe")
 
 
 def test_link_inputs_split_the_pair_and_add_the_range(lp: ModuleType) -> None:

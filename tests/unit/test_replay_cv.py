@@ -2,24 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 import sys
 from pathlib import Path
 from types import ModuleType
+from typing import Callable
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "replay_cv.py"
-
 
 @pytest.fixture(scope="module")
-def rcv() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("replay_cv", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["replay_cv"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+def rcv(script_module: Callable[[str], ModuleType]) -> ModuleType:
+    return script_module("replay_cv")
 
 
 def test_grid_is_the_cartesian_product(rcv: ModuleType) -> None:
