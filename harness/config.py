@@ -17,6 +17,7 @@ from protocol.messages import ConfigError, EkfMode, EstimatorConfigBase, Stage  
 # Protocol enums ekf_mode and stage (protocol/messages.toml), as plain ints.
 MODE_IMU = int(EkfMode.IMU)
 MODE_UWB_ONLY = int(EkfMode.UWB_ONLY)
+MODE_IMU_THRUST = int(EkfMode.IMU_THRUST)   # IMU mode for a quadrotor (thrust-axis accelerometer only)
 STAGE_BIAS_NN = int(Stage.BIAS_NN)
 STAGE_KINEMATIC_GATE = int(Stage.KINEMATIC_GATE)
 STAGE_CHI2_GATE = int(Stage.CHI2_GATE)

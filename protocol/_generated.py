@@ -8,7 +8,7 @@ from typing import ClassVar
 
 from protocol.config_check import ConfigError, ConfigField, check_field  # noqa: F401
 
-PROTOCOL_VERSION = 7
+PROTOCOL_VERSION = 8
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -21,6 +21,7 @@ class EkfMode(enum.IntEnum):
 
     IMU = 0
     UWB_ONLY = 1
+    IMU_THRUST = 2
 
 
 class Stage(enum.IntEnum):
@@ -535,7 +536,7 @@ MESSAGES_BY_ID: dict[int, type] = {cls.MSG_ID: cls for cls in MESSAGE_TYPES}
 
 #: The CONFIG fields with their defaults and bounds (the message's own fields last, control=True).
 CONFIG_FIELDS: tuple[ConfigField, ...] = (
-    ConfigField('mode', 'u8', 0, doc='estimator mode', choices=(('IMU', 0), ('UWB_ONLY', 1))),
+    ConfigField('mode', 'u8', 0, doc='estimator mode', choices=(('IMU', 0), ('UWB_ONLY', 1), ('IMU_THRUST', 2))),
     ConfigField('stages', 'u8', 7, doc='pipeline stages on', mask=0x7f),
     ConfigField('std_twr', 'f32', 0.25, unit='m', doc='TWR measurement std', gt=0.0),
     ConfigField('std_tdoa', 'f32', 0.15, unit='m', doc='TDoA measurement std', gt=0.0),

@@ -45,7 +45,8 @@ enum {
 };
 
 /* Modes and stage bits (= protocol enums ekf_mode, stage). */
-enum { EST_MODE_IMU = 0, EST_MODE_UWB_ONLY = 1 };
+/* EST_MODE_IMU_THRUST: IMU mode for a quadrotor, the horizontal specific force taken as zero (estimator.c). */
+enum { EST_MODE_IMU = 0, EST_MODE_UWB_ONLY = 1, EST_MODE_IMU_THRUST = 2 };
 enum {
     EST_STAGE_BIAS_NN = 1,
     EST_STAGE_KINEMATIC_GATE = 2,

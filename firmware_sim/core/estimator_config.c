@@ -37,7 +37,7 @@ void estimator_default_config(estimator_config_t *cfg)
 int estimator_config_valid(const estimator_config_t *cfg)
 {
     unsigned i;
-    if (!(cfg->mode == 0u || cfg->mode == 1u)) {
+    if (!(cfg->mode == 0u || cfg->mode == 1u || cfg->mode == 2u)) {
         return 0;
     }
     if (!((cfg->stages & ~0x7fu) == 0u)) {

@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 7u
+#define UWB_PROTO_VERSION 8u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -16,6 +16,7 @@
 enum {
     UWB_EKF_MODE_IMU = 0,
     UWB_EKF_MODE_UWB_ONLY = 1,
+    UWB_EKF_MODE_IMU_THRUST = 2,
 };
 
 /* Bit flags in CONFIG.stages */

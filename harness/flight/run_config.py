@@ -5,16 +5,18 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from harness.config import MODE_IMU, MODE_UWB_ONLY, EstimatorConfig
+from harness.config import MODE_IMU, MODE_IMU_THRUST, MODE_UWB_ONLY, EstimatorConfig
 from harness.flight.data import KIND_TDOA, KIND_TWR, Flight
 
 
 def config_for(flight: Flight, base: EstimatorConfig | None = None, stages: int | None = None,
                uwb_only: bool | None = None) -> EstimatorConfig:
-    """Estimator configuration for a flight: start at its first true position, IMU mode if it has IMU."""
+    """Estimator configuration for a flight: start at its first true position, IMU mode if it has IMU (the
+    quadrotor model, MODE_IMU_THRUST, for a flight whose meta says `vehicle: quadrotor`, as a Crazyflie log)."""
     cfg = base or EstimatorConfig()
     p0 = flight.truth.position_at([int(flight.uwb.t_us[0])])[0] if len(flight.uwb) else (0.0, 0.0, 0.0)
-    mode = MODE_UWB_ONLY if (uwb_only or not flight.has_imu) else MODE_IMU
+    imu_mode = MODE_IMU_THRUST if flight.meta.get("vehicle") == "quadrotor" else MODE_IMU
+    mode = MODE_UWB_ONLY if (uwb_only or not flight.has_imu) else imu_mode
     cfg = replace(cfg, mode=mode).with_init(*p0)
     if stages is not None:
         cfg = cfg.with_stages(stages)

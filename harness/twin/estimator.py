@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_BIAS_STATES, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE,
+from harness.config import (MODE_IMU_THRUST, MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_BIAS_STATES, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE,
                             STAGE_NN_MONITOR, STAGE_NN_STD, STAGE_ROBUST_UPDATE, EstimatorConfig)
 from harness.twin import gates, measurements, supervisor
 from harness.twin.bias_states import BiasStates
@@ -184,8 +184,10 @@ class TwinEstimator:
             self.imu_ignored += 1
             return
         c = self.config
-        if self.ekf.imu_sample(t_us, np.asarray(acc, dtype=np.float64), np.asarray(gyro, dtype=np.float64),
-                               c.proc_acc_xy, c.proc_acc_z):
+        a = np.array(acc, dtype=np.float64)
+        if c.mode == MODE_IMU_THRUST:   # quadrotor: the horizontal specific force taken as zero (estimator.c)
+            a[:2] = 0.0
+        if self.ekf.imu_sample(t_us, a, np.asarray(gyro, dtype=np.float64), c.proc_acc_xy, c.proc_acc_z):
             self.predictions += 1
             self._supervise()
 

@@ -114,8 +114,8 @@ def test_python_and_c_accept_and_refuse_the_same_values(replay: Path) -> None:
 def test_validation_names_the_field_and_its_bound() -> None:
     with pytest.raises(ConfigError, match=r"std_twr must be > 0 m, got 0.0"):
         EstimatorConfig(std_twr=0.0).validate()
-    with pytest.raises(ConfigError, match=r"mode must be one of IMU=0, UWB_ONLY=1, got 2"):
-        EstimatorConfig(mode=2).validate()
+    with pytest.raises(ConfigError, match=r"mode must be one of IMU=0, UWB_ONLY=1, IMU_THRUST=2, got 3"):
+        EstimatorConfig(mode=3).validate()
     with pytest.raises(ConfigError, match=r"stages has unknown bits: 0x80"):
         EstimatorConfig(stages=0x87).validate()
     with pytest.raises(ConfigError, match=r"sup_margin must be >= 0 m"):
