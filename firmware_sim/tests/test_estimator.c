@@ -65,9 +65,9 @@ static void test_config_validation(void)
     estimator_config_t d, c;
     estimator_default_config(&d);
 #define EXPECT_VALID(field, value, ok) do { c = d; c.field = value; CHECK(estimator_config_valid(&c) == (ok)); } while (0)
+    EXPECT_VALID(mode, 1, 1);
     EXPECT_VALID(mode, 2, 1);
     EXPECT_VALID(mode, 3, 0);
-    EXPECT_VALID(mode, 2, 0);
     EXPECT_VALID(stages, 0, 1);
     EXPECT_VALID(stages, EST_STAGES_ALL | EST_STAGE_NN_STD | EST_STAGE_ROBUST_UPDATE | EST_STAGE_NN_MONITOR |
                              EST_STAGE_BIAS_STATES, 1);
