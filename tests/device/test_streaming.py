@@ -113,8 +113,8 @@ def test_cli_streams_a_long_simulation_in_slices(tmp_path: Path) -> None:
 
 @needs_fw
 def test_sliced_flight_needs_a_fraction_of_the_memory() -> None:
-    """Peak RSS (own subprocess each, harness/bench_memory.py) of a 240 s flight: sliced vs built whole."""
-    from harness.bench_memory import measure
+    """Peak RSS (own subprocess each, harness/bench/memory.py) of a 240 s flight: sliced vs built whole."""
+    from harness.bench.memory import measure
     sliced, whole = measure(240.0, "sliced"), measure(240.0, "whole")
     print(f"\n240 s TWR flight: peak RSS sliced {sliced['peak_rss_mb']:.0f} MB, whole {whole['peak_rss_mb']:.0f} MB")
     assert sliced["measurements"] == whole["measurements"] == sliced["results"]
