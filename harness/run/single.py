@@ -84,7 +84,7 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
             else:
                 cfg = checked_config(flight)
                 if results is not None:
-                    from harness.stream.results_file import flight_digest
+                    from harness.stream.digest import flight_digest
                     header["flight_digest"] = flight_digest(flight)
                 run = streamer.run(flight, cfg, pacing, results_path=results, progress=update,
                                    header_extra=header, overwrite=overwrite, radio=bool(src.radio))

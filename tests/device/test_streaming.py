@@ -21,7 +21,7 @@ from harness.report.metrics import run_summary
 from harness.flight.run_config import config_for
 from harness.paths import DEFAULT_FIRMWARE, REPO_ROOT
 from harness.stream.chunked_run import stream_plan
-from harness.stream.results_file import FlightDigest, flight_digest
+from harness.stream.digest import FlightDigest, flight_digest
 from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
 
 CASES = [("circle", "twr", "realistic", {}), ("random", "tdoa", "realistic", {"profile": "nlos"}),
