@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.flight.data import KIND_TWR
+from harness.flight.data import KIND_TWR, Source
 from harness.report.metrics import latency_summary
 from harness.device.registry import DeviceSpec, open_device
 from harness.flight.run_config import config_for
@@ -39,7 +39,7 @@ def _twin_cost_us(flight: Any, cfg: EstimatorConfig, model: Any) -> np.ndarray:
     u = flight.uwb
     out = []
     for t, src, i in flight.events():
-        if src == 0:
+        if src == Source.IMU:
             twin.on_imu(t, flight.imu.acc[i], flight.imu.gyro[i])
             continue
         t0 = time.perf_counter_ns()

@@ -14,6 +14,7 @@ import numpy as np
 
 from harness.config import (MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_BIAS_STATES, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE,
                             STAGE_NN_MONITOR, STAGE_NN_STD, STAGE_ROBUST_UPDATE, EstimatorConfig)
+from harness.flight.data import Source
 from harness.twin import gates, measurements, supervisor
 from harness.twin.bias_states import BiasStates
 from harness.twin.ekf import POS, ErrorStateEkf
@@ -371,10 +372,10 @@ def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None =
     hgt = flight.height
     out: list[TwinResult] = []
     for t_us, source, i in flight.events():
-        if source == 0:
+        if source == Source.IMU:
             assert imu is not None
             twin.on_imu(t_us, imu.acc[i], imu.gyro[i])
-        elif source == 2:
+        elif source == Source.HEIGHT:
             assert hgt is not None
             twin.on_height(t_us, float(hgt.z[i]), float(hgt.std))
         elif u.kind == MeasKind.TWR:
