@@ -70,9 +70,9 @@ test: test-c test-fuzz stm32 net-tools test-py test-light-install
 
 bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench
-	$(PY) -m harness.bench_qemu
+	$(PY) -m harness.bench.qemu
 
-# STM32F405 (Crazyflie MCU) build, run under QEMU by tests/mcu/test_qemu.py and harness/bench_qemu.py
+# STM32F405 (Crazyflie MCU) build, run under QEMU by tests/mcu/test_qemu.py and harness/bench/qemu.py
 # (docs/qemu.md). The ARM toolchain and QEMU come from Debian when missing: the script runs
 # apt-get update + install (root or password-less sudo; UWB_NO_INSTALL=1 only checks).
 .PHONY: arm-tools stm32 size net-tools

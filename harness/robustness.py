@@ -22,7 +22,8 @@ from harness.flight.scenarios import scenario_flight
 from harness.link.faulty import FaultRates, FaultyLink, unwrap_seqs
 from harness.flight.run_config import config_for
 from harness.paths import DEFAULT_FIRMWARE
-from harness.stream.streamer import OUTCOME_LOST, OUTCOME_RESULT, Pacing, Streamer
+from harness.stream.results_file import OUTCOME_LOST, OUTCOME_RESULT
+from harness.stream.streamer import Pacing, Streamer
 from protocol import messages as m
 
 TX_RATES = FaultRates(bit_flip=2e-4, drop_byte=2e-4, drop_frame=0.01, duplicate_frame=0.01, truncate_frame=0.005,

@@ -13,14 +13,10 @@
 #include <stdint.h>
 
 #define BIAS_ST_ANCHORS 16   /* = ESTIMATOR_MAX_ANCHORS */
-/* Both chosen on UTIL training flights (docs/bias-network.md); -D overrides them for sweeps only
- * (scripts/replay_cv.py builds with DEFS=...), the twin keeps these values. */
-#ifndef BIAS_ST_TAU_S
+/* Both chosen on UTIL training flights (docs/decisions/2026-11-24-bias-states-design.md); the twin
+ * (harness/twin/bias_states.py) keeps the same values (tests/unit/test_twin_constants.py). */
 #define BIAS_ST_TAU_S 0.3f   /* correlation time [s] */
-#endif
-#ifndef BIAS_ST_STD
 #define BIAS_ST_STD 0.12f    /* stationary std [m] of what the network leaves slowly varying */
-#endif
 
 typedef struct {
     float b[BIAS_ST_ANCHORS];        /* estimated bias of each anchor's range [m] */

@@ -1,5 +1,5 @@
 /* uwb-nnbench: the compiled-in bias networks run by three kernels on inputs sent by the host, with
- * the instruction count of each call (TIM2 under QEMU -icount shift=0). Used by harness/bench_qemu.py
+ * the instruction count of each call (TIM2 under QEMU -icount shift=0). Used by harness/bench/qemu.py
  * to measure the M4 kernels against the core's portable version in the same run, and to check their
  * outputs against PyTorch.
  *

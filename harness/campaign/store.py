@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from harness.flight.data import KIND_TDOA, Flight
+from harness.stream.results_file import COLUMNS, column_dtype, read_run
 
 STATUS_OK = "ok"
 STATUS_FAILED = "failed"
@@ -221,10 +222,11 @@ def load_flight(path: Path) -> StoredFlight:
 
 
 # ------------------------------------------------------------------------------------------ results
-#: Columns of the results JSONL that the report reads (all of them are in every "result" line).
+#: The columns of a results file (harness/stream/results_file.py) that the report reads.
 RESULT_COLUMNS = ("index", "kind", "status", "t_us", "innovation", "innovation_var", "bias", "d_max",
                   "compute", "cost_nn", "cost_gates", "cost_update", "px", "py", "pz", "var_x", "var_y",
                   "var_z", "t_send_ns", "t_recv_ns", "outcome", "error_code")
+assert set(RESULT_COLUMNS) <= set(COLUMNS)
 
 
 @dataclass(frozen=True)
@@ -239,42 +241,13 @@ class StoredResults:
 
 
 def load_results(path: Path) -> StoredResults:
-    """Parse one run's JSONL. Every malformed line is an error naming the file, line and field."""
-    header: dict[str, Any] | None = None
-    stats: dict[str, Any] | None = None
-    records: list[dict[str, Any]] = []
-    rows: dict[str, list[float]] = {c: [] for c in RESULT_COLUMNS}
+    """Parse one run's results file (results_file.read_run). Every malformed line is an error naming the
+    file, line and field."""
     try:
-        fh = gzip.open(path, "rt", encoding="utf-8") if path.suffix == ".gz" else open(path, encoding="utf-8")
-    except OSError as exc:
-        raise CampaignDataError(f"{path}: cannot read ({exc.strerror})") from None
-    with fh:
-        for lineno, line in enumerate(fh, 1):
-            if not line.strip():
-                continue
-            try:
-                rec = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise CampaignDataError(f"{path}: line {lineno}: malformed JSON ({exc.msg})") from None
-            kind = rec.get("type") if isinstance(rec, dict) else None
-            if kind == "header":
-                header = rec
-            elif kind == "stats":
-                stats = rec
-            elif kind == "result":
-                for c in RESULT_COLUMNS:
-                    if c not in rec:
-                        raise CampaignDataError(f"{path}: line {lineno}: result without field {c!r}")
-                    rows[c].append(rec[c])
-            elif isinstance(kind, str):
-                records.append(rec)       # e.g. "device_error"; kept for whoever knows the type
-            else:
-                raise CampaignDataError(f"{path}: line {lineno}: record without a 'type'")
-    if header is None:
-        raise CampaignDataError(f"{path}: no header line")
-    ints = ("index", "kind", "status", "t_us", "t_send_ns", "t_recv_ns", "outcome", "error_code")
-    cols = {c: np.asarray(v, dtype=np.int64 if c in ints else np.float64) for c, v in rows.items()}
-    return StoredResults(header=header, columns=cols, stats=stats, records=tuple(records))
+        run = read_run(path, CampaignDataError, columns=RESULT_COLUMNS)
+    except FileNotFoundError as exc:
+        raise CampaignDataError(str(exc)) from None
+    return StoredResults(header=run.header, columns=run.columns, stats=run.stats, records=tuple(run.records))
 
 
 def load_run_results(cdir: CampaignDir, run_id: str, stats: dict[str, Any] | None = None) -> StoredResults:
@@ -291,7 +264,7 @@ def load_run_results(cdir: CampaignDir, run_id: str, stats: dict[str, Any] | Non
             raise CampaignDataError(f"{npy}: missing field(s) {missing}")
         cols: dict[str, np.ndarray] = {"index": np.arange(len(arr), dtype=np.int64)}
         for c in RESULT_COLUMNS[1:]:
-            cols[c] = arr[c].astype(np.int64 if np.issubdtype(arr[c].dtype, np.integer) else np.float64)
+            cols[c] = arr[c].astype(column_dtype(c))
         return StoredResults(header={"type": "header", "source": str(npy)}, columns=cols, stats=stats)
     gz = cdir.results_gz_path(run_id)
     return load_results(gz if gz.exists() else cdir.results_path(run_id))

@@ -13,6 +13,7 @@ import signal
 import sys
 import time
 import traceback
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import FrameType
@@ -23,7 +24,7 @@ from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_
                                     write_json_atomic)
 from harness.config import PRESETS, config_with
 from harness.flight.data import Flight
-from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
+from harness.report.summarize import summarize_run
 from harness.device.registry import DeviceSpec, open_device
 from harness.flight.run_config import config_for
 from harness.stream.streamer import Pacing, Streamer
@@ -119,57 +120,67 @@ def run_group(job: WorkerJob) -> int:
             write_json_atomic(cdir.summary_path(run.run_id), _failure(run, exc, t0))
         return len(job.runs)
     failed = 0
-    device_cm = None
-    device = None
-    ident = None
-    try:
+    with _Devices(job, cdir) as devices:
         for run in job.runs:
             started = time.time()
             try:
-                pacing = Pacing(mode=run.pacing, window=job.window)
-                if device is None:
-                    spec = DeviceSpec(firmware=Path(run.firmware), timeout_s=job.timeout_s, log_dir=cdir.logs)
-                    want = int(run.model_hash, 16) if run.model_hash else None
-                    device_cm = open_device(spec, expected_model_hash=want)
-                    device = device_cm.__enter__()
-                    ident = device.identity
-                cfg = config_for(flight, config_with(run.settings), stages=PRESETS[run.config],
-                                 uwb_only=run.flight.uwb_only)
-                streamer = Streamer(device, timeout_s=job.timeout_s)
-                radio = run.role == ROLE_RADIO
-                result = streamer.run(flight, cfg, pacing, results_path=cdir.results_path(run.run_id), radio=radio)
-                summary = run_summary(result, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
-                if radio:
-                    from harness.report.radio import query_clocks, radio_summary
-                    summary["radio"] = radio_summary(result, flight, query_clocks(streamer, flight))
-                save_array_atomic(cdir.array_path(run.run_id), result.results)
-                cdir.finish_results(run.run_id, keep_jsonl=job.keep_jsonl)
-                write_json_atomic(cdir.summary_path(run.run_id), {
-                    "status": STATUS_OK, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
-                    "firmware_sha256": job.firmware_sha256,
-                    "flight": meta, "device": ident.as_dict(), "pacing": asdict(pacing),
-                    "estimator_config": asdict(cfg), "summary": summary,
-                    "divergences": sum(1 for e in result.errors if e.code == m.ErrorCode.DIVERGED),
-                    "device_errors": len(result.errors), "wall_s": time.time() - started,
-                    "host": platform.node()})
+                _run_one(job, cdir, run, flight, meta, devices.get(run), started)
             except Exception as exc:  # noqa: BLE001 - reported in the run's summary; the next run goes on
                 failed += 1
                 write_json_atomic(cdir.summary_path(run.run_id), _failure(run, exc, started))
-                # The device may be dead or confused: the next run gets a fresh one.
-                if device_cm is not None:
-                    _close(device_cm)
-                device_cm, device = None, None
-    finally:
-        if device_cm is not None:
-            _close(device_cm)
+                devices.drop()       # the device may be dead or confused: the next run gets a fresh one
     return failed
 
 
-def _close(cm: Any) -> None:
-    try:
-        cm.__exit__(None, None, None)
-    except Exception:  # noqa: BLE001 - stopping a broken device must not hide the run's own error
-        pass
+def _run_one(job: WorkerJob, cdir: CampaignDir, run: RunSpec, flight: Flight, meta: dict[str, Any], device: Any,
+             started: float) -> None:
+    """Stream one run, keep its rows, write its "ok" summary."""
+    pacing = Pacing(mode=run.pacing, window=job.window)
+    cfg = config_for(flight, config_with(run.settings), stages=PRESETS[run.config], uwb_only=run.flight.uwb_only)
+    streamer = Streamer(device, timeout_s=job.timeout_s)
+    radio = run.role == ROLE_RADIO
+    result = streamer.run(flight, cfg, pacing, results_path=cdir.results_path(run.run_id), radio=radio)
+    summary = summarize_run(result, flight, device.identity, radio_streamer=streamer if radio else None)
+    save_array_atomic(cdir.array_path(run.run_id), result.results)
+    cdir.finish_results(run.run_id, keep_jsonl=job.keep_jsonl)
+    write_json_atomic(cdir.summary_path(run.run_id), {
+        "status": STATUS_OK, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
+        "firmware_sha256": job.firmware_sha256,
+        "flight": meta, "device": summary.pop("device"), "pacing": asdict(pacing),
+        "estimator_config": asdict(cfg), "summary": summary,
+        "divergences": sum(1 for e in result.errors if e.code == m.ErrorCode.DIVERGED),
+        "device_errors": len(result.errors), "wall_s": time.time() - started,
+        "host": platform.node()})
+
+
+class _Devices:
+    """A worker's device: opened for the first run that needs it, dropped after a failed run (stopping a
+    broken device must not hide the run's own error), stopped at the end."""
+
+    def __init__(self, job: WorkerJob, cdir: CampaignDir) -> None:
+        self.job, self.cdir = job, cdir
+        self._stack = ExitStack()
+        self._device: Any = None
+
+    def get(self, run: RunSpec) -> Any:
+        if self._device is None:
+            spec = DeviceSpec(firmware=Path(run.firmware), timeout_s=self.job.timeout_s, log_dir=self.cdir.logs)
+            want = int(run.model_hash, 16) if run.model_hash else None
+            self._device = self._stack.enter_context(open_device(spec, expected_model_hash=want))
+        return self._device
+
+    def drop(self) -> None:
+        self._device = None
+        try:
+            self._stack.close()
+        except Exception:  # noqa: BLE001 - see the class docstring
+            pass
+
+    def __enter__(self) -> "_Devices":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.drop()
 
 
 def _terminate(signum: int, frame: FrameType | None) -> None:  # noqa: ARG001

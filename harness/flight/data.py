@@ -6,7 +6,8 @@ Times are integer microseconds (numpy int64) so replays are exact; everything el
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Iterator
+from enum import IntEnum
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -14,6 +15,29 @@ from protocol.messages import MeasKind
 
 KIND_TWR = int(MeasKind.TWR)     # protocol enum meas_kind, as plain ints
 KIND_TDOA = int(MeasKind.TDOA)
+
+
+class Source(IntEnum):
+    """The kind of an event of a flight (Flight.events(), the streamer's frames)."""
+    IMU = 0
+    UWB = 1
+    HEIGHT = 2
+
+
+#: the one event-ordering rule: by time, and at equal times IMU, then HEIGHT, then UWB, so a measurement
+#: sees every IMU sample and height up to its time (the device handles frames in stream order)
+SOURCE_ORDER: tuple[Source, ...] = (Source.IMU, Source.HEIGHT, Source.UWB)
+
+
+def merge_order(times: Mapping[Source, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stream order of several time-ordered event streams: (t, source, order) where t and source are
+    the streams concatenated in SOURCE_ORDER (missing sources empty) and `order` sorts them by time, then by
+    SOURCE_ORDER at equal times (stable: each stream keeps its own order)."""
+    parts = [np.asarray(times.get(src, np.zeros(0, np.int64)), dtype=np.int64) for src in SOURCE_ORDER]
+    t = np.concatenate(parts)
+    rank = np.concatenate([np.full(len(p), r, np.int8) for r, p in enumerate(parts)])
+    source = np.asarray(SOURCE_ORDER, dtype=np.int8)[rank]
+    return t, source, np.lexsort((rank, t))
 
 
 class FlightError(ValueError):
@@ -189,25 +213,19 @@ class Flight:
             if not (np.all(np.isfinite(h.z)) and np.isfinite(h.std) and h.std > 0):
                 raise FlightError(f"{self.name}: heights must be finite and their std > 0")
 
-    def events(self) -> Iterator[tuple[int, int, int]]:
-        """Time-ordered merge: yields (t_us, source, index), source 0 = IMU, 1 = UWB, 2 = HEIGHT.
-
-        At equal timestamps IMU comes first, then HEIGHT, then UWB, so a measurement sees every IMU
-        sample and height up to its time (prepare.py streams them in the same order).
-        """
+    def events(self) -> Iterator[tuple[int, Source, int]]:
+        """Time-ordered merge: yields (t_us, source, index) in stream order (SOURCE_ORDER at equal times)."""
         t, src, idx = self.event_order()
         for k in range(len(t)):
-            yield int(t[k]), int(src[k]), int(idx[k])
+            yield int(t[k]), Source(int(src[k])), int(idx[k])
 
     def event_order(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_us, source, index) arrays of every event in stream order (see events())."""
-        imu_t = self.imu.t_us if self.has_imu else np.zeros(0, dtype=np.int64)
-        h_t = self.height.t_us if self.height is not None else np.zeros(0, dtype=np.int64)
-        uwb_t = self.uwb.t_us
-        t = np.concatenate([imu_t, uwb_t, h_t]).astype(np.int64)
-        src = np.concatenate([np.zeros(len(imu_t), dtype=np.int8), np.ones(len(uwb_t), dtype=np.int8),
-                              np.full(len(h_t), 2, dtype=np.int8)])
-        idx = np.concatenate([np.arange(len(imu_t)), np.arange(len(uwb_t)), np.arange(len(h_t))])
-        rank = np.array([0, 2, 1], dtype=np.int8)[src]   # IMU, HEIGHT, UWB at equal times
-        order = np.lexsort((rank, t))
+        times = {Source.UWB: self.uwb.t_us}
+        if self.has_imu and self.imu is not None:
+            times[Source.IMU] = self.imu.t_us
+        if self.height is not None:
+            times[Source.HEIGHT] = self.height.t_us
+        t, src, order = merge_order(times)
+        idx = np.concatenate([np.arange(len(times.get(s, ()))) for s in SOURCE_ORDER])
         return t[order], src[order], idx[order]

@@ -16,7 +16,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from harness.report.chi2 import chi2_quantile
-from harness.stream.streamer import OUTCOME_RESULT
+from harness.stream.results_file import OUTCOME_RESULT
 
 DOF = 3
 

@@ -16,7 +16,7 @@ import numpy as np
 from harness.campaign.store import (STATUS_OK, CampaignDataError, CampaignDir, StoredFlight, StoredResults,
                                     load_flight, load_run_results, read_json)
 from harness.report.consistency import nees_of
-from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT
+from harness.stream.results_file import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT
 from protocol.messages import CostUnit, Status
 
 TIME_BIN_S = 0.5          # error-over-time curves are averaged in bins of this width

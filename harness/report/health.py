@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.stream.streamer import OUTCOME_RESULT
+from harness.stream.results_file import OUTCOME_RESULT
 from protocol.messages import Status
 
 

@@ -8,7 +8,8 @@ from typing import Callable
 import numpy as np
 
 from harness.flight.data import Flight
-from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT, RunResult
+from harness.stream.results_file import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT
+from harness.stream.streamer import RunResult
 from protocol.messages import CostUnit, ErrorCode, MeasKind, ResultFlag, Stage, Status
 
 DEFAULT_BUDGET_S = 5e-3  # one UWB slot at 200 Hz, the paper's rate

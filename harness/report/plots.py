@@ -10,7 +10,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from harness.report.data import CampaignData, RunMetrics
-from harness.stream.streamer import OUTCOME_RESULT
+from harness.stream.results_file import OUTCOME_RESULT
 from protocol.messages import MeasKind, Status
 
 COLORS = {"none": "#8c8c8c", "outlier": "#ff7f0e", "outlier+nn": "#1f77b4", "outlier+nn+std": "#2ca02c"}

@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 
 from harness.flight.data import Flight
-from harness.stream.streamer import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_NO_MEAS, OUTCOME_RESULT, RunResult, Streamer
+from harness.stream.results_file import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_NO_MEAS, OUTCOME_RESULT
+from harness.stream.streamer import RunResult, Streamer
 from protocol import messages as m
 from protocol._generated import DropReason
 

@@ -21,7 +21,8 @@ import numpy as np
 
 from harness.config import STAGE_ROBUST_UPDATE
 from harness.flight.data import Flight
-from harness.stream.streamer import OUTCOME_RESULT, RunResult
+from harness.stream.results_file import OUTCOME_RESULT
+from harness.stream.streamer import RunResult
 from harness.twin.tdoa_engine import MEASUREMENT, Measurement, replay
 from protocol._generated import DropReason, ResultFlag
 

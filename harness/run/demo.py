@@ -8,8 +8,7 @@ from typing import Any
 
 from harness.config import PRESETS, EstimatorConfig
 from harness.flight.data import Flight
-from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
-from harness.run.single import radio_section
+from harness.report.summarize import summarize_run
 from harness.device.registry import DeviceSpec, open_device
 from harness.flight.run_config import config_for
 from harness.stream.streamer import Pacing, Streamer
@@ -42,10 +41,8 @@ def run_demo(spec: DeviceSpec, flights: DemoFlights, pacing: Pacing,
         def fly(flight: Flight, preset: str, mode: str, radio: bool = False) -> dict[str, Any]:
             cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
             run = streamer.run(flight, cfg, pacing, radio=radio)
-            s = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
-            s["mode"], s["config"] = mode, preset
-            if radio:
-                s["radio"] = radio_section(streamer, run, flight)
+            s = summarize_run(run, flight, ident, config=preset, radio_streamer=streamer if radio else None)
+            s["mode"] = mode
             return s
 
         for mode, presets in DEMO_MODES:

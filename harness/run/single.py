@@ -10,7 +10,7 @@ from typing import Any, Callable, Iterator
 from harness.config import EstimatorConfig
 from harness.errors import ResultsFileError
 from harness.flight.data import Flight
-from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
+from harness.report.summarize import summarize_run
 from harness.run.source import RunSource, long_simulation, make_flight, make_run_flight, run_config
 from harness.device.registry import DeviceSpec, open_device
 from harness.flight.run_config import check_network_inputs
@@ -49,12 +49,6 @@ def checked_results_path(results: str | None, overwrite: bool) -> Path | None:
     return path
 
 
-def radio_section(streamer: Streamer, run: Any, flight: Flight) -> dict[str, Any]:
-    """The summary's radio section of a radio-level run (asks the device for its clock estimates)."""
-    from harness.report.radio import query_clocks, radio_summary
-    return radio_summary(run, flight, query_clocks(streamer, flight))
-
-
 def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pacing, timeout_s: float,
             results: Path | None = None, overwrite: bool = False,
             progress: ProgressFactory = no_progress) -> dict[str, Any]:
@@ -84,19 +78,11 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
             else:
                 cfg = checked_config(flight)
                 if results is not None:
-                    from harness.stream.results_file import flight_digest
+                    from harness.stream.digest import flight_digest
                     header["flight_digest"] = flight_digest(flight)
                 run = streamer.run(flight, cfg, pacing, results_path=results, progress=update,
                                    header_extra=header, overwrite=overwrite, radio=bool(src.radio))
-        radio = radio_section(streamer, run, flight) if src.radio else None
-    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
-    summary["config"] = src.stages
-    summary["device"] = ident.as_dict()
-    if "range_offset" in flight.meta:
-        summary["range_offset"] = flight.meta["range_offset"]
-    if radio is not None:
-        summary["radio"] = radio
-    return summary
+        return summarize_run(run, flight, ident, config=src.stages, radio_streamer=streamer if src.radio else None)
 
 
 def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, int | None]], timeout_s: float,
@@ -125,13 +111,9 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
             check_resumable(rec, flight, cfg, ident.as_dict())
             with _shown(progress, f"{flight.name} (resume at {rec.next_index})") as update:
                 run, info = resume_run(device, rec, flight, locked, timeout_s=timeout_s, progress=update)
+            summary = summarize_run(run, flight, ident, config=header_src.get("stages"))
     finally:
         locked.close()
-    summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
-    summary["config"] = header_src.get("stages")
-    summary["device"] = ident.as_dict()
-    if "range_offset" in flight.meta:
-        summary["range_offset"] = flight.meta["range_offset"]
     summary["resume"] = info
     return summary
 

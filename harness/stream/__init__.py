@@ -1,7 +1,7 @@
 """Streaming flights to a device: byte-stream preparation, pacing, result collection."""
 
-from harness.stream.streamer import (OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_PENDING, OUTCOME_RESULT, Pacing,
-                                     RunResult, Streamer)
+from harness.stream.results_file import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_PENDING, OUTCOME_RESULT
+from harness.stream.streamer import Pacing, RunResult, Streamer
 
 __all__ = ["OUTCOME_ERROR", "OUTCOME_LOST", "OUTCOME_PENDING", "OUTCOME_RESULT", "Pacing", "RunResult",
            "Streamer"]

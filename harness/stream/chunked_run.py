@@ -20,8 +20,9 @@ import numpy as np
 from harness.config import EstimatorConfig
 from harness.flight.chunked import SimPlan
 from harness.flight.data import Flight, Truth, UwbStream
-from harness.stream.results_file import FlightDigest
-from harness.stream.streamer import RESULTS_DTYPE, Pacing, ResultsWriter, RunResult, Streamer
+from harness.stream.digest import FlightDigest
+from harness.stream.results_file import RESULTS_DTYPE, ResultsWriter
+from harness.stream.streamer import Pacing, RunResult, Streamer
 
 #: slice length: short enough to keep memory small, long enough that the per-slice setup and pipeline
 #: drain cost nothing measurable (a 30 s slice is ~36k frames)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.flight.data import KIND_TWR, Flight
+from harness.flight.data import KIND_TWR, Flight, Source, merge_order
 from protocol.batch import encode_rows
 from protocol import messages as m
 
@@ -45,7 +45,7 @@ def _radio_rows(flight: Flight, seqs: np.ndarray) -> np.ndarray:
 
 def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = False) -> PreparedFlight:
     """Encode every IMU sample, HEIGHT pseudo-measurement and UWB measurement of the flight, merged in time
-    order (IMU, then HEIGHT, then UWB at equal times, as Flight.events()). radio: the flight's radio
+    order (flight/data.py merge_order: IMU, then HEIGHT, then UWB at equal times). radio: the flight's radio
     packets (RADIO frames) take the place of its measurements."""
     n_frames = frame_count(flight, include_imu, radio)
     u = flight.uwb
@@ -55,15 +55,18 @@ def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = F
     uwb_t = flight.radio.t_us if (radio and flight.radio is not None) else u.t_us
     n_uwb = len(uwb_t)
     n_h = len(hgt) if hgt is not None else 0
-    t = np.concatenate([imu.t_us if imu is not None else np.zeros(0, np.int64), uwb_t,
-                        hgt.t_us if hgt is not None else np.zeros(0, np.int64)]).astype(np.int64)
-    rank = np.concatenate([np.zeros(n_imu, np.int8), np.full(n_uwb, 2, np.int8), np.ones(n_h, np.int8)])
-    order = np.lexsort((rank, t))
+    times = {Source.UWB: uwb_t}
+    if imu is not None:
+        times[Source.IMU] = imu.t_us
+    if hgt is not None:
+        times[Source.HEIGHT] = hgt.t_us
+    t, _, order = merge_order(times)               # rows: IMU, then HEIGHT, then UWB (SOURCE_ORDER)
     assert len(order) == n_frames
     pos_of = np.empty_like(order)
     pos_of[order] = np.arange(len(order))          # stream position of each source row
     seqs = (seq0 + pos_of) & 0xFFFF
-    uwb_rows_of = slice(n_imu, n_imu + n_uwb)
+    imu_rows_of, hgt_rows_of = slice(0, n_imu), slice(n_imu, n_imu + n_h)
+    uwb_rows_of = slice(n_imu + n_h, n_imu + n_h + n_uwb)
 
     if radio:
         uwb_rows = _radio_rows(flight, seqs[uwb_rows_of])
@@ -75,12 +78,12 @@ def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = F
                                         "diff": u.value}, seqs[uwb_rows_of])
     parts = [(uwb_rows_of, uwb_rows)]
     if imu is not None:
-        parts.append((slice(0, n_imu), encode_rows(m.Imu, {
+        parts.append((imu_rows_of, encode_rows(m.Imu, {
             "t_us": imu.t_us, "ax": imu.acc[:, 0], "ay": imu.acc[:, 1], "az": imu.acc[:, 2],
-            "gx": imu.gyro[:, 0], "gy": imu.gyro[:, 1], "gz": imu.gyro[:, 2]}, seqs[:n_imu])))
+            "gx": imu.gyro[:, 0], "gy": imu.gyro[:, 1], "gz": imu.gyro[:, 2]}, seqs[imu_rows_of])))
     if hgt is not None:
-        parts.append((slice(n_imu + n_uwb, None), encode_rows(m.Height, {
-            "t_us": hgt.t_us, "z": hgt.z, "std": np.full(n_h, hgt.std)}, seqs[n_imu + n_uwb:])))
+        parts.append((hgt_rows_of, encode_rows(m.Height, {
+            "t_us": hgt.t_us, "z": hgt.z, "std": np.full(n_h, hgt.std)}, seqs[hgt_rows_of])))
     sizes = np.empty(len(order), dtype=np.int64)
     for rows_of, rows in parts:
         sizes[pos_of[rows_of]] = rows.shape[1]

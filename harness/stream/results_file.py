@@ -1,30 +1,226 @@
-"""Results files (JSON Lines) are opened safely: one writer at a time, no silent loss of an unfinished run.
+"""The results file: the one owner of its format, and its safe opening.
 
-* Every writer holds an exclusive `fcntl.flock` on the file for as long as it writes: a second run (or a
-  resume) on the same file fails at once with a clear error instead of interleaving lines.
-* A new run refuses a file that holds an unfinished (resumable) run, or that is not a results file at
-  all, unless `overwrite`; it then truncates the file only once it holds the lock.
-* Write errors (disk full, /dev/full, a directory) are `ResultsFileError`s naming the file.
-* `flight_digest` fingerprints the flight a file was recorded from, so a resume can tell an edited
-  recording or another flight from the one recorded.
+Format (JSON Lines; a campaign also keeps the rows as a binary .npy of RESULTS_DTYPE):
+
+    {"type": "header", "flight", "config", "pacing", "n_measurements", ...}   line 1: the run
+    {"type": "result", "index": k, <RESULT fields>, "t_send_ns", "t_recv_ns", "outcome", "error_code"}
+    {"type": "device_error", <ERROR fields>}      an ERROR about no pending measurement
+    {"type": "resume", ...}                       a resume appended the lines after it
+    {"type": "stats", <STATS fields>, "host_decoder": {...}}   the device counters at the end of the run
+
+The RESULT fields are those of the protocol's RESULT message (protocol/messages.toml), in its order and
+with its dtypes; the host adds when the measurement was sent and answered, its outcome and an error code.
+`ResultsWriter` writes, `read_run` reads (the resume and the campaign report both read through it).
+
+Opening: every writer holds an exclusive `fcntl.flock` on the file for as long as it writes (a second run
+or a resume on the same file fails at once); a new run refuses a file that holds an unfinished run, or
+that is not a results file, unless `overwrite`; write errors are `ResultsFileError`s naming the file.
 """
 
 from __future__ import annotations
 
 import errno
 import fcntl
-import hashlib
+import gzip
 import json
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Iterable
 
 import numpy as np
 
 from harness.errors import ResultsFileError
-from harness.flight.data import Flight
+from protocol import messages as m
+from protocol.batch import RESULT_DTYPE
+
+# ------------------------------------------------------------------------------------------ the format
+#: the outcome of a measurement (column "outcome")
+OUTCOME_PENDING, OUTCOME_RESULT, OUTCOME_ERROR, OUTCOME_LOST = 0, 1, 2, 3
+#: a RADIO packet the device used but that formed no measurement (RADIO_DROP; error_code = drop_reason)
+OUTCOME_NO_MEAS = 4
+
+#: the record types (field "type")
+REC_HEADER, REC_RESULT, REC_STATS, REC_RESUME, REC_DEVICE_ERROR = "header", "result", "stats", "resume", "device_error"
+
+#: the RESULT message's fields (protocol), then the host's columns
+RESULT_FIELDS: tuple[str, ...] = tuple(name for name, _ in m.Result.FIELDS)
+HOST_COLUMNS = (("t_send_ns", "<i8"), ("t_recv_ns", "<i8"), ("outcome", "i1"), ("error_code", "u1"))
+RESULTS_DTYPE = np.dtype([(name, RESULT_DTYPE[name]) for name in RESULT_FIELDS] + list(HOST_COLUMNS))
+#: the RESULT fields are one packed run of bytes in the decoder's RESULT_DTYPE and in RESULTS_DTYPE
+RESULT_BYTES_OFFSET = RESULT_DTYPE.fields[RESULT_FIELDS[0]][1]
+RESULT_BYTES = sum(RESULTS_DTYPE[name].itemsize for name in RESULT_FIELDS)
+assert all(RESULTS_DTYPE.fields[n][1] + RESULT_BYTES_OFFSET == RESULT_DTYPE.fields[n][1] for n in RESULT_FIELDS)
+#: every column of a result line: its index in the flight, then RESULTS_DTYPE's
+COLUMNS: tuple[str, ...] = ("index", *(RESULTS_DTYPE.names or ()))
 
 
+def is_integer(column: str) -> bool:
+    """An integer column (index, counters, times in us/ns, status, outcome) rather than a float."""
+    return column == "index" or RESULTS_DTYPE[column].kind in "iu"
+
+
+def column_dtype(column: str) -> type:
+    """The dtype a reader gives a column: int64 or float64."""
+    return np.int64 if is_integer(column) else np.float64
+
+
+def header_record(header: dict[str, Any]) -> dict[str, Any]:
+    return {"type": REC_HEADER, **header}
+
+
+def result_lines(idx: Iterable[int], rows: np.ndarray) -> str:
+    """Result lines for rows of RESULTS_DTYPE at flight indices idx (newline-terminated)."""
+    names = RESULTS_DTYPE.names or ()
+    out = []
+    for k, row in zip(list(idx), rows.tolist()):
+        rec = {"type": REC_RESULT, "index": int(k)}
+        rec.update(zip(names, row))
+        out.append(json.dumps(rec) + "\n")
+    return "".join(out)
+
+
+class ResultsWriter:
+    """JSON Lines on disk, appended and flushed as results arrive (an interrupted run keeps them; a killed
+    harness loses at most the line being written). The file is locked while written; `overwrite=False`
+    refuses a file holding an unfinished run. `path=None` writes nothing. `offset` is added to the indices
+    (a resume, or the slices of a long flight, write rows of the whole flight)."""
+
+    def __init__(self, path: Path | None, header: dict[str, Any] | None, overwrite: bool = True,
+                 locked: "LockedResults | None" = None, offset: int = 0) -> None:
+        self._fh: LockedResults | None = locked
+        self.offset = offset
+        if path is not None:
+            self._fh = LockedResults(Path(path), overwrite=overwrite)
+        if self._fh is not None and header is not None:
+            self._write(json.dumps(header_record(header)) + "\n")
+
+    def _write(self, text: str) -> None:
+        assert self._fh is not None
+        try:
+            self._fh.write(text)
+        except BaseException:
+            fh, self._fh = self._fh, None
+            try:
+                fh.fh.close()        # releases the lock; the unwritten buffer is lost with the error raised
+            except OSError:
+                pass
+            raise
+
+    def write_rows(self, idx: np.ndarray, rows: np.ndarray) -> None:
+        if self._fh is not None and len(idx):
+            self._write(result_lines(np.asarray(idx) + self.offset, rows))
+
+    def write_record(self, record: dict[str, Any]) -> None:
+        if self._fh is not None:
+            self._write(json.dumps(record) + "\n")
+
+    def close(self) -> None:
+        if self._fh is not None:
+            fh, self._fh = self._fh, None
+            fh.close()
+
+
+@dataclass
+class RunRecords:
+    """A results file as read: the header, every result column in flight order, the other records."""
+    path: Path
+    header: dict[str, Any]
+    columns: dict[str, np.ndarray]          # column -> (M,) array (column_dtype), row k = measurement k
+    stats: dict[str, Any] | None = None     # the last "stats" record
+    records: list[dict[str, Any]] = field(default_factory=list)   # device_error, resume, ...
+    segments: int = 1                       # 1 + the resumes appended
+    partial_last_line: bool = False         # a run killed mid-write: its last line was cut and is ignored
+
+    def __len__(self) -> int:
+        return int(len(self.columns["index"]))
+
+    def results_array(self, n: int) -> np.ndarray:
+        """The rows as RESULTS_DTYPE for a flight of n measurements (the rest OUTCOME_PENDING)."""
+        out = np.zeros(n, RESULTS_DTYPE)
+        k = len(self)
+        for name in RESULTS_DTYPE.names or ():
+            out[name][:k] = self.columns[name]
+        return out
+
+
+def _open_text(path: Path, error: type[Exception]) -> IO[str]:
+    if not path.is_file():
+        raise FileNotFoundError(f"results file {path} not found")
+    try:
+        return gzip.open(path, "rt", encoding="utf-8") if path.suffix == ".gz" else open(path, encoding="utf-8")
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _result_value(rec: dict[str, Any], key: str, where: str, error: type[Exception]) -> Any:
+    if key not in rec:
+        raise error(f"{where}: result field {key!r} missing")
+    value = rec[key]
+    ok = isinstance(value, int) if is_integer(key) else isinstance(value, (int, float))
+    if not ok or isinstance(value, bool):
+        raise error(f"{where}: result field {key!r} is {value!r}, expected "
+                    f"{'an integer' if is_integer(key) else 'a number'} (edited by hand?)")
+    return value
+
+
+def read_run(path: Path, error: type[Exception] = ResultsFileError, columns: Iterable[str] = COLUMNS,
+             allow_partial: bool = False, header_keys: Iterable[str] = ()) -> RunRecords:
+    """Parse a results file (.jsonl or .jsonl.gz). Every malformed line is an `error` naming the file, line
+    and field: not JSON, no type, a result without one of `columns` or with a non-number, results out of
+    order. `allow_partial`: a cut last line (no newline) is ignored instead (a resume re-runs it)."""
+    path = Path(path)
+    cols = tuple(dict.fromkeys(("index", *columns)))
+    values: dict[str, list[Any]] = {c: [] for c in cols}
+    header: dict[str, Any] | None = None
+    run = RunRecords(path=path, header={}, columns={})
+    with _open_text(path, error) as fh:
+        for lineno, line in enumerate(fh, start=1):
+            where = f"{path}:{lineno}"
+            if not line.strip():
+                continue
+            try:
+                rec = json.loads(line)
+            except json.JSONDecodeError as exc:
+                if allow_partial and not line.endswith("\n"):      # only the last line can lack one
+                    run.partial_last_line = True
+                    break
+                raise error(f"{where}: not JSON ({exc.msg})") from None
+            kind = rec.get("type") if isinstance(rec, dict) else None
+            if not isinstance(kind, str):
+                raise error(f"{where}: record without a 'type' field")
+            if header is None:
+                if kind != REC_HEADER:
+                    raise error(f"{path}:1: the first line must be the run header")
+                header = rec
+            elif kind == REC_RESULT:
+                row = [_result_value(rec, c, where, error) for c in cols]
+                if row[0] != len(values["index"]):
+                    raise error(f"{where}: result index {row[0]}, expected {len(values['index'])} "
+                                "(results are written in measurement order)")
+                for c, v in zip(cols, row):
+                    values[c].append(v)
+            elif kind == REC_STATS:
+                run.stats = rec
+            else:
+                run.segments += kind == REC_RESUME
+                run.records.append(rec)
+    if header is None:
+        raise error(f"{path}:1: the first line must be the run header")
+    for key in header_keys:
+        if key not in header:
+            raise error(f"{path}:1: header field {key!r} missing")
+    run.header = header
+    run.columns = {c: np.asarray(v, dtype=column_dtype(c)) for c, v in values.items()}
+    return run
+
+
+def _count_results(fh: IO[str]) -> int:
+    prefix = json.dumps({"type": REC_RESULT})[:-1]
+    return sum(1 for line in fh if line.startswith(prefix) and line.endswith("}\n"))
+
+
+# ------------------------------------------------------------------------------------------ opening
 def _oserror(path: Path, what: str, exc: OSError) -> ResultsFileError:
     reason = exc.strerror or str(exc)
     if exc.errno == errno.EISDIR or (exc.errno in (errno.ENOTDIR, None) and path.is_dir()):
@@ -74,9 +270,9 @@ def describe_existing(path: Path) -> str | None:
                 header = json.loads(first)
             except json.JSONDecodeError:
                 header = None
-            if not isinstance(header, dict) or header.get("type") != "header" or "n_measurements" not in header:
+            if not isinstance(header, dict) or header.get("type") != REC_HEADER or "n_measurements" not in header:
                 return "it is not a uwb-hil results file (its first line is not a run header)"
-            n = sum(1 for line in fh if line.startswith('{"type": "result"') and line.endswith("}\n"))
+            n = _count_results(fh)
     except OSError:
         return None
     total = int(header["n_measurements"]) if isinstance(header["n_measurements"], int) else -1
@@ -142,54 +338,3 @@ def truncate_partial_line(fh: IO[str], path: Path) -> int:
     fh.truncate(keep)
     fh.seek(keep)
     return size - keep
-
-
-def flight_digest(flight: Flight) -> str:
-    """SHA-256 (16 hex digits) of what is streamed: measurements, IMU, anchors, and the truth scored against."""
-    digest = FlightDigest()
-    digest.update(flight, last=True)
-    return digest.hexdigest()
-
-
-class FlightDigest:
-    """`flight_digest` fed slice by slice (harness/flight/chunked.py: consecutive slices share one truth
-    sample, counted once): one hash per array, combined at the end, so a 1-hour flight built in slices
-    gets the digest of the same flight built whole."""
-
-    _NAMES = ("kind", "uwb_t", "anchor_a", "anchor_b", "value", "anchor_ids", "anchor_pos", "truth_t", "truth_pos",
-              "imu_t", "imu_acc", "imu_gyro")
-
-    def __init__(self) -> None:
-        self._h = {n: hashlib.sha256() for n in self._NAMES}
-        self._meta: dict[str, tuple[str, int]] = {}
-        self._fixed_done = False
-
-    def _add(self, name: str, arr: Any) -> None:
-        a = np.ascontiguousarray(arr)
-        dtype, rows = self._meta.get(name, (str(a.dtype), 0))
-        self._meta[name] = (dtype, rows + (a.shape[0] if a.ndim else 1))
-        self._h[name].update(a.tobytes())
-
-    def update(self, piece: Flight, last: bool) -> None:
-        u = piece.uwb
-        if not self._fixed_done:
-            self._add("kind", np.int64(u.kind))
-            self._add("anchor_ids", piece.anchors.ids)
-            self._add("anchor_pos", piece.anchors.positions)
-            self._fixed_done = True
-        for name, arr in (("uwb_t", u.t_us), ("anchor_a", u.anchor_a), ("anchor_b", u.anchor_b), ("value", u.value)):
-            self._add(name, arr)
-        keep = slice(None) if last else slice(0, max(0, len(piece.truth.t_us) - 1))
-        self._add("truth_t", piece.truth.t_us[keep])
-        self._add("truth_pos", piece.truth.pos[keep])
-        if piece.imu is not None:
-            for name, arr in (("imu_t", piece.imu.t_us), ("imu_acc", piece.imu.acc), ("imu_gyro", piece.imu.gyro)):
-                self._add(name, arr)
-
-    def hexdigest(self) -> str:
-        h = hashlib.sha256()
-        for name in self._NAMES:
-            if name in self._meta:
-                dtype, rows = self._meta[name]
-                h.update(f"{name}:{dtype}:{rows}:".encode() + self._h[name].digest())
-        return h.hexdigest()[:16]

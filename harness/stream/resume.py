@@ -21,7 +21,6 @@ global indices (a partial last line is cut first, and reported). The file is loc
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -32,9 +31,10 @@ import numpy as np
 from harness.config import EstimatorConfig
 from harness.errors import ResultsFileError
 from harness.flight.data import Flight
-from harness.stream.streamer import (OUTCOME_PENDING, OUTCOME_RESULT, RESULTS_DTYPE, Pacing, ResultsWriter,
-                                     RunResult, Streamer)
-from harness.stream.results_file import LockedResults, flight_digest, truncate_partial_line
+from harness.stream.digest import flight_digest
+from harness.stream.results_file import (OUTCOME_PENDING, OUTCOME_RESULT, REC_RESUME, LockedResults, ResultsWriter,
+                                         RunRecords, read_run, truncate_partial_line)
+from harness.stream.streamer import Pacing, RunResult, Streamer
 from protocol import messages as m
 from protocol.framing import DecoderErrors
 
@@ -54,11 +54,24 @@ class ResumeError(ResultsFileError):
 
 @dataclass
 class RecordedRun:
-    path: Path
-    header: dict[str, Any]
-    rows: list[dict[str, Any]]          # result records, index 0..len-1 in order
-    segments: int                       # 1 + number of resumes already appended
-    ignored_partial_line: bool
+    """A results file read for a resume (results_file.read_run) with what the resume needs of it."""
+    records: RunRecords
+
+    @property
+    def path(self) -> Path:
+        return self.records.path
+
+    @property
+    def header(self) -> dict[str, Any]:
+        return self.records.header
+
+    @property
+    def segments(self) -> int:
+        return self.records.segments
+
+    @property
+    def ignored_partial_line(self) -> bool:
+        return self.records.partial_last_line
 
     @property
     def n_measurements(self) -> int:
@@ -66,7 +79,7 @@ class RecordedRun:
 
     @property
     def next_index(self) -> int:
-        return len(self.rows)
+        return len(self.records)
 
     @property
     def complete(self) -> bool:
@@ -86,68 +99,18 @@ class RecordedRun:
 
     def results_array(self) -> np.ndarray:
         """The recorded rows as RESULTS_DTYPE (rows not yet recorded stay OUTCOME_PENDING)."""
-        out = np.zeros(self.n_measurements, RESULTS_DTYPE)
-        names = RESULTS_DTYPE.names or ()
-        for k, row in enumerate(self.rows):
-            for name in names:
-                out[name][k] = row[name]
-        return out
+        return self.records.results_array(self.n_measurements)
 
 
 def read_results(path: Path) -> RecordedRun:
-    """Parse a results file; errors name the file, line and field."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"results file {path} not found")
-    lines = path.read_text(encoding="utf-8").split("\n")
-    if lines and lines[-1] == "":
-        lines.pop()
-    partial = False
-    records: list[tuple[int, dict[str, Any]]] = []
-    for lineno, text in enumerate(lines, start=1):
-        try:
-            rec = json.loads(text)
-        except json.JSONDecodeError as exc:
-            if lineno == len(lines) and not path.read_bytes().endswith(b"\n"):
-                partial = True        # killed while writing the last line: that result is re-run
-                break
-            raise ResumeError(f"{path}:{lineno}: not JSON ({exc.msg})") from None
-        if not isinstance(rec, dict) or "type" not in rec:
-            raise ResumeError(f"{path}:{lineno}: record without a 'type' field")
-        records.append((lineno, rec))
-    if not records or records[0][1]["type"] != "header":
-        raise ResumeError(f"{path}:1: the first line must be the run header")
-    header = records[0][1]
-    for key in ("flight", "config", "pacing", "n_measurements"):
-        if key not in header:
-            raise ResumeError(f"{path}:1: header field {key!r} missing")
-    names = RESULTS_DTYPE.names or ()
-    rows: list[dict[str, Any]] = []
-    segments = 1
-    for lineno, rec in records[1:]:
-        if rec["type"] == "resume":
-            segments += 1
-        if rec["type"] != "result":
-            continue
-        for key in ("index", *names):
-            if key not in rec:
-                raise ResumeError(f"{path}:{lineno}: result field {key!r} missing")
-            _check_number(rec[key], key, path, lineno)
-        if rec["index"] != len(rows):
-            raise ResumeError(f"{path}:{lineno}: result index {rec['index']}, expected {len(rows)} "
-                              "(results are written in measurement order)")
-        rows.append(rec)
-    if len(rows) > int(header["n_measurements"]):
-        raise ResumeError(f"{path}: {len(rows)} results for a flight of {header['n_measurements']} measurements")
-    return RecordedRun(path=path, header=header, rows=rows, segments=segments, ignored_partial_line=partial)
-
-
-def _check_number(value: Any, key: str, path: Path, lineno: int) -> None:
-    kind = RESULTS_DTYPE[key].kind if key in (RESULTS_DTYPE.names or ()) else "i"
-    ok = isinstance(value, int) if kind in "iu" else isinstance(value, (int, float))
-    if not ok or isinstance(value, bool):
-        raise ResumeError(f"{path}:{lineno}: result field {key!r} is {value!r}, expected "
-                          f"{'an integer' if kind in 'iu' else 'a number'} (edited by hand?)")
+    """Read a results file for a resume; errors name the file, line and field. A cut last line (the harness
+    killed mid-write) is ignored: that measurement is run again."""
+    records = read_run(Path(path), ResumeError, allow_partial=True,
+                       header_keys=("flight", "config", "pacing", "n_measurements"))
+    if len(records) > int(records.header["n_measurements"]):
+        raise ResumeError(f"{path}: {len(records)} results for a flight of {records.header['n_measurements']} "
+                          "measurements")
+    return RecordedRun(records)
 
 
 def split_flight(flight: Flight, k0: int) -> tuple[Flight | None, Flight | None]:
@@ -177,20 +140,6 @@ def split_flight(flight: Flight, k0: int) -> tuple[Flight | None, Flight | None]
     prefix = replace(flight, uwb=take_uwb(slice(0, k0)), imu=take_imu(imu_t <= t_cut))
     suffix = replace(flight, uwb=take_uwb(slice(k0, m_total)), imu=take_imu(imu_t > t_cut)) if k0 < m_total else None
     return prefix, suffix
-
-
-class AppendWriter(ResultsWriter):
-    """Appends to a locked results file: a 'resume' record, then rows with global indices."""
-
-    def __init__(self, locked: LockedResults, offset: int, record: dict[str, Any]) -> None:
-        super().__init__(None, {})
-        self.offset = offset
-        self._fh = locked
-        locked.fh.seek(0, 2)
-        self._write(json.dumps({"type": "resume", **record}) + "\n")
-
-    def write_rows(self, idx: np.ndarray, rows: np.ndarray) -> None:
-        super().write_rows(np.asarray(idx) + self.offset, rows)
 
 
 def replay_differences(replayed: np.ndarray, recorded: np.ndarray) -> tuple[int, str]:
@@ -273,8 +222,10 @@ def resume_run(device: Any, rec: RecordedRun, flight: Flight, locked: LockedResu
         info["replay_s"] = round(time.perf_counter() - t0, 3)
     assert suffix is not None
     info["partial_line_bytes_dropped"] = truncate_partial_line(locked.fh, rec.path)
-    writer = AppendWriter(locked, offset=k0, record={**info, "segment": rec.segments + 1,
-                                                     "time": time.strftime("%Y-%m-%dT%H:%M:%S")})
+    writer = ResultsWriter(None, None, locked=locked, offset=k0)
+    locked.fh.seek(0, 2)
+    writer.write_record({"type": REC_RESUME, **info, "segment": rec.segments + 1,
+                         "time": time.strftime("%Y-%m-%dT%H:%M:%S")})
     streamer.run(suffix, cfg, pacing, writer=writer, reset=prefix is None, progress=progress)
     info["appended"] = len(suffix.uwb)
     return run_from_file(rec.path, flight), info
@@ -284,17 +235,12 @@ def run_from_file(path: Path, flight: Flight) -> RunResult:
     """A RunResult for the whole flight from a (possibly resumed) results file, for run_summary()."""
     rec = read_results(path)
     results = rec.results_array()
-    stats = None
-    decoder = DecoderErrors()
-    for line in Path(path).read_text(encoding="utf-8").splitlines():
-        try:
-            obj = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if isinstance(obj, dict) and obj.get("type") == "stats":
-            stats = m.Stats(**{k: int(obj[k]) for k, _ in m.Stats.FIELDS})
-            hd = obj.get("host_decoder", {})
-            decoder = DecoderErrors(**{k: int(v) for k, v in hd.items() if k in DecoderErrors.__dataclass_fields__})
+    stats, decoder = None, DecoderErrors()
+    if rec.records.stats is not None:
+        obj = rec.records.stats
+        stats = m.Stats(**{k: int(obj[k]) for k, _ in m.Stats.FIELDS})
+        hd = obj.get("host_decoder", {})
+        decoder = DecoderErrors(**{k: int(v) for k, v in hd.items() if k in DecoderErrors.__dataclass_fields__})
     n = len(results)
     sim = (int(flight.uwb.t_us[-1]) - int(flight.uwb.t_us[0])) * 1e-6 if n else 0.0
     pending = int(np.count_nonzero(results["outcome"] == OUTCOME_PENDING))

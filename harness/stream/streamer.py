@@ -12,7 +12,6 @@ measurement was answered first, or the run ended without an answer). Nothing blo
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -25,23 +24,14 @@ from harness.device.channel import DeviceChannel, Replies, as_channel
 from harness.errors import DeviceTimeout
 from harness.flight.data import Flight
 from harness.stream.prepare import PreparedFlight, frame_count, prepare
-from harness.stream.results_file import LockedResults
+from harness.stream.results_file import (OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_NO_MEAS, OUTCOME_PENDING,
+                                         OUTCOME_RESULT, REC_DEVICE_ERROR, REC_STATS, RESULT_BYTES,
+                                         RESULT_BYTES_OFFSET, RESULTS_DTYPE, ResultsWriter)
 from protocol import messages as m
 from protocol.batch import RESULT_DTYPE
 from protocol.framing import DecoderErrors
 
-OUTCOME_PENDING, OUTCOME_RESULT, OUTCOME_ERROR, OUTCOME_LOST = 0, 1, 2, 3
-#: a RADIO packet the device used but that formed no measurement (RADIO_DROP; error_code = drop_reason)
-OUTCOME_NO_MEAS = 4
 PACING_MODES = ("lockstep", "windowed", "realtime")
-
-_RESULT_DT = RESULT_DTYPE
-RESULT_FIELDS = [name for name, _ in m.Result.FIELDS]
-RESULTS_DTYPE = np.dtype([(name, _RESULT_DT[name]) for name in RESULT_FIELDS]
-                         + [("t_send_ns", "<i8"), ("t_recv_ns", "<i8"), ("outcome", "i1"), ("error_code", "u1")])
-_FIELDS_OFFSET = _RESULT_DT.fields[RESULT_FIELDS[0]][1]
-_FIELDS_NBYTES = sum(RESULTS_DTYPE[name].itemsize for name in RESULT_FIELDS)
-assert all(RESULTS_DTYPE.fields[n][1] + _FIELDS_OFFSET == _RESULT_DT.fields[n][1] for n in RESULT_FIELDS)
 
 
 @dataclass(frozen=True)
@@ -104,50 +94,6 @@ class _State:
     last_rx: float = 0.0
 
 
-class ResultsWriter:
-    """JSON Lines on disk, appended and flushed as results arrive (an interrupted run keeps them; a killed
-    harness loses at most the line being written). The file is locked while written (results_file.py);
-    `overwrite=False` refuses a file holding an unfinished run."""
-
-    def __init__(self, path: Path | None, header: dict[str, Any], overwrite: bool = True) -> None:
-        self._fh: LockedResults | None = None
-        if path is not None:
-            self._fh = LockedResults(Path(path), overwrite=overwrite)
-            self._write(json.dumps({"type": "header", **header}) + "\n")
-
-    def _write(self, text: str) -> None:
-        assert self._fh is not None
-        try:
-            self._fh.write(text)
-        except BaseException:
-            fh, self._fh = self._fh, None
-            try:
-                fh.fh.close()        # releases the lock; the unwritten buffer is lost with the error raised
-            except OSError:
-                pass
-            raise
-
-    def write_rows(self, idx: np.ndarray, rows: np.ndarray) -> None:
-        if self._fh is None or len(idx) == 0:
-            return
-        names = RESULTS_DTYPE.names or ()
-        lines = []
-        for k, row in zip(idx.tolist(), rows.tolist()):
-            rec = {"type": "result", "index": k}
-            rec.update(zip(names, row))
-            lines.append(json.dumps(rec))
-        self._write("\n".join(lines) + "\n")
-
-    def write_record(self, record: dict[str, Any]) -> None:
-        if self._fh is not None:
-            self._write(json.dumps(record) + "\n")
-
-    def close(self) -> None:
-        if self._fh is not None:
-            fh, self._fh = self._fh, None
-            fh.close()
-
-
 class Streamer:
     """Drives one device through flights: pacing and bookkeeping. The frames go through the device's
     DeviceChannel (seq, decoder, link and device errors); the device must be started and HELLO-checked."""
@@ -198,7 +144,7 @@ class Streamer:
                 self._run_windowed(prep, pacing.in_flight, state, writer, progress)
             self._finish(prep, state, writer)
             state.stats = ch.stats(self.timeout_s)
-            writer.write_record({"type": "stats", **asdict(state.stats), "host_decoder": asdict(ch.errors)})
+            writer.write_record({"type": REC_STATS, **asdict(state.stats), "host_decoder": asdict(ch.errors)})
         finally:
             writer.close()
         wall = time.perf_counter() - t_start
@@ -220,8 +166,8 @@ class Streamer:
                 idx, got = idx[keep], got[keep]
             # The RESULT fields are one packed run of bytes in both layouts: copy rows as bytes.
             res_bytes = res.view(np.uint8).reshape(len(res), RESULTS_DTYPE.itemsize)
-            got_bytes = np.ascontiguousarray(got).view(np.uint8).reshape(len(got), _RESULT_DT.itemsize)
-            res_bytes[idx, :_FIELDS_NBYTES] = got_bytes[:, _FIELDS_OFFSET:_FIELDS_OFFSET + _FIELDS_NBYTES]
+            got_bytes = np.ascontiguousarray(got).view(np.uint8).reshape(len(got), RESULT_DTYPE.itemsize)
+            res_bytes[idx, :RESULT_BYTES] = got_bytes[:, RESULT_BYTES_OFFSET:RESULT_BYTES_OFFSET + RESULT_BYTES]
             res["t_recv_ns"][idx] = now_ns
             res["outcome"][idx] = OUTCOME_RESULT
             answered += idx.tolist()
@@ -236,7 +182,7 @@ class Streamer:
                     answered.append(k)
                 else:
                     # not about a pending measurement (an IMU frame, or DIVERGED after a RESULT): keep it
-                    writer.write_record({"type": "device_error", **asdict(f.msg)})
+                    writer.write_record({"type": REC_DEVICE_ERROR, **asdict(f.msg)})
             elif isinstance(f.msg, m.RadioDrop):
                 k = state.seq_to_meas.pop(f.msg.meas_seq, -1)
                 if k >= 0:

@@ -14,6 +14,7 @@ import numpy as np
 
 from harness.config import (MODE_IMU_THRUST, MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_BIAS_STATES, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE,
                             STAGE_NN_MONITOR, STAGE_NN_STD, STAGE_ROBUST_UPDATE, EstimatorConfig)
+from harness.flight.data import Source
 from harness.twin import gates, measurements, supervisor
 from harness.twin.bias_states import BiasStates
 from harness.twin.ekf import POS, ErrorStateEkf
@@ -321,7 +322,7 @@ class TwinEstimator:
         # NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std
         std = std_nn if (c.stages & STAGE_NN_STD and std_nn > 0.0) else (c.std_tdoa if tdoa else c.std_twr)
         upd = ekf.prepare(H3, y, std * std + var_st)
-        status = self._gate_status(t_us, ids, y, d_max, upd.S, tdoa)
+        status = self._gate_status(y, d_max, upd.S, tdoa)
         # the monitor compares what the filter sees with and without the correction, whatever the gates said
         if c.stages & STAGE_NN_MONITOR and bias != 0.0 and self.nnmon.observe(ids[0], ids[1], y, bias, upd.S):
             self.flags |= FLAG_NN_PAIR_OFF
@@ -341,10 +342,9 @@ class TwinEstimator:
             self._supervise()
         return self._result(status, y, upd.S, bias + b_st, d_max, gain, upd.mahalanobis)
 
-    def _gate_status(self, t_us: int, ids: tuple[int, int], y: float, d_max: float, S: float, tdoa: bool) -> int:
+    def _gate_status(self, y: float, d_max: float, S: float, tdoa: bool) -> int:
         """The gates' verdict on innovation y (variance S): kinematic first, then chi-square, open for a link
-        whose anchors had been rejected for long (estimator.c gate_status). t_us and ids are unused here:
-        gate variants (scripts/gate_probe.py) override this."""
+        whose anchors had been rejected for long (estimator.c gate_status)."""
         c = self.config
         if c.stages & STAGE_KINEMATIC_GATE and not gates.kinematic_pass(y, d_max, 2.0 if tdoa else 1.0):
             return REJECTED_KINEMATIC
@@ -374,10 +374,10 @@ def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None =
     hgt = flight.height
     out: list[TwinResult] = []
     for t_us, source, i in flight.events():
-        if source == 0:
+        if source == Source.IMU:
             assert imu is not None
             twin.on_imu(t_us, imu.acc[i], imu.gyro[i])
-        elif source == 2:
+        elif source == Source.HEIGHT:
             assert hgt is not None
             twin.on_height(t_us, float(hgt.z[i]), float(hgt.std))
         elif u.kind == MeasKind.TWR:

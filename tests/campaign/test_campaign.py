@@ -312,10 +312,10 @@ def test_bad_campaign_files_are_named(tmp_path: Path) -> None:
         build_report(tmp_path)
     bad = tmp_path / "x.jsonl"
     bad.write_text('{"type": "header"}\n{"type": "result", "index": 0}\n')
-    with pytest.raises(CampaignDataError, match=r"x\.jsonl: line 2: result without field 'kind'"):
+    with pytest.raises(CampaignDataError, match=r"x\.jsonl:2: result field 'kind' missing"):
         load_results(bad)
     bad.write_text('{"type": "header"}\n{"type": "res')
-    with pytest.raises(CampaignDataError, match=r"line 2: malformed JSON"):
+    with pytest.raises(CampaignDataError, match=r"x\.jsonl:2: not JSON"):
         load_results(bad)
 
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from harness.config import PRESETS, EstimatorConfig
+from harness.flight.data import Source
 from harness.flight.scenarios import scenario_flight
 from harness.report.metrics import accuracy_summary
 from harness.flight.run_config import config_for
@@ -29,7 +30,7 @@ def _twin_results(flight, cfg):  # noqa: ANN001, ANN202
     out = []
     u = flight.uwb
     for t, src, i in flight.events():
-        if src == 0:
+        if src == Source.IMU:
             twin.on_imu(t, flight.imu.acc[i], flight.imu.gyro[i])
         elif u.kind == 1:
             out.append(twin.on_twr(t, int(u.anchor_a[i]), float(u.value[i])))

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.bench_memory import peak_rss_mb
+from harness.bench.memory import peak_rss_mb
 from harness.config import PRESETS, EstimatorConfig
 from harness.device.host import HostDevice
 from harness.flight.chunked import SimPlan

@@ -21,7 +21,7 @@ from harness.report.metrics import run_summary
 from harness.flight.run_config import config_for
 from harness.paths import DEFAULT_FIRMWARE, REPO_ROOT
 from harness.stream.chunked_run import stream_plan
-from harness.stream.results_file import FlightDigest, flight_digest
+from harness.stream.digest import FlightDigest, flight_digest
 from harness.stream.streamer import OUTCOME_RESULT, Pacing, Streamer
 
 CASES = [("circle", "twr", "realistic", {}), ("random", "tdoa", "realistic", {"profile": "nlos"}),
@@ -113,8 +113,8 @@ def test_cli_streams_a_long_simulation_in_slices(tmp_path: Path) -> None:
 
 @needs_fw
 def test_sliced_flight_needs_a_fraction_of_the_memory() -> None:
-    """Peak RSS (own subprocess each, harness/bench_memory.py) of a 240 s flight: sliced vs built whole."""
-    from harness.bench_memory import measure
+    """Peak RSS (own subprocess each, harness/bench/memory.py) of a 240 s flight: sliced vs built whole."""
+    from harness.bench.memory import measure
     sliced, whole = measure(240.0, "sliced"), measure(240.0, "whole")
     print(f"\n240 s TWR flight: peak RSS sliced {sliced['peak_rss_mb']:.0f} MB, whole {whole['peak_rss_mb']:.0f} MB")
     assert sliced["measurements"] == whole["measurements"] == sliced["results"]

@@ -116,7 +116,7 @@ def test_crazyflie_usart3_build_serves_the_protocol(arm_tools: None, tmp_path: P
 
 def test_shipped_build_fits_the_mcu_budget(stm32_build: Path) -> None:
     """Issue 7's goals for the firmware image: <= 64 KB flash, <= 32 KB RAM (stack included)."""
-    from harness.bench_qemu import size_figures
+    from harness.bench.qemu import size_figures
     size = size_figures(stm32_build)
     assert size["sections"][".isr_vector"] == 392                 # 16 exceptions + 82 IRQs
     assert 0 < size["components"]["network"]["flash"] < size["flash"]
@@ -129,7 +129,7 @@ def test_shipped_build_fits_the_mcu_budget(stm32_build: Path) -> None:
 @pytest.fixture(scope="module")
 def devices(probe_builds: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     """Host firmware and QEMU firmware, both with the probe model compiled in."""
-    from harness.bench_qemu import qemu_device
+    from harness.bench.qemu import qemu_device
     from harness.device.host import HostDevice
     log_dir = tmp_path_factory.mktemp("qemu-logs")
     host = HostDevice(probe_builds["host"], log_dir=log_dir)
@@ -143,7 +143,7 @@ def devices(probe_builds: dict[str, Any], tmp_path_factory: pytest.TempPathFacto
 
 
 def _flight(mode: str, duration_s: float = 2.0, seed: int = 21) -> Any:
-    from harness.bench_qemu import flight_for
+    from harness.bench.qemu import flight_for
     return flight_for(mode, duration_s, seed)
 
 
@@ -215,7 +215,7 @@ def test_qemu_costs_are_deterministic(devices: dict[str, Any]) -> None:
 
 def test_shipped_build_equals_host_firmware(stm32_build: Path, tmp_path: Path) -> None:
     """The ELF that `make` ships (firmware_sim/models) against the host firmware with the same model."""
-    from harness.bench_qemu import qemu_device
+    from harness.bench.qemu import qemu_device
     from harness.device.host import HostDevice
     from harness.stm32_build import build_host
     host = HostDevice(build_host(tmp_path / "host"), log_dir=tmp_path)
@@ -234,7 +234,7 @@ def test_shipped_build_equals_host_firmware(stm32_build: Path, tmp_path: Path) -
 
 def test_m4_network_kernels_match_pytorch_and_are_faster(stm32_build: Path, probe_builds: dict[str, Any],
                                                          tmp_path: Path) -> None:
-    from harness.bench_qemu_nn import NN_TOLERANCE, network_kernels
+    from harness.bench.qemu_nn import NN_TOLERANCE, network_kernels
     probe = network_kernels(n_inputs=25, seed=5, log_dir=tmp_path, elf=probe_builds["stm32"] / "uwb-nnbench.elf",
                             model="probe")
     assert {r.kind for r in probe} == {"twr", "tdoa"}

@@ -17,8 +17,8 @@ def stm32_elf(arm_tools: None) -> Path:
 
 
 def test_tdoa3_packet_cost_and_twin_on_qemu(stm32_elf: Path) -> None:
-    from harness.bench_qemu import qemu_device
-    from harness.bench_radio import GOAL_RADIO_TDOA3_INSTR, radio_stage
+    from harness.bench.qemu import qemu_device
+    from harness.bench.radio import GOAL_RADIO_TDOA3_INSTR, radio_stage
     from harness.config import PRESETS, EstimatorConfig
     from harness.flight.radio import radio_level
     from harness.flight.scenarios import scenario_flight

@@ -17,7 +17,8 @@ import pytest
 
 from harness.config import (MODE_IMU, MODE_IMU_THRUST, MODE_UWB_ONLY, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE, STAGES_OUTLIER,
                             EstimatorConfig)
-from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStream, ImuStream, Truth, UwbStream
+from harness.flight.data import (KIND_TDOA, KIND_TWR, Anchors, Flight, HeightStream, ImuStream, Source, Truth,
+                                 UwbStream)
 from harness.twin.estimator import (ACCEPTED, FLAG_COVARIANCE, FLAG_DIVERGED, FLAG_GAP_RESTART, FLAG_HEIGHT_FUSED,
                                     FLAG_OUT_OF_BOX, FLAG_SPEED, REJECTED_CHI2, REJECTED_KINEMATIC, TwinEstimator,
                                     TwinResult, run_flight)
@@ -134,10 +135,10 @@ def event_stream(flight: Flight, cfg: EstimatorConfig) -> str:
         lines.append(f"A {int(i)} " + " ".join(repr(float(v)) for v in p))
     u, imu, hgt = flight.uwb, flight.imu, flight.height
     for t, source, i in flight.events():
-        if source == 0:
+        if source == Source.IMU:
             assert imu is not None
             lines.append(f"I {t} " + " ".join(repr(float(v)) for v in (*imu.acc[i], *imu.gyro[i])))
-        elif source == 2:
+        elif source == Source.HEIGHT:
             assert hgt is not None
             lines.append(f"H {t} {float(hgt.z[i])!r} {float(hgt.std)!r}")
         elif u.kind == KIND_TWR:
@@ -266,7 +267,7 @@ def test_chi2_lockout_guard_matches_twin(replay_core: Path, mode: int, kind: int
     imu, uf, no_guard = flight.imu, flight.uwb, []
     assert imu is not None
     for t, source, i in flight.events():
-        if source == 0:
+        if source == Source.IMU:
             before.on_imu(t, imu.acc[i], imu.gyro[i])
         elif kind == KIND_TWR:
             no_guard.append(before.on_twr(t, int(uf.anchor_a[i]), float(uf.value[i])).status)

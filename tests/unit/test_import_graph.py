@@ -200,7 +200,7 @@ def unit_of(module: str, root: Path = ROOT) -> str:
         return "harness"
     if (root / "harness" / parts[1]).is_dir():
         return parts[1] + "/"
-    return "bench*.py" if parts[1].startswith("bench") else parts[1] + ".py"
+    return parts[1] + ".py"
 
 
 def test_the_folder_table_is_read() -> None:

@@ -73,7 +73,7 @@ def test_training_commands_without_torch_say_how_to_install_it(monkeypatch: pyte
 def test_bench_agreement_check_without_torch_says_how_to_install_it(monkeypatch: pytest.MonkeyPatch) -> None:
     import numpy as np
 
-    from harness.bench_qemu_nn import NetTables, torch_reference
+    from harness.bench.qemu_nn import NetTables, torch_reference
     from harness.optional import MissingDependencyError
     monkeypatch.setitem(sys.modules, "torch", None)
     net = NetTables.from_floats(3, np.zeros(3 + 3 + 150 + 50 + 2500 + 50 + 50 + 3, np.float32))

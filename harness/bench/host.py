@@ -8,7 +8,7 @@
    defaults (Adam with the fused update, batch 1024, one intra-op thread), against PyTorch's defaults
    (batch 64, all cores) on the same data.
 4. Peak host memory (RSS) of 600 s and 3600 s simulated flights streamed in slices, against the same
-   flights built whole (harness/bench_memory.py; goal: 1 hour under 500 MB).
+   flights built whole (harness/bench/memory.py; goal: 1 hour under 500 MB).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.flight.data import KIND_TWR
+from harness.flight.data import KIND_TWR, Source
 from harness.report.metrics import latency_summary
 from harness.device.registry import DeviceSpec, open_device
 from harness.flight.run_config import config_for
@@ -39,7 +39,7 @@ def _twin_cost_us(flight: Any, cfg: EstimatorConfig, model: Any) -> np.ndarray:
     u = flight.uwb
     out = []
     for t, src, i in flight.events():
-        if src == 0:
+        if src == Source.IMU:
             twin.on_imu(t, flight.imu.acc[i], flight.imu.gyro[i])
             continue
         t0 = time.perf_counter_ns()
@@ -123,7 +123,8 @@ def bench_training(samples_wanted: int, baseline_epochs: int) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m harness.bench", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--firmware", default=str(DEFAULT_FIRMWARE))
     ap.add_argument("--replay-duration", type=float, default=120.0)
     ap.add_argument("--compute-duration", type=float, default=30.0)
@@ -144,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_train:
         out["training"] = bench_training(args.train_samples, args.baseline_epochs)
     if not args.no_memory:
-        from harness.bench_memory import bench_memory
+        from harness.bench.memory import bench_memory
         durations = args.memory_duration or [600.0, 3600.0]
         out["memory"] = bench_memory(durations, durations, firmware=args.firmware)
     if args.json:
@@ -174,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"per epoch: uwb-hil train defaults {t['epoch_s_default']:.2f} s vs PyTorch defaults (batch 64, all cores) "
               f"{t['epoch_s_torch_defaults']:.2f} s: {t['speedup']:.1f}x")
     if "memory" in out:
-        from harness.bench_memory import print_rows
+        from harness.bench.memory import print_rows
         print_rows(out["memory"])
     return 0
 

@@ -14,7 +14,7 @@ gives 2.1 for the network). On a real board the DWT cycle counter gives true cyc
    assembly kernel on the same inputs, with their largest difference to PyTorch.
 3. Flash and RAM (arm-none-eabi-size + the map file), with the network's share.
 
-    python -m harness.bench_qemu [--json] [--duration 3] [--no-build]
+    python -m harness.bench.qemu [--json] [--duration 3] [--no-build]
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from harness.bench_qemu_nn import NN_TOLERANCE, network_kernels
+from harness.bench.qemu_nn import NN_TOLERANCE, network_kernels
 from harness.paths import REPO_ROOT
 from protocol.messages import Status
 
@@ -219,7 +219,7 @@ def print_report(out: dict[str, Any]) -> None:
     print(f"goal: TDoA update incl. network <= {GOAL_TDOA_NN_INSTR:,} instructions: {g['tdoa_nn_instructions']:,.0f} "
           f"-> {'OK' if g['tdoa_nn_ok'] else 'MISSED'}")
     if "radio" in out:
-        from harness.bench_radio import format_row
+        from harness.bench.radio import format_row
         print("radio level: " + format_row(out["radio"]))
     print("== bias network alone (uwb-nnbench.elf, same run, same inputs): instructions per call")
     print("   shipped = firmware_sim/models/bias_model_default.h; probe = random network of the same shapes whose")
@@ -259,7 +259,7 @@ def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_
         with qemu_device(elf, log_dir) as dev:
             stages += stage_costs(dev, name, duration_s, seed)
             if name == "m4":
-                from harness.bench_radio import radio_stage
+                from harness.bench.radio import radio_stage
                 out["radio"] = asdict(radio_stage(dev, duration_s, seed))
             stack_used[name] = dev.stack_high_water()   # the deepest the flights took the painted stack
             out["model_hash"] = dev.identity.as_dict()["model_hash"]

@@ -1,6 +1,6 @@
 """`make bench` (QEMU part), the network alone: uwb-nnbench.elf (firmware_sim/stm32/nnbench_main.c) runs the
 core's portable kernel, the blocked C kernel and the assembly kernel on the same inputs; each output is
-compared with PyTorch on the same weights (dumped from the device). harness/bench_qemu.py reports it."""
+compared with PyTorch on the same weights (dumped from the device). harness/bench/qemu.py reports it."""
 
 from __future__ import annotations
 

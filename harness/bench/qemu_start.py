@@ -1,6 +1,6 @@
 """Start-up time of the QEMU target: serial over a unix socket versus the pty recipe (1.2 s settle).
 
-    python -m harness.bench_qemu_start [--starts 6]
+    python -m harness.bench.qemu_start [--starts 6]
 
 Each start is QemuDevice.start() + HELLO (what every test or run pays before its first measurement), on
 the shipped STM32 build (make stm32); the two transports alternate so machine load hits both alike.
@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if not args.elf.is_file():
-        print(f"bench_qemu_start: error: {args.elf} not found: run `make stm32`", file=sys.stderr)
+        print(f"harness.bench.qemu_start: error: {args.elf} not found: run `make stm32`", file=sys.stderr)
         return 2
     times: dict[str, list[float]] = {t: [] for t in TRANSPORTS}
     for _ in range(max(1, args.starts)):

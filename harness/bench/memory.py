@@ -1,6 +1,6 @@
 """Peak host memory of a long simulated flight through the host build (part of `make bench`).
 
-Each measurement runs in a fresh subprocess (`python -m harness.bench_memory --child ...`) that builds
+Each measurement runs in a fresh subprocess (`python -m harness.bench.memory --child ...`) that builds
 the flight, streams it through the host firmware on a pty and computes the run summary, then reports its
 own peak RSS: the high-water mark of its own address space (`VmHWM` in /proc/self/status), which starts
 afresh at exec; `resource.getrusage(RUSAGE_SELF).ru_maxrss` where there is no /proc (on Linux ru_maxrss
@@ -68,7 +68,7 @@ def _child(duration_s: float, path: str, mode: str, firmware: str) -> dict[str, 
 def measure(duration_s: float, path: str, mode: str = "twr", firmware: str | None = None) -> dict[str, Any]:
     """Peak RSS of one flight in a fresh interpreter."""
     from harness.paths import DEFAULT_FIRMWARE
-    cmd = [sys.executable, "-m", "harness.bench_memory", "--child", "--duration", str(duration_s), "--path", path,
+    cmd = [sys.executable, "-m", "harness.bench.memory", "--child", "--duration", str(duration_s), "--path", path,
            "--mode", mode, "--firmware", str(firmware or DEFAULT_FIRMWARE)]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
     if out.returncode != 0:

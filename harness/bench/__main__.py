@@ -1,0 +1,7 @@
+"""`python -m harness.bench`: the host part of `make bench` (harness/bench/host.py)."""
+
+import sys
+
+from harness.bench.host import main
+
+sys.exit(main())

@@ -1,0 +1,36 @@
+"""The one assembly of a run's summary on a device (`uwb-hil run`, its resumption, `demo`, a campaign run):
+the metrics of report/metrics.py run_summary in the device's cost unit, the device's identity, the flight's
+range offset, and for a radio-level run the radio section (asks the device for its clock estimates)."""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+from harness.flight.data import Flight
+from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
+from harness.stream.streamer import RunResult, Streamer
+
+
+class Identity(Protocol):
+    """What a summary needs of a device's identity (device/identity.py DeviceIdentity)."""
+
+    @property
+    def cost_unit(self) -> int: ...
+
+    def as_dict(self) -> dict[str, Any]: ...
+
+
+def summarize_run(run: RunResult, flight: Flight, identity: Identity, config: str | None = None,
+                  radio_streamer: Streamer | None = None) -> dict[str, Any]:
+    """The summary of one run (without a verdict). `config`: the preset or stages label the run was asked
+    with; `radio_streamer`: the streamer of a radio-level run, still connected (its clocks are queried)."""
+    summary: dict[str, Any] = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=identity.cost_unit)
+    if config is not None:
+        summary["config"] = config
+    summary["device"] = identity.as_dict()
+    if "range_offset" in flight.meta:
+        summary["range_offset"] = flight.meta["range_offset"]
+    if radio_streamer is not None:
+        from harness.report.radio import query_clocks, radio_summary
+        summary["radio"] = radio_summary(run, flight, query_clocks(radio_streamer, flight))
+    return summary
