@@ -18,16 +18,20 @@ from harness.flight.data import Anchors, FlightError
 
 
 class RecordingError(FlightError):
-    """A recording or anchor file is malformed. Names the file, the line and/or field, and what was expected."""
+    """A recording or anchor file is malformed. Names the file, the line (text) or byte offset (binary) and/or
+    field, and what was expected."""
 
     def __init__(self, message: str, *, path: Path | str | None = None, line: int | None = None,
-                 field: str | None = None) -> None:
+                 field: str | None = None, offset: int | None = None) -> None:
         self.path = Path(path) if path is not None else None
         self.line = line
         self.field = field
+        self.offset = offset        # byte offset, for binary files
         where = str(path) if path is not None else "<recording>"
         if line is not None:
             where += f", line {line}"
+        if offset is not None:
+            where += f", byte offset {offset}"
         if field is not None:
             where += f", field {field!r}"
         super().__init__(f"{where}: {message}")
