@@ -92,8 +92,7 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
     summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
     summary["config"] = src.stages
     summary["device"] = ident.as_dict()
-    if "range_offset" in flight.meta:
-        summary["range_offset"] = flight.meta["range_offset"]
+    _flight_notes(summary, flight)
     if radio is not None:
         summary["radio"] = radio
     return summary
@@ -130,8 +129,16 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
     summary = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=ident.cost_unit)
     summary["config"] = header_src.get("stages")
     summary["device"] = ident.as_dict()
-    if "range_offset" in flight.meta:
-        summary["range_offset"] = flight.meta["range_offset"]
+    _flight_notes(summary, flight)
     summary["resume"] = info
     return summary
 
+
+def _flight_notes(summary: dict[str, Any], flight: Flight) -> None:
+    """What the recording's reader reported: the range-offset calibration applied, warnings (a CRC mismatch
+    loaded with --ignore-crc, event types skipped)."""
+    if "range_offset" in flight.meta:
+        summary["range_offset"] = flight.meta["range_offset"]
+    warnings = flight.meta.get("warnings")
+    if isinstance(warnings, list) and warnings:
+        summary["warnings"] = [str(w) for w in warnings]

@@ -90,10 +90,11 @@ def read_usd_log(path: Path | str, *, ignore_crc: bool = False) -> UsdLog:
     path = Path(path)
     data = path.read_bytes()
     version, types, start = parse_header(data, path)
-    crc_message = _crc_check(data, path)
+    crc_message, crc_offset = _crc_check(data)
     if crc_message and not ignore_crc:
-        raise RecordingError(crc_message + " (pass --ignore-crc to load it anyway)", path=path,
-                             offset=len(data) - CRC_BYTES)
+        raise RecordingError(crc_message + " (pass --ignore-crc to load it anyway)", path=path, offset=crc_offset)
+    if crc_message:
+        crc_message = f"{path}, byte offset {crc_offset}: {crc_message}"
     time_dtype, tick_us = VERSIONS[version]
     starts = walk_records(data, start, len(data) - CRC_BYTES, types, np.dtype(time_dtype).itemsize, path)
     log = UsdLog(path=path, version=version, types=types, crc_ok=not crc_message, crc_message=crc_message,
@@ -226,14 +227,19 @@ def _record_error(data: bytes, o: int, end: int, size: list[int], types: dict[in
                          f"{end - o} left before the CRC", path=path, offset=o)
 
 
-def _crc_check(data: bytes, path: Path) -> str:
-    """'' when the stored CRC-32 matches, else the reason (naming where the corruption must be)."""
-    stored = struct.unpack_from("<I", data, len(data) - CRC_BYTES)[0]
-    computed = zlib.crc32(data[:-CRC_BYTES]) & 0xFFFFFFFF
+def _crc_check(data: bytes) -> tuple[str, int]:
+    """('', 0) when the stored CRC-32 matches, else (the reason, the offset to name: the corrupted byte when
+    one byte explains the mismatch, else the CRC's own offset)."""
+    at = len(data) - CRC_BYTES
+    stored = struct.unpack_from("<I", data, at)[0]
+    computed = zlib.crc32(data[:at]) & 0xFFFFFFFF
     if stored == computed:
-        return ""
-    from harness.flight.formats.crc_locate import locate_byte_error
-    where = locate_byte_error(data[:-CRC_BYTES], stored ^ computed)
-    place = (f"a single corrupted byte at offset {where} explains it" if where is not None
-             else f"the corruption lies somewhere in bytes 0..{len(data) - CRC_BYTES - 1}, or in the CRC itself")
-    return f"CRC-32 mismatch: stored 0x{stored:08x} at offset {len(data) - CRC_BYTES}, computed 0x{computed:08x}; {place}"
+        return "", 0
+    from harness.flight.formats.crc_locate import candidate_offsets
+    where = candidate_offsets(data[:at], stored ^ computed)
+    head = f"CRC-32 mismatch (stored 0x{stored:08x} at offset {at}, computed 0x{computed:08x})"
+    if len(where) == 1:
+        return f"{head}: one corrupted byte at this offset explains it", where[0]
+    if 1 < len(where) <= 3:
+        return f"{head}: one corrupted byte at offset {' or '.join(map(str, where))} would explain it", at
+    return f"{head}: the log is corrupt somewhere in bytes 0..{at + CRC_BYTES - 1}", at

@@ -9,13 +9,15 @@ Events used (names as the firmware logs them; units converted to SI):
     estPose          locSrv.x/y/z [m], locSrv.qx/qy/qz/qw (mocap pose as received on board) -> Truth,
                      moved from the vehicle's origin to the UWB tag by the lever arm (body frame)
 
-Every other declared event type is skipped and counted in meta["ignored_events"].
+Every other event type is skipped and counted in meta["ignored_events"]; types not in KNOWN_UNUSED (the
+Crazyflie's other estimator inputs) also give a warning in meta["warnings"].
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -28,6 +30,9 @@ TDOA, TWR, POSE, ACC, GYRO = "estTDOA", "estDistance", "estPose", "estAccelerati
 VARIABLES = {TDOA: ("idA", "idB", "distanceDiff"), TWR: ("id", "distance"),
              POSE: ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw"),
              ACC: ("acc.x", "acc.y", "acc.z"), GYRO: ("gyro.x", "gyro.y", "gyro.z")}
+#: logged by the Crazyflie's estimator but not used here: skipped quietly (others are skipped with a warning)
+KNOWN_UNUSED = frozenset({"estBarometer", "estTOF", "estFlow", "estPosition", "estAbsoluteHeight", "estYawError",
+                          "estSweepAngle", "estHeading", "estMotor"})
 #: TDoA2 measures consecutive anchors (idB = idA + 1 mod N) except after a lost packet; TDoA3 any pair
 #: (about 1 in N - 1 consecutive). The shared logs: 0.95-0.996 (TDoA2) against 0.16-0.18 (TDoA3).
 TDOA2_MIN_CONSECUTIVE = 0.8
@@ -42,6 +47,14 @@ class UsdOptions:
     lever_arm: tuple[float, float, float] = (float(TAG_LEVER_ARM[0]), float(TAG_LEVER_ARM[1]),
                                              float(TAG_LEVER_ARM[2]))
 
+    @classmethod
+    def make(cls, ignore_crc: bool = False, lever_arm: Sequence[float] | None = None) -> UsdOptions:
+        """From command-line values (lever_arm None = the default)."""
+        if lever_arm is None:
+            return cls(ignore_crc=bool(ignore_crc))
+        x, y, z = (float(v) for v in lever_arm)
+        return cls(ignore_crc=bool(ignore_crc), lever_arm=(x, y, z))
+
 
 def load_cf_usd(path: Path | str, anchors: Anchors, options: UsdOptions = UsdOptions()) -> Flight:
     """A whole uSD log as a Flight (TDoA or TWR, IMU, truth with attitude), or a RecordingError."""
@@ -52,10 +65,10 @@ def load_cf_usd(path: Path | str, anchors: Anchors, options: UsdOptions = UsdOpt
     truth = _truth(log, np.asarray(options.lever_arm, dtype=np.float64), dropped)
     uwb = _uwb(log, anchors, truth, dropped)
     imu = _imu(log, dropped)
-    used = {TDOA, TWR, POSE, ACC, GYRO}
-    ignored = {name: log.count(name) for name in log.events if name not in used}
-    warnings = [f"event type(s) not used, skipped: " + ", ".join(f"{k} ({v})" for k, v in sorted(ignored.items()))
-                ] if ignored else []
+    ignored = {name: log.count(name) for name in log.events if name not in VARIABLES}
+    unknown = sorted(name for name in ignored if name not in KNOWN_UNUSED)
+    warnings = [f"unknown event type(s) skipped: " + ", ".join(f"{k} ({ignored[k]} records)" for k in unknown)
+                ] if unknown else []
     if log.crc_message:
         warnings.insert(0, log.crc_message + " (loaded anyway: --ignore-crc)")
     meta: dict[str, object] = {

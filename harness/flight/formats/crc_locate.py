@@ -6,7 +6,7 @@ Z is the register update for one zero byte and T the byte table. Z is invertible
 determines b), so stepping the syndrome back through Z^-1 k times and finding a T[v] locates the byte.
 The n steps are computed vectorised by doubling (Z^-(2^j) applied as four byte tables). A random
 32-bit syndrome meets one of the 255 T[v] at ~n * 255 / 2^32 spurious positions (0.2 for a 4 MB log),
-so every candidate is returned and the caller names them all.
+so every candidate is returned and the caller names them (when there are few).
 """
 
 from __future__ import annotations
@@ -49,10 +49,14 @@ def _tables_of(fn_basis: np.ndarray) -> np.ndarray:
     return tables
 
 
-def candidate_offsets(n: int, syndrome: int) -> list[int]:
-    """Offsets p in [0, n) at which one corrupted byte gives this syndrome (stored ^ computed CRC)."""
+def candidate_offsets(message: bytes, syndrome: int) -> list[int]:
+    """Offsets at which one corrupted byte gives this syndrome (stored ^ computed CRC): in the message, or
+    in the 4 CRC bytes after it (a syndrome of one non-zero byte: the stored CRC itself was hit)."""
+    n = len(message)
+    crc_bytes = [n + i for i in range(4) if (syndrome >> (8 * i)) & 0xFF]
+    found = crc_bytes if len(crc_bytes) == 1 else []
     if n <= 0 or syndrome == 0:
-        return []
+        return found
     table = _byte_table()
     top_inv = np.zeros(256, dtype=np.int64)
     top_inv[(table >> np.uint32(24)).astype(np.int64)] = np.arange(256)
@@ -68,16 +72,4 @@ def candidate_offsets(n: int, syndrome: int) -> list[int]:
         if filled < n:
             step = _tables_of(_apply(step, _apply(step, basis)))     # Z^-2filled
     k = np.nonzero(np.isin(s, table[1:]))[0]
-    return sorted(int(n - 1 - i) for i in k)
-
-
-def locate_byte_error(message: bytes, syndrome: int, max_candidates: int = 3) -> str | None:
-    """'P' or 'P1 or P2' (the possible offsets of a single corrupted byte), None when none or too many;
-    a syndrome of one non-zero byte may also be a corrupted CRC field."""
-    found = candidate_offsets(len(message), syndrome)
-    nonzero_bytes = [i for i in range(4) if (syndrome >> (8 * i)) & 0xFF]
-    if len(nonzero_bytes) == 1:
-        found.append(len(message) + nonzero_bytes[0])      # a flipped byte of the stored CRC
-    if not found or len(found) > max_candidates:
-        return None
-    return " or ".join(str(p) for p in found)
+    return sorted(int(n - 1 - i) for i in k) + found
