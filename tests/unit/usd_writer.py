@@ -49,6 +49,14 @@ class UsdWriter:
         stamp = struct.pack("<Q", t_us) if self.version == 2 else struct.pack("<I", t_us // 1000)
         return struct.pack("<H", type_id) + stamp + struct.pack("<" + letters, *values)
 
+    def offset_of(self, index: int) -> int:
+        """Byte offset of record `index` in the file."""
+        return len(self.header()) + sum(len(self.record(*r)) for r in self.records[:index])
+
+    def index_of(self, event: str, k: int = 0) -> int:
+        """Index (in records) of the k-th record of an event."""
+        return [i for i, r in enumerate(self.records) if r[1] == event][k]
+
     def body(self) -> bytes:
         return self.header() + b"".join(self.record(*r) for r in self.records)
 

@@ -64,7 +64,7 @@ class UsdLog:
     events: dict[str, np.ndarray] = field(default_factory=dict)
     offsets: dict[str, np.ndarray] = field(default_factory=dict)
     crc_ok: bool = True
-    crc_message: str = ""
+    crc_message: str = ""          # the mismatch, when loaded with ignore_crc
     records_start: int = 0
     size: int = 0
 
@@ -73,16 +73,13 @@ class UsdLog:
 
 
 def is_cf_usd(path: Path) -> bool:
-    """Magic byte 0xBC, a known version and a plausible event-type count (the loaders' dispatch)."""
+    """The loaders' dispatch: the magic byte 0xBC. No text recording can start with it (a UTF-8 continuation
+    byte) nor a .npz (a zip: 'PK'), so a bad header after it gets the uSD reader's own reason."""
     try:
         with open(path, "rb") as f:
-            head = f.read(5)
+            return f.read(1) == bytes([MAGIC])
     except OSError:
         return False
-    if len(head) < 5 or head[0] != MAGIC:
-        return False
-    version, n_types = struct.unpack_from("<HH", head, 1)
-    return version in VERSIONS and 0 < n_types <= MAX_EVENT_TYPES
 
 
 def read_usd_log(path: Path | str, *, ignore_crc: bool = False) -> UsdLog:
@@ -90,14 +87,22 @@ def read_usd_log(path: Path | str, *, ignore_crc: bool = False) -> UsdLog:
     path = Path(path)
     data = path.read_bytes()
     version, types, start = parse_header(data, path)
-    crc_message, crc_offset = _crc_check(data)
-    if crc_message and not ignore_crc:
-        raise RecordingError(crc_message + " (pass --ignore-crc to load it anyway)", path=path, offset=crc_offset)
-    if crc_message:
-        crc_message = f"{path}, byte offset {crc_offset}: {crc_message}"
+    at = len(data) - CRC_BYTES
+    crc_ok = struct.unpack_from("<I", data, at)[0] == zlib.crc32(data[:at]) & 0xFFFFFFFF
     time_dtype, tick_us = VERSIONS[version]
-    starts = walk_records(data, start, len(data) - CRC_BYTES, types, np.dtype(time_dtype).itemsize, path)
-    log = UsdLog(path=path, version=version, types=types, crc_ok=not crc_message, crc_message=crc_message,
+    try:
+        starts = walk_records(data, start, at, types, np.dtype(time_dtype).itemsize, path)
+    except RecordingError as exc:      # the more specific reason; a truncated file fails its CRC too
+        if crc_ok:
+            raise
+        raise RecordingError(f"{exc.reason}; the CRC does not match either", path=path, offset=exc.offset) from None
+    crc_message = ""
+    if not crc_ok:
+        reason, offset = crc_mismatch(data)
+        if not ignore_crc:
+            raise RecordingError(reason + " (pass --ignore-crc to load it anyway)", path=path, offset=offset)
+        crc_message = f"{path}, byte offset {offset}: {reason}"
+    log = UsdLog(path=path, version=version, types=types, crc_ok=crc_ok, crc_message=crc_message,
                  records_start=start, size=len(data))
     buf = np.frombuffer(data, dtype=np.uint8)
     ids = buf[starts].astype(np.int64) | (buf[starts + 1].astype(np.int64) << 8)
@@ -227,14 +232,12 @@ def _record_error(data: bytes, o: int, end: int, size: list[int], types: dict[in
                          f"{end - o} left before the CRC", path=path, offset=o)
 
 
-def _crc_check(data: bytes) -> tuple[str, int]:
-    """('', 0) when the stored CRC-32 matches, else (the reason, the offset to name: the corrupted byte when
-    one byte explains the mismatch, else the CRC's own offset)."""
+def crc_mismatch(data: bytes) -> tuple[str, int]:
+    """Why the stored CRC-32 does not match, and the offset to name: the corrupted byte when one byte
+    explains the mismatch, else the CRC's own offset."""
     at = len(data) - CRC_BYTES
     stored = struct.unpack_from("<I", data, at)[0]
     computed = zlib.crc32(data[:at]) & 0xFFFFFFFF
-    if stored == computed:
-        return "", 0
     from harness.flight.formats.crc_locate import candidate_offsets
     where = candidate_offsets(data[:at], stored ^ computed)
     head = f"CRC-32 mismatch (stored 0x{stored:08x} at offset {at}, computed 0x{computed:08x})"

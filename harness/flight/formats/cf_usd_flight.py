@@ -62,8 +62,9 @@ def load_cf_usd(path: Path | str, anchors: Anchors, options: UsdOptions = UsdOpt
     path = log.path
     _check_variables(log)
     dropped: dict[str, int] = {}
+    event, kind = _uwb_source(log, dropped)
     truth = _truth(log, np.asarray(options.lever_arm, dtype=np.float64), dropped)
-    uwb = _uwb(log, anchors, truth, dropped)
+    uwb = _uwb(log, event, kind, anchors, truth, dropped)
     imu = _imu(log, dropped)
     ignored = {name: log.count(name) for name in log.events if name not in VARIABLES}
     unknown = sorted(name for name in ignored if name not in KNOWN_UNUSED)
@@ -155,16 +156,19 @@ def _truth(log: UsdLog, lever_arm: np.ndarray, dropped: dict[str, int]) -> Truth
     return Truth(t_us=t.astype(np.int64), pos=tag, quat=quat)
 
 
-def _uwb(log: UsdLog, anchors: Anchors, truth: Truth, dropped: dict[str, int]) -> UwbStream:
+def _uwb_source(log: UsdLog, dropped: dict[str, int]) -> tuple[str, int]:
+    """The UWB event of the log and its kind: estTDOA, else estDistance."""
     if log.count(TDOA):
-        event, kind = TDOA, KIND_TDOA
         if log.count(TWR):
             dropped["twr_records_in_tdoa_log"] = log.count(TWR)
-    elif log.count(TWR):
-        event, kind = TWR, KIND_TWR
-    else:
-        raise RecordingError(f"no UWB measurements: the log has no {TDOA} or {TWR} records (events: "
-                             f"{', '.join(sorted(log.events)) or 'none'})", path=log.path)
+        return TDOA, KIND_TDOA
+    if log.count(TWR):
+        return TWR, KIND_TWR
+    raise RecordingError(f"no UWB measurements: the log has no {TDOA} or {TWR} records (events: "
+                         f"{', '.join(sorted(log.events)) or 'none'})", path=log.path)
+
+
+def _uwb(log: UsdLog, event: str, kind: int, anchors: Anchors, truth: Truth, dropped: dict[str, int]) -> UwbStream:
     t = _times(log, event)
     v = _column(log, event, VARIABLES[event])
     a = v[:, 0].astype(np.int64)

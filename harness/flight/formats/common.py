@@ -27,6 +27,7 @@ class RecordingError(FlightError):
         self.line = line
         self.field = field
         self.offset = offset        # byte offset, for binary files
+        self.reason = message
         where = str(path) if path is not None else "<recording>"
         if line is not None:
             where += f", line {line}"
