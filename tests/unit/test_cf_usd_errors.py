@@ -164,3 +164,12 @@ def test_no_anchor_file_beside_the_log(tmp_path: Path) -> None:
 def test_empty_log_header_only(day: Path) -> None:
     w = UsdWriter()
     _refused(w.write(day / "0101-traj1"), None, "no UWB measurements")
+
+
+@pytest.mark.parametrize("kw, phrase", [({"acc_z": 9.81}, "median |acceleration| is 96.2 m/s^2"),
+                                        ({"acc_z": 0.1}, "looks like g"),
+                                        ({"gyro_z": 3000.0}, "looks like deg/s")])
+def test_imu_in_the_wrong_units_is_implausible(day: Path, kw: dict[str, float], phrase: str) -> None:
+    path = hover_log(**kw).write(day / "0101-traj1")       # type: ignore[arg-type]
+    _refused(path, None, phrase, "--force")
+    assert load_recording(path, check=False).has_imu

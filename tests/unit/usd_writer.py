@@ -67,8 +67,8 @@ class UsdWriter:
 
 
 def hover_log(version: int = 2, seconds: float = 2.0, pose: bool = True, tdoa: bool = True,
-              twr: bool = False, extra: bool = True) -> UsdWriter:
-    """A tag hovering at (0.5, -0.3, 1.2) m, yawed 90 deg, level: IMU at 500 Hz (acc 1 g up), pose at
+              twr: bool = False, extra: bool = True, acc_z: float = 1.0, gyro_z: float = 5.0) -> UsdWriter:
+    """A tag hovering at (0.5, -0.3, 1.2) m, yawed 90 deg, level: IMU at 500 Hz (acc_z g, gyro_z deg/s), pose at
     100 Hz, TDoA2 pairs (k, k+1 mod 8) at 200 Hz with exact distance differences of the tag (+ the
     default lever arm rotated by the yaw), TWR to anchor k at 200 Hz. Times in whole ms (version 1)."""
     w = UsdWriter(version=version)
@@ -80,8 +80,8 @@ def hover_log(version: int = 2, seconds: float = 2.0, pose: bool = True, tdoa: b
     for k in range(int(seconds * 1000)):        # 1 ms grid
         t = start + k * 1000
         if k % 2 == 0:
-            w.add(t, "estAcceleration", 0.0, 0.0, 1.0)
-            w.add(t + (0 if version == 1 else 16), "estGyroscope", 0.0, 0.0, 5.0)
+            w.add(t, "estAcceleration", 0.0, 0.0, acc_z)
+            w.add(t + (0 if version == 1 else 16), "estGyroscope", 0.0, 0.0, gyro_z)
         if pose and k % 10 == 0:
             w.add(t, "estPose", *body, 0.0, 0.0, qz, qw)
         if tdoa and k % 5 == 1:
