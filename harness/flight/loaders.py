@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.options import add_recording_read_options
 from harness.flight.formats.anchors import (load_anchor_yaml, load_anchors, load_anchors_csv, load_survey_npz,
                                             load_survey_txt)
 from harness.flight.formats.cf_usd import is_cf_usd
@@ -231,17 +232,18 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import sys
     ap = argparse.ArgumentParser(prog="python -m harness.flight.loaders", description=main.__doc__)
-    ap.add_argument("recording", help="UTIL CSV, rcv_twr sequence directory or native .npz")
+    ap.add_argument("recording", help="UTIL CSV, rcv_twr sequence directory, Crazyflie uSD log or native .npz")
     ap.add_argument("--anchors", help="anchor file (UTIL anchors.csv, survey .npz/.txt, anchor.yaml)")
     ap.add_argument("--constellation", type=int, help="constellation N of a multi-constellation anchors.csv")
     ap.add_argument("--no-anchor-offset", action="store_true", help="rcv_twr: use the surveyed anchor positions")
     ap.add_argument("--save", help="write the flight in the native format (.npz)")
     ap.add_argument("--force", action="store_true", help="load an implausible recording anyway (units, geometry)")
+    add_recording_read_options(ap)
     args = ap.parse_args(argv)
     try:
         flight = load_recording(args.recording, args.anchors, constellation=args.constellation,
                                 anchor_offset=None if args.no_anchor_offset else FROM_DATA_README,
-                                check=not args.force)
+                                check=not args.force, usd=UsdOptions.make(args.ignore_crc, args.lever_arm))
     except (RecordingError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -246,3 +246,35 @@ def crc_mismatch(data: bytes) -> tuple[str, int]:
     if 1 < len(where) <= 3:
         return f"{head}: one corrupted byte at offset {' or '.join(map(str, where))} would explain it", at
     return f"{head}: the log is corrupt somewhere in bytes 0..{at + CRC_BYTES - 1}", at
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m harness.flight.formats.cf_usd LOG...`: the event types and record counts of each log, its
+    CRC, and the time to decode it (best of 5)."""
+    import argparse
+    import sys
+    import time
+    ap = argparse.ArgumentParser(prog="python -m harness.flight.formats.cf_usd", description=main.__doc__)
+    ap.add_argument("logs", nargs="+", help="Crazyflie uSD event logs")
+    args = ap.parse_args(argv)
+    for name in args.logs:
+        try:
+            best = float("inf")
+            for _ in range(5):
+                t0 = time.perf_counter()
+                log = read_usd_log(name, ignore_crc=True)
+                best = min(best, time.perf_counter() - t0)
+        except (RecordingError, OSError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        records = sum(log.count(n) for n in log.events)
+        print(f"{name}: version {log.version}, {log.size / 1e6:.2f} MB, {records} records, CRC "
+              f"{'ok' if log.crc_ok else 'MISMATCH: ' + log.crc_message}; decoded in {1000 * best:.0f} ms "
+              f"({log.size / 1e6 / best:.0f} MB/s)")
+        for et in sorted(log.types.values(), key=lambda e: e.id):
+            print(f"  {et.id:3d} {et.name:<18} {log.count(et.name):7d}  {', '.join(et.variables)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
