@@ -23,7 +23,8 @@ import numpy as np
 
 from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
 from harness.flight.formats.cf_usd import UsdLog, read_usd_log
-from harness.flight.formats.common import RecordingError, anchor_positions, quat_to_rotmat, repeated_rows
+from harness.flight.formats.common import (RecordingError, anchor_positions, imu_on_gyro_times, quat_to_rotmat,
+                                           repeated_rows)
 from harness.flight.formats.util import DEG, GRAVITY, TAG_LEVER_ARM
 
 TDOA, TWR, POSE, ACC, GYRO = "estTDOA", "estDistance", "estPose", "estAcceleration", "estGyroscope"
@@ -218,13 +219,4 @@ def _imu(log: UsdLog, dropped: dict[str, int]) -> ImuStream | None:
     ta, tg = _times(log, ACC), _times(log, GYRO)
     acc = _column(log, ACC, VARIABLES[ACC]) * GRAVITY
     gyro = _column(log, GYRO, VARIABLES[GYRO]) * DEG
-    _, first = np.unique(ta, return_index=True)        # interpolation needs increasing abscissae
-    if len(first) < len(ta):
-        dropped["acc_same_time_records"] = len(ta) - len(first)
-    ta, acc = ta[first], acc[first]
-    inside = (tg >= ta[0]) & (tg <= ta[-1])
-    if (~inside).any():
-        dropped["gyro_outside_acc_span"] = int((~inside).sum())
-    tg, gyro = tg[inside], gyro[inside]
-    acc_i = np.stack([np.interp(tg.astype(np.float64), ta.astype(np.float64), acc[:, k]) for k in range(3)], axis=1)
-    return ImuStream(t_us=tg.astype(np.int64), acc=acc_i, gyro=gyro)
+    return imu_on_gyro_times(ta, acc, tg, gyro, dropped)
