@@ -15,7 +15,7 @@ from harness.flight.formats.cf_usd import is_cf_usd, read_usd_log
 from harness.flight.formats.cf_usd_flight import UsdOptions
 from harness.flight.loaders import RecordingError, load_recording
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
-from usd_writer import ANCHOR_POS, hover_log, tag_position, write_anchors
+from usd_writer import ANCHOR_POS, UsdWriter, hover_log, tag_position, write_anchors
 
 SHARED = shared_data_dir() / "cf_usd"
 SHARED_LOGS = sorted(p for p in SHARED.glob("*/*-traj[0-9]*")) if SHARED.is_dir() else []
@@ -36,8 +36,9 @@ def test_golden_decode(day: Path, version: int) -> None:
     assert log.version == version and log.crc_ok
     assert log.count("estAcceleration") == 1000 and log.count("estPose") == 200 and log.count("estTDOA") == 400
     tdoa = log.events["estTDOA"]
-    assert tdoa["t_us"][0] == 1_001_000 and tdoa["idA"][0] == 0 and tdoa["idB"][0] == 1
-    gyro_t = log.events["estGyroscope"]["t_us"]
+    assert log.times["estTDOA"][0] == 1_001_000 and tdoa["idA"][0] == 0 and tdoa["idB"][0] == 1
+    assert tdoa["distanceDiff"].dtype == np.float32 and tdoa["idA"].dtype == np.uint8
+    gyro_t = log.times["estGyroscope"]
     assert gyro_t[1] - gyro_t[0] == 2000 and gyro_t[0] == (1_000_000 if version == 1 else 1_000_016)
 
     flight = load_recording(path)      # auto-detected, anchors found beside it
@@ -56,6 +57,25 @@ def test_golden_decode(day: Path, version: int) -> None:
     assert len(flight.imu) == 1000 - len(gyro_late)
     np.testing.assert_allclose(flight.imu.acc[:, 2], 9.81, rtol=1e-6)
     np.testing.assert_allclose(flight.imu.gyro[:, 2], math.radians(5.0), rtol=1e-6)
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_every_type_letter_and_awkward_names(tmp_path: Path, version: int) -> None:
+    """All struct letters the reader takes, variables named like its own fields, a type without variables."""
+    w = UsdWriter(version=version, events={
+        "mixed": (300, ["time(b)", "event(B)", "t_us(h)", "d(H)", "e(i)", "f(I)", "g(l)", "h(L)", "i(q)", "j(Q)",
+                        "k(e)", "l(f)", "m(d)", "n(?)", "o(c)"]),
+        "empty": (0, [])})
+    row = (-5, 250, -30000, 65000, -2_000_000_000, 4_000_000_000, -7, 7, -(2 ** 60), 2 ** 63 + 5, 1.5, -2.25,
+           1e300, True, b"z")
+    w.add(3_000, "empty")
+    w.add(7_000, "mixed", *row)
+    w.add(9_000, "mixed", *row)
+    log = read_usd_log(w.write(tmp_path / "log"))
+    assert log.times["mixed"].tolist() == [7_000, 9_000] and log.times["empty"].tolist() == [3_000]
+    assert log.events["empty"].dtype.names is None or log.events["empty"].dtype.names == ()
+    got = log.events["mixed"][1]
+    assert [got[name] for name in log.events["mixed"].dtype.names] == list(row)
 
 
 def test_twr_log_and_lever_arm_option(day: Path) -> None:

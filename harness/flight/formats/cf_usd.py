@@ -47,21 +47,25 @@ class EventType:
     letters: str
     header_offset: int            # where its declaration starts in the file
 
-    def record_dtype(self, time_dtype: str) -> np.dtype:
-        names = ["event", "time", *self.variables]
-        formats = ["<u2", time_dtype, *(TYPE_LETTERS[c] for c in self.letters)]
-        return np.dtype({"names": names, "formats": formats})     # packed: no alignment padding
+    def values_dtype(self, time_bytes: int) -> np.dtype:
+        """The variables of one whole record (id and timestamp skipped), packed: no alignment padding."""
+        formats = [np.dtype(TYPE_LETTERS[c]) for c in self.letters]
+        offsets = list(np.cumsum([2 + time_bytes] + [f.itemsize for f in formats]))
+        return np.dtype({"names": list(self.variables), "formats": formats, "offsets": offsets[:-1],
+                         "itemsize": int(offsets[-1])})
 
 
 @dataclass
 class UsdLog:
-    """A decoded log: per event name, a structured array (fields `t_us` int64 and every variable) and the
-    byte offset of every record (for errors that name where the bad record is)."""
+    """A decoded log, per event name: the timestamps (int64 microseconds), a structured array of the
+    variables (native byte order) and the byte offset of every record (for errors that name where the bad
+    record is)."""
 
     path: Path
     version: int
     types: dict[int, EventType]
     events: dict[str, np.ndarray] = field(default_factory=dict)
+    times: dict[str, np.ndarray] = field(default_factory=dict)
     offsets: dict[str, np.ndarray] = field(default_factory=dict)
     crc_ok: bool = True
     crc_message: str = ""          # the mismatch, when loaded with ignore_crc
@@ -90,8 +94,9 @@ def read_usd_log(path: Path | str, *, ignore_crc: bool = False) -> UsdLog:
     at = len(data) - CRC_BYTES
     crc_ok = struct.unpack_from("<I", data, at)[0] == zlib.crc32(data[:at]) & 0xFFFFFFFF
     time_dtype, tick_us = VERSIONS[version]
+    time_bytes = np.dtype(time_dtype).itemsize
     try:
-        starts = walk_records(data, start, at, types, np.dtype(time_dtype).itemsize, path)
+        starts = walk_records(data, start, at, types, time_bytes, path)
     except RecordingError as exc:      # the more specific reason; a truncated file fails its CRC too
         if crc_ok:
             raise
@@ -110,18 +115,18 @@ def read_usd_log(path: Path | str, *, ignore_crc: bool = False) -> UsdLog:
         at = starts[ids == type_id]
         if at.size == 0:
             continue
-        dt = et.record_dtype(time_dtype)
-        raw = buf[at[:, None] + np.arange(dt.itemsize)].reshape(-1).view(dt)
-        log.events[et.name] = _table(raw, et, tick_us)
+        dt = et.values_dtype(time_bytes)
+        raw = buf[at[:, None] + np.arange(dt.itemsize)]                    # (n, record size) bytes
+        stamps = np.ascontiguousarray(raw[:, 2:2 + time_bytes]).view(time_dtype)[:, 0]
+        log.times[et.name] = stamps.astype(np.int64) * tick_us
+        log.events[et.name] = _native(raw.reshape(-1).view(dt), et)
         log.offsets[et.name] = at
     return log
 
 
-def _table(raw: np.ndarray, et: EventType, tick_us: int) -> np.ndarray:
-    """Records -> a native-endian structured array: t_us (int64 microseconds) and the variables."""
-    out_dtype = np.dtype([("t_us", np.int64)] + [(v, raw.dtype[v].newbyteorder("=")) for v in et.variables])
-    out = np.empty(len(raw), dtype=out_dtype)
-    out["t_us"] = raw["time"].astype(np.int64) * tick_us
+def _native(raw: np.ndarray, et: EventType) -> np.ndarray:
+    """Packed little-endian records -> a compact native-endian structured array of the variables."""
+    out = np.empty(len(raw), dtype=[(v, raw.dtype[v].newbyteorder("=")) for v in et.variables])
     for v in et.variables:
         out[v] = raw[v]
     return out

@@ -122,7 +122,7 @@ def _column(log: UsdLog, event: str, names: tuple[str, ...]) -> np.ndarray:
 
 def _times(log: UsdLog, event: str) -> np.ndarray:
     """The event's timestamps [us]; a stream going backwards is refused naming the record's offset."""
-    t = log.events[event]["t_us"]
+    t = log.times[event]
     back = np.nonzero(np.diff(t) < 0)[0]
     if back.size:
         k = int(back[0]) + 1
