@@ -159,3 +159,21 @@ def test_run_refuses_a_corrupted_copy_with_exit_2(day: Path, capsys: pytest.Capt
     rc = cli.main(["run", "--recording", str(path), "--json"])
     err = capsys.readouterr().err
     assert rc == 2 and f"byte offset {at}: CRC-32 mismatch" in err and "Traceback" not in err
+
+
+def test_reader_options_survive_a_results_header(day: Path) -> None:
+    """run --resume rebuilds the flight from the header's source: --lever-arm and --ignore-crc are in it."""
+    from harness.run.source import RunSource, make_flight
+    path = hover_log().write(day / "0101-traj1")
+    args = cli.build_parser().parse_args(["run", "--recording", str(path), "--lever-arm", "0,0,0", "--ignore-crc"])
+    src = RunSource.from_mapping(vars(args))
+    again = RunSource.from_mapping(json.loads(json.dumps(src.as_header())))
+    assert again.ignore_crc is True and list(again.lever_arm or []) == [0.0, 0.0, 0.0]
+    np.testing.assert_allclose(make_flight(again).truth.pos[0], (0.5, -0.3, 1.2), atol=1e-6)
+
+
+@pytest.mark.parametrize("bad", ["0,0", "0,0,x", "0,0,90.8"])
+def test_lever_arm_option_refused_at_parse_time(bad: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as ex:
+        cli.build_parser().parse_args(["run", "--recording", "x", "--lever-arm", bad])
+    assert ex.value.code == 2 and "--lever-arm" in capsys.readouterr().err
