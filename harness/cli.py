@@ -122,6 +122,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     spec, want_hash = model_device_spec(args)
     summary = run_one(spec, want_hash, src, Pacing(mode=args.pacing, window=args.window, speed=args.speed),
                       args.timeout, results=results, overwrite=args.overwrite, progress=_progress_bar)
+    for warning in summary.get("warnings", []):
+        print(f"uwb-hil: warning: {warning}", file=sys.stderr)
     return cli_verdict.finish(args, summary, [summary], criteria, lambda: print_run(summary))
 
 
@@ -177,8 +179,10 @@ def _add_flight_options(p: argparse.ArgumentParser, recorded: bool = True) -> No
     g.add_argument("--seed", type=options.non_negative_int, default=1, help="seed of the simulated flight's noise")
     if not recorded:
         return
-    g.add_argument("--recording", help="replay a recorded flight instead (UTIL CSV, rcv_twr sequence, .npz)")
-    g.add_argument("--anchors", help="anchor file for the recording (UTIL anchors.csv, YAML)")
+    g.add_argument("--recording", help="replay a recorded flight instead (UTIL CSV, rcv_twr sequence, Crazyflie "
+                                       "uSD log, .npz)")
+    g.add_argument("--anchors", help="anchor file for the recording (UTIL anchors.csv, survey .npz, YAML)")
+    options.add_recording_read_options(g)
     g.add_argument("--range-offset", metavar="FILE.json",
                    help="TWR range-offset calibration (antenna delay) subtracted from the ranges before they are "
                         "streamed; fit one on recordings with ground truth: `uwb-hil range-offset`")

@@ -43,3 +43,26 @@ timeout_s = number(float, 0.0, 86_400.0, lo_open=True, unit=" s")
 sim_duration_s = number(float, 0.0, MAX_SIM_DURATION_S, lo_open=True, unit=" s")
 window = number(int, 1, 1024)
 speed = number(float, 0.0, 1e6, lo_open=True)
+
+#: largest |component| of a tag lever arm [m] (a Crazyflie-sized vehicle; a mistyped mm value is refused)
+MAX_LEVER_ARM_M = 1.0
+
+
+def lever_arm(text: str) -> tuple[float, float, float]:
+    """'x,y,z' in metres (body frame), each component within +-MAX_LEVER_ARM_M."""
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected x,y,z in metres (3 numbers), got {text!r}")
+    parse = number(float, -MAX_LEVER_ARM_M, MAX_LEVER_ARM_M, unit=" m")
+    x, y, z = (float(parse(p)) for p in parts)
+    return (x, y, z)
+
+
+def add_recording_read_options(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """Options of the binary recordings' readers, for every command that takes --recording (the values go to
+    harness.flight.loaders.UsdOptions.make)."""
+    p.add_argument("--ignore-crc", action="store_true",
+                   help="Crazyflie uSD logs: load a log whose CRC-32 does not match (still reported as a warning)")
+    p.add_argument("--lever-arm", type=lever_arm, metavar="X,Y,Z",
+                   help="Crazyflie uSD logs: vehicle origin -> UWB tag in the body frame [m] (default: UTIL's "
+                        "Crazyflie, -0.01245,0.00127,0.0908)")

@@ -16,7 +16,9 @@ from harness.biasnet.recipes import STD_HEAD_RECIPE, SimRecipe
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.uncertainty import StdHeadConfig
 from harness.biasnet.workflow import EvalOptions, evaluate_model, fit_std_head, flights_for, train_into_model
+from harness import options
 from harness.errors import UsageError
+from harness.flight.formats.cf_usd_flight import UsdOptions
 from harness.optional import require_torch
 from harness.paths import SHARED_DATA
 from harness.report import jsonsafe
@@ -42,6 +44,11 @@ def _paths(items: list[str] | None) -> list[Path] | None:
     return [Path(p) for p in items] if items else None
 
 
+def _usd(args: argparse.Namespace) -> UsdOptions:
+    """How Crazyflie uSD logs are read (--ignore-crc, --lever-arm)."""
+    return UsdOptions.make(args.ignore_crc, args.lever_arm)
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     require_torch("uwb-hil train")       # before loading any data: say at once what is missing
     if args.jitter and args.ensemble is None:
@@ -49,7 +56,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
                        profile=args.profile)
     flights, kind, sources = flights_for(_paths(args.recording), Path(args.anchors) if args.anchors else None,
-                                         not args.force, recipe, _flights_progress(f"simulating {args.mode}"))
+                                         not args.force, recipe, _flights_progress(f"simulating {args.mode}"),
+                                         _usd(args))
     base = BiasModel.load(Path(args.into)) if args.into else BiasModel(name=args.name or Path(args.out).stem)
     ensemble = DistillConfig(teachers=args.ensemble, jitter=args.jitter) if args.ensemble is not None else None
     model, report, samples = train_into_model(flights, kind, sources, args.layout, _train_config(args), args.xi,
@@ -118,7 +126,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     opts = EvalOptions(anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
                        train=None if args.train is None else [Path(p) for p in args.train],
                        data_dir=Path(args.data_dir), xi=args.xi, half_window_s=args.window,
-                       plot=Path(args.plot) if args.plot else None)
+                       plot=Path(args.plot) if args.plot else None, usd=_usd(args))
     res = evaluate_model(BiasModel.load(Path(args.model)), args.model, [Path(p) for p in args.recording], opts)
     if args.json:
         print(jsonsafe.dumps(res))
@@ -136,7 +144,7 @@ def cmd_fit_std(args: argparse.Namespace) -> int:
     recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
                        spins=STD_HEAD_RECIPE.spins)
     flights, kind, _ = flights_for(_paths(args.recording), Path(args.anchors) if args.anchors else None, True,
-                                   recipe, _flights_progress(f"simulating {args.mode}"))
+                                   recipe, _flights_progress(f"simulating {args.mode}"), _usd(args))
     out = fit_std_head(model, args.model, flights, kind, StdHeadConfig(std_min=args.std_min, std_max=args.std_max,
                                                                    constant=args.constant, inflate=args.inflate), args.xi)
     out.save(Path(args.out))
@@ -186,8 +194,9 @@ def _add_ensemble_options(p: argparse.ArgumentParser) -> None:
 def add_commands(sub: Any) -> None:
     tr = sub.add_parser("train", help="train a bias network (simulated flights or recordings)")
     src = tr.add_argument_group("data")
-    src.add_argument("--recording", nargs="+", help="recorded flights (UTIL CSV, rcv_twr directory, native .npz)")
+    src.add_argument("--recording", nargs="+", help="recorded flights (UTIL CSV, rcv_twr directory, Crazyflie uSD log, native .npz)")
     src.add_argument("--anchors", help="anchor file for the recordings")
+    options.add_recording_read_options(src)
     src.add_argument("--force", action="store_true",
                      help="use recordings that fail the plausibility checks (units, anchor geometry, gross errors)")
     src.add_argument("--mode", choices=("twr", "tdoa"), default="twr", help="simulated: measurement kind")
@@ -220,6 +229,7 @@ def add_commands(sub: Any) -> None:
                          "or $UWB_HIL_DATA)")
     ev.add_argument("--recording", nargs="+", required=True, help="held-out recording(s)")
     ev.add_argument("--anchors", help="anchor file for the recordings")
+    options.add_recording_read_options(ev)
     ev.add_argument("--force", action="store_true",
                     help="use recordings that fail the plausibility checks (units, anchor geometry, gross errors)")
     ev.add_argument("--train", nargs="*", default=None,
@@ -237,6 +247,7 @@ def add_commands(sub: Any) -> None:
     fs.add_argument("--out", required=True, help="model file to write (.npz)")
     fs.add_argument("--recording", nargs="+", help="recorded flights (else simulated ones)")
     fs.add_argument("--anchors", help="anchor file for the recordings")
+    options.add_recording_read_options(fs)
     fs.add_argument("--mode", choices=("twr", "tdoa"), default="tdoa", help="simulated: which network")
     fs.add_argument("--flights", type=int, default=STD_HEAD_RECIPE.flights, help="simulated flights")
     fs.add_argument("--duration", type=float, default=STD_HEAD_RECIPE.duration_s,

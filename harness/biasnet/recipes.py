@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Callable
 
 from harness.flight.data import Flight
+from harness.flight.formats.cf_usd_flight import UsdOptions
 
 FIRST_EVAL_SEED = 1000
 
@@ -89,7 +90,9 @@ def rcv_heldout_dirs(data: Path) -> list[Path]:
     return rcv_sequences(data, (5,))
 
 
-def load_recordings(paths: list[Path], anchors: Path | None = None, check: bool = True) -> list[Flight]:
-    """Load recordings; check=False (--force) skips the plausibility checks (harness/flight/plausibility.py)."""
+def load_recordings(paths: list[Path], anchors: Path | None = None, check: bool = True,
+                    usd: UsdOptions = UsdOptions()) -> list[Flight]:
+    """Load recordings; check=False (--force) skips the plausibility checks (harness/flight/plausibility.py);
+    `usd`: how Crazyflie uSD logs are read (--ignore-crc, --lever-arm)."""
     from harness.flight.loaders import load_recording
-    return [load_recording(p, anchors, check=check) for p in paths]
+    return [load_recording(p, anchors, check=check, usd=usd) for p in paths]

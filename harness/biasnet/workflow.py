@@ -21,6 +21,7 @@ from harness.biasnet.recipes import SimRecipe, load_recordings
 from harness.biasnet.uncertainty import StdHeadConfig, calibration, with_std_head
 from harness.errors import InputError
 from harness.flight.data import KIND_TWR, Flight
+from harness.flight.formats.cf_usd_flight import UsdOptions
 from harness.paths import SHARED_DATA
 from harness.flight.run_config import position_only_hint
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
@@ -132,11 +133,12 @@ def kind_of(flights: list[Flight], what: str) -> str:
 
 
 def flights_for(recordings: list[Path] | None, anchors: Path | None, check: bool, recipe: SimRecipe,
-                progress: Callable[[int, int], None] | None = None) -> tuple[list[Flight], str, list[str]]:
+                progress: Callable[[int, int], None] | None = None,
+                usd: UsdOptions = UsdOptions()) -> tuple[list[Flight], str, list[str]]:
     """The recordings (all of one kind), else the recipe's simulated flights; with their kind and the
     sources a model's metadata names them by."""
     if recordings:
-        flights = load_recordings(recordings, anchors, check=check)
+        flights = load_recordings(recordings, anchors, check=check, usd=usd)
         return flights, kind_of(flights, "training recordings"), [str(p) for p in recordings]
     flights = recipe.build(progress)
     return flights, recipe.mode, [f"sim:{recipe.mode}:{recipe.profile}:seeds {recipe.seed0}-"
@@ -181,6 +183,7 @@ class EvalOptions:
     xi: float = XI_DEFAULT
     half_window_s: float = HALF_WINDOW_S
     plot: Path | None = None
+    usd: UsdOptions = UsdOptions()      # how Crazyflie uSD logs are read
 
 
 def evaluate_model(model: BiasModel, model_name: str, recordings: list[Path], opts: EvalOptions) -> dict[str, Any]:
@@ -188,14 +191,14 @@ def evaluate_model(model: BiasModel, model_name: str, recordings: list[Path], op
     figure of bias vs azimuth when `opts.plot` is given."""
     if not opts.half_window_s > 0.0:
         raise ValueError(f"--window must be a positive half width in seconds, got {opts.half_window_s}")
-    test = load_recordings(recordings, opts.anchors, check=opts.check)
+    test = load_recordings(recordings, opts.anchors, check=opts.check, usd=opts.usd)
     kind = kind_of(test, "evaluated recordings")
     check_attitude(model, kind, test, model_name)
     train_paths = opts.train
     if train_paths is None:  # the recordings the model was trained on, when they are recordings
         named = [p for p in model.meta.get(f"{kind}_trained_on", []) if not str(p).startswith("sim:")]
         train_paths = resolve_training_paths(named, opts.data_dir)
-    train = load_recordings(train_paths, opts.anchors, check=opts.check) if train_paths else []
+    train = load_recordings(train_paths, opts.anchors, check=opts.check, usd=opts.usd) if train_paths else []
     res = compare(model, test, train, opts.xi, opts.half_window_s)
     if opts.plot:
         from harness.biasnet.plots import bias_vs_azimuth

@@ -10,6 +10,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from harness import options
 from harness.calibrate.compare import calibrate
 from harness.calibrate.plots import write_plots
 from harness.calibrate.stats import STATS_KEYS
@@ -87,6 +88,7 @@ def add_range_offset_parser(sub: Any) -> None:
                    help="a TWR recording with ground truth (repeatable: every range of every recording is used); "
                         "to evaluate, leave the flight you replay out")
     p.add_argument("--anchors", help="anchor file for the recordings (default: each recording's own)")
+    options.add_recording_read_options(p)
     p.add_argument("--per-anchor", action="store_true",
                    help="also an offset per anchor id (on rcv_twr it does not carry over between sequences)")
     p.add_argument("--out", required=True, help="calibration file to write (JSON)")
@@ -96,10 +98,11 @@ def add_range_offset_parser(sub: Any) -> None:
 
 
 def cmd_range_offset(args: argparse.Namespace) -> int:
-    from harness.flight.loaders import load_recording
+    from harness.flight.loaders import UsdOptions, load_recording
     from harness.flight.range_offset import fit_range_offset, save_range_offset
-    flights = [load_recording(Path(r), anchors=Path(args.anchors) if args.anchors else None, check=not args.force)
-               for r in args.recording]
+    usd = UsdOptions.make(args.ignore_crc, args.lever_arm)
+    flights = [load_recording(Path(r), anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
+                              usd=usd) for r in args.recording]
     cal = fit_range_offset(flights, per_anchor=args.per_anchor)
     save_range_offset(cal, Path(args.out))
     if args.json:

@@ -3,6 +3,7 @@
     UTIL flight CSV, reduced 8 columns or official 27 columns   harness/flight/formats/util.py
     rcv_twr sequence directory (anchor.yaml, anchor_K.csv, gt.csv)  harness/flight/formats/rcv_twr.py
     native .npz (this project's format)                         harness/flight/native.py
+    Crazyflie uSD event log (magic 0xBC, binary)                harness/flight/formats/cf_usd.py (+ _flight.py)
     anchor files (anchors.csv, anchor_constN.npz/.txt, anchor.yaml) harness/flight/formats/anchors.py
 
 Malformed input raises `RecordingError` (a FlightError, so a ValueError) naming the file, the line
@@ -17,8 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.options import add_recording_read_options
 from harness.flight.formats.anchors import (load_anchor_yaml, load_anchors, load_anchors_csv, load_survey_npz,
                                             load_survey_txt)
+from harness.flight.formats.cf_usd import is_cf_usd
+from harness.flight.formats.cf_usd_flight import UsdOptions, load_cf_usd
 from harness.flight.formats.common import RecordingError
 from harness.flight.formats.rcv_twr import (RANGE_COLUMNS, FROM_DATA_README, GT_COLUMNS, is_rcv_twr_dir,
                                             load_rcv_twr)
@@ -29,14 +33,14 @@ from harness.flight.plausibility import ImplausibleRecording, check_recording
 
 __all__ = ["RecordingError", "ImplausibleRecording", "load_recording", "load_anchors", "load_anchors_csv", "load_survey_npz",
            "load_survey_txt", "load_anchor_yaml", "load_util_csv", "load_rcv_twr", "load_flight", "save_flight",
-           "find_anchor_file", "time_slice", "FROM_DATA_README"]
+           "find_anchor_file", "time_slice", "FROM_DATA_README", "UsdOptions"]
 
 AnchorsArg = Anchors | Path | str | None
 
 
 def load_recording(path: Path | str, anchors: AnchorsArg = None, *, constellation: int | None = None,
                    anchor_offset: tuple[float, float, float] | str | None = FROM_DATA_README,
-                   check: bool = True) -> Flight:
+                   check: bool = True, usd: UsdOptions = UsdOptions()) -> Flight:
     """Load any supported recording, then check it is plausible (harness/flight/plausibility.py: units,
     anchor geometry, gross errors, time overlap; `ImplausibleRecording` names the file and the likely
     cause). check=False (the CLI's --force) skips that check, never the format checks.
@@ -47,17 +51,21 @@ def load_recording(path: Path | str, anchors: AnchorsArg = None, *, constellatio
         For rcv_twr, None means the sequence's anchor.yaml; for a native file, given anchors replace the
         stored ones.
     anchor_offset: rcv_twr only, added to the anchor positions (the source's antenna offset; None = none).
+    usd: Crazyflie uSD logs only: --ignore-crc and the tag's lever arm. Their anchors default to the
+        `anchor_<day>.npz` (UTIL survey layout) beside the log.
     """
-    flight = _load(Path(path), anchors, constellation, anchor_offset)
+    flight = _load(Path(path), anchors, constellation, anchor_offset, usd)
     if check:
         check_recording(flight, path)
     return flight
 
 
 def _load(path: Path, anchors: AnchorsArg, constellation: int | None,
-          anchor_offset: tuple[float, float, float] | str | None) -> Flight:
+          anchor_offset: tuple[float, float, float] | str | None, usd: UsdOptions) -> Flight:
     if not path.exists():
         raise FileNotFoundError(f"recording {path} not found")
+    if path.is_file() and is_cf_usd(path):
+        return load_cf_usd(path, _usd_anchors(anchors, path, constellation), usd)
     if path.is_dir():
         if not is_rcv_twr_dir(path):
             raise RecordingError("this directory is not a recording: expected an rcv_twr sequence (anchor.yaml, "
@@ -124,6 +132,27 @@ def find_anchor_file(recording: Path) -> Path | None:
         if (d / "anchors.csv").is_file():
             return d / "anchors.csv"
     return None
+
+
+def find_usd_anchor_file(recording: Path) -> Path | None:
+    """The `anchor_<day>.npz` beside a uSD log (day = the file name's part before '-'), else the only
+    `anchor_*.npz` there."""
+    here = recording.resolve().parent
+    day = recording.name.split("-")[0]
+    if (here / f"anchor_{day}.npz").is_file():
+        return here / f"anchor_{day}.npz"
+    found = sorted(here.glob("anchor_*.npz"))
+    return found[0] if len(found) == 1 else None
+
+
+def _usd_anchors(anchors: AnchorsArg, path: Path, constellation: int | None) -> Anchors:
+    if anchors is None:
+        found = find_usd_anchor_file(path)
+        if found is None:
+            raise RecordingError("no anchors given and no anchor_<day>.npz beside this Crazyflie uSD log: pass "
+                                 "--anchors (a UTIL survey .npz with an_pos/an_quat, or anchors.csv)", path=path)
+        anchors = found
+    return _anchors(anchors, path, constellation)
 
 
 def _util_anchors(anchors: AnchorsArg, path: Path, constellation: int | None) -> Anchors:
@@ -203,17 +232,18 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import sys
     ap = argparse.ArgumentParser(prog="python -m harness.flight.loaders", description=main.__doc__)
-    ap.add_argument("recording", help="UTIL CSV, rcv_twr sequence directory or native .npz")
+    ap.add_argument("recording", help="UTIL CSV, rcv_twr sequence directory, Crazyflie uSD log or native .npz")
     ap.add_argument("--anchors", help="anchor file (UTIL anchors.csv, survey .npz/.txt, anchor.yaml)")
     ap.add_argument("--constellation", type=int, help="constellation N of a multi-constellation anchors.csv")
     ap.add_argument("--no-anchor-offset", action="store_true", help="rcv_twr: use the surveyed anchor positions")
     ap.add_argument("--save", help="write the flight in the native format (.npz)")
     ap.add_argument("--force", action="store_true", help="load an implausible recording anyway (units, geometry)")
+    add_recording_read_options(ap)
     args = ap.parse_args(argv)
     try:
         flight = load_recording(args.recording, args.anchors, constellation=args.constellation,
                                 anchor_offset=None if args.no_anchor_offset else FROM_DATA_README,
-                                check=not args.force)
+                                check=not args.force, usd=UsdOptions.make(args.ignore_crc, args.lever_arm))
     except (RecordingError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -37,6 +37,9 @@ class Limits:
     gross_m: float = 1.0                   # the loaders' gross-error threshold (error_summary core_m)
     min_time_overlap: float = 0.8          # share of the UWB time span covered by the truth
     min_samples: int = 20                  # rate / share checks need this many measurements
+    min_acc_median: float = 3.0            # median |specific force| [m/s^2] of a flight is ~g (9.81)
+    max_acc_median: float = 30.0
+    max_gyro_p99: float = 20.0             # 99th percentile |body rate| [rad/s] (1150 deg/s; shared logs <= 1.6)
 
 
 class ImplausibleRecording(RecordingError):
@@ -51,7 +54,7 @@ class ImplausibleRecording(RecordingError):
 def findings(flight: Flight, limits: Limits = Limits()) -> list[str]:
     """Every implausibility found, each with its likely cause; empty when the recording looks sane."""
     return [*_anchor_findings(flight, limits), *_pose_findings(flight, limits),
-            *_time_findings(flight, limits), *_measurement_findings(flight, limits)]
+            *_time_findings(flight, limits), *_measurement_findings(flight, limits), *_imu_findings(flight, limits)]
 
 
 def figures(flight: Flight) -> dict[str, float]:
@@ -183,3 +186,22 @@ def _measurement_findings(flight: Flight, lim: Limits) -> list[str]:
                 f"more (gross errors; at most {100 * lim.max_gross_share:.0f} % expected): the anchors, poses or "
                 "measurements are in different units or frames, or the anchors belong to another constellation"]
     return []
+
+
+def _imu_findings(flight: Flight, lim: Limits) -> list[str]:
+    """Accelerometer in m/s^2 (a file in g gives ~1) and gyro in rad/s (in deg/s its fast turns exceed any
+    real body rate)."""
+    imu = flight.imu
+    if imu is None or len(imu) < lim.min_samples:
+        return []
+    out = []
+    acc = float(np.median(np.linalg.norm(imu.acc, axis=1)))
+    if not lim.min_acc_median <= acc <= lim.max_acc_median:
+        cause = "looks like g (expected m/s^2)" if 0.3 <= acc <= 3.0 else "not m/s^2"
+        out.append(f"median |acceleration| is {acc:.3g} m/s^2 (expected ~9.81, within {lim.min_acc_median:g}.."
+                   f"{lim.max_acc_median:g}): {cause}")
+    rate = float(np.percentile(np.linalg.norm(imu.gyro, axis=1), 99))
+    if rate > lim.max_gyro_p99:
+        out.append(f"99th percentile |body rate| is {rate:.3g} rad/s (more than {lim.max_gyro_p99:g}): looks like "
+                   "deg/s (expected rad/s)")
+    return out

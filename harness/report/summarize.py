@@ -30,6 +30,9 @@ def summarize_run(run: RunResult, flight: Flight, identity: Identity, config: st
     summary["device"] = identity.as_dict()
     if "range_offset" in flight.meta:
         summary["range_offset"] = flight.meta["range_offset"]
+    warnings = flight.meta.get("warnings")     # the reader's (a CRC mismatch loaded with --ignore-crc, ...)
+    if isinstance(warnings, list) and warnings:
+        summary["warnings"] = [str(w) for w in warnings]
     if radio_streamer is not None:
         from harness.report.radio import query_clocks, radio_summary
         summary["radio"] = radio_summary(run, flight, query_clocks(radio_streamer, flight))

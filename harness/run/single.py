@@ -116,4 +116,3 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
         locked.close()
     summary["resume"] = info
     return summary
-

@@ -36,6 +36,8 @@ class RunSource:
     height: str | None = None
     height_std: float = 0.05
     range_offset: str | None = None     # a range-offset calibration file (harness/flight/range_offset.py)
+    ignore_crc: bool = False            # Crazyflie uSD logs: load despite a CRC mismatch
+    lever_arm: Sequence[float] | None = None   # Crazyflie uSD logs: the tag's lever arm (None = the default)
 
     @classmethod
     def keys(cls) -> tuple[str, ...]:
@@ -64,9 +66,10 @@ def make_flight(src: RunSource) -> Flight:
     """The flight (measurement level): its ranges calibrated when `range_offset` is given, with HEIGHT
     pseudo-measurements when `height` is given."""
     if src.recording:
-        from harness.flight.loaders import load_recording
+        from harness.flight.loaders import UsdOptions, load_recording
         flight = load_recording(Path(src.recording), anchors=Path(src.anchors) if src.anchors else None,
-                                constellation=src.constellation, check=not src.force)
+                                constellation=src.constellation, check=not src.force,
+                                usd=UsdOptions.make(src.ignore_crc, src.lever_arm))
     else:
         from harness.flight.scenarios import scenario_flight
         flight = scenario_flight(src.scenario, mode=src.mode, duration_s=src.duration, seed=src.seed)

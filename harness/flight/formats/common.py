@@ -14,20 +14,25 @@ from typing import Sequence
 
 import numpy as np
 
-from harness.flight.data import Anchors, FlightError
+from harness.flight.data import Anchors, FlightError, ImuStream
 
 
 class RecordingError(FlightError):
-    """A recording or anchor file is malformed. Names the file, the line and/or field, and what was expected."""
+    """A recording or anchor file is malformed. Names the file, the line (text) or byte offset (binary) and/or
+    field, and what was expected."""
 
     def __init__(self, message: str, *, path: Path | str | None = None, line: int | None = None,
-                 field: str | None = None) -> None:
+                 field: str | None = None, offset: int | None = None) -> None:
         self.path = Path(path) if path is not None else None
         self.line = line
         self.field = field
+        self.offset = offset        # byte offset, for binary files
+        self.reason = message
         where = str(path) if path is not None else "<recording>"
         if line is not None:
             where += f", line {line}"
+        if offset is not None:
+            where += f", byte offset {offset}"
         if field is not None:
             where += f", field {field!r}"
         super().__init__(f"{where}: {message}")
@@ -231,3 +236,18 @@ def normalised_quats(q: np.ndarray, table: CsvTable | None, field: str, path: Pa
         raise RecordingError(f"quaternion norm {norm[k]:.4f} is not 1 (expected a unit quaternion)",
                              path=table.path if table is not None else path, line=line, field=field)
     return q / norm[:, None]
+
+
+def imu_on_gyro_times(ta: np.ndarray, acc: np.ndarray, tg: np.ndarray, gyro: np.ndarray,
+                      dropped: dict[str, int]) -> ImuStream:
+    """Accelerometer and gyro streams (SI) -> one ImuStream on the gyro's timestamps: the accelerometer
+    linearly interpolated to them (first sample of a repeated time kept); gyro samples outside the
+    accelerometer's span are dropped and counted in dropped["gyro_outside_acc_span"]."""
+    _, first = np.unique(ta, return_index=True)   # interpolation needs increasing abscissae
+    ta, acc = ta[first], acc[first]
+    inside = (tg >= ta[0]) & (tg <= ta[-1])
+    if (~inside).any():
+        dropped["gyro_outside_acc_span"] = int((~inside).sum())
+    tg, gyro = tg[inside], gyro[inside]
+    acc_i = np.stack([np.interp(tg.astype(np.float64), ta.astype(np.float64), acc[:, k]) for k in range(3)], axis=1)
+    return ImuStream(t_us=tg.astype(np.int64), acc=acc_i, gyro=gyro)

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from harness.flight.formats.common import (CsvTable, RecordingError, anchor_positions, check_not_backwards,
-                                           distinct_poses, normalised_quats, quat_to_rotmat, read_csv_table,
-                                           repeated_rows, seconds_to_us)
+                                           distinct_poses, imu_on_gyro_times, normalised_quats, quat_to_rotmat,
+                                           read_csv_table, repeated_rows, seconds_to_us)
 from harness.flight.data import KIND_TDOA, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
 
 REDUCED_COLUMNS = ("idA", "idB", "tdoa_meas", "t_tdoa", "pose_x", "pose_y", "pose_z", "t_pose")
@@ -192,14 +192,7 @@ def _imu(table: CsvTable, dropped: dict[str, int]) -> ImuStream | None:
     ta, acc, tg, gyro = ta[~rep_a], acc[~rep_a], tg[~rep_g], gyro[~rep_g]
     if np.array_equal(ta, tg):
         return ImuStream(t_us=tg, acc=acc, gyro=gyro)
-    _, first = np.unique(ta, return_index=True)   # interpolation needs increasing abscissae
-    ta, acc = ta[first], acc[first]
-    inside = (tg >= ta[0]) & (tg <= ta[-1])
-    if (~inside).any():
-        dropped["gyro_outside_acc_span"] = int((~inside).sum())
-    tg, gyro = tg[inside], gyro[inside]
-    acc_i = np.stack([np.interp(tg.astype(np.float64), ta.astype(np.float64), acc[:, k]) for k in range(3)], axis=1)
-    return ImuStream(t_us=tg, acc=acc_i, gyro=gyro)
+    return imu_on_gyro_times(ta, acc, tg, gyro, dropped)
 
 
 def _nonnegative(t: np.ndarray, table: CsvTable, field: str) -> None:
