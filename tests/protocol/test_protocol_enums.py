@@ -33,7 +33,12 @@ def _retyped(tree: ast.AST, members: dict[str, set[tuple[str, int]]]) -> list[tu
     """(line, name, enum) of `NAME = <int literal>` where NAME is an enum member (bare, or behind a prefix
     naming its enum: STATUS_ACCEPTED, KIND_TWR, LAYOUT_TWR_POS) with that member's value."""
     found = []
+    # members of a host-side enum class (flight/data.py Source.IMU) are that enum's own values, not retyped ones
+    own = {id(n) for c in ast.walk(tree) if isinstance(c, ast.ClassDef)
+           and any(getattr(b, "id", getattr(b, "attr", "")).endswith("Enum") for b in c.bases) for n in c.body}
     for node in ast.walk(tree):
+        if id(node) in own:
+            continue
         if not (isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name)
                 and isinstance(node.value, ast.Constant) and type(node.value.value) is int):
             continue
