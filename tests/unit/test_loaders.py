@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.config import MODE_IMU, MODE_UWB_ONLY, PRESETS, EstimatorConfig
+from harness.config import MODE_IMU, MODE_IMU_THRUST, MODE_UWB_ONLY, PRESETS, EstimatorConfig
 from harness.flight.loaders import (RecordingError, load_anchors, load_flight, load_rcv_twr, load_recording,
                                     save_flight, time_slice)
 from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
@@ -65,7 +65,8 @@ def test_official_util_csv_fixture_with_imu_and_attitude() -> None:
     # (the level assumption would be off by ~1 cm here)
     np.testing.assert_allclose(f.uwb.true_value, f.uwb.value, atol=2e-6)
     assert abs(f.truth.pos[0, 2] - (1.0 + 0.0908)) > 1e-3
-    assert config_for(f).mode == MODE_IMU
+    assert config_for(f).mode == MODE_IMU_THRUST    # a Crazyflie: the quadrotor model
+    assert config_for(replace(f, meta={})).mode == MODE_IMU
 
 
 def test_util_survey_files_give_the_same_flight(tmp_path: Path) -> None:

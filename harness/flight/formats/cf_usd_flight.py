@@ -75,6 +75,7 @@ def load_cf_usd(path: Path | str, anchors: Anchors, options: UsdOptions = UsdOpt
         warnings.insert(0, log.crc_message + " (loaded anyway: --ignore-crc)")
     meta: dict[str, object] = {
         "source": str(path), "format": f"cf-usd-v{log.version}", "dataset": "Crazyflie uSD event log",
+        "vehicle": "quadrotor",     # config_for replays its IMU with the quadrotor model (MODE_IMU_THRUST)
         "day": path.name.split("-")[0] if "-" in path.name else None, "flight": path.name,
         "tdoa_mode": tdoa_mode(uwb, anchors) if uwb.kind == KIND_TDOA else None,
         "tag_lever_arm_m": [float(v) for v in options.lever_arm],

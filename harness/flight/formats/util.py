@@ -82,6 +82,7 @@ def load_util_csv(path: Path, anchors: Anchors) -> Flight:
         "source": str(table.path),
         "format": "util-csv-27" if layout == "official" else "util-csv-8",
         "dataset": "UTIL",
+        "vehicle": "quadrotor",     # a Crazyflie: config_for replays its IMU with MODE_IMU_THRUST
         "constellation": constellation_from_name(table.path),
         "tdoa_mode": _tdoa_mode(table.path),
         "tag_lever_arm_m": TAG_LEVER_ARM.tolist() if layout == "official" else [0.0, 0.0, float(TAG_LEVER_ARM[2])],
