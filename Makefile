@@ -4,7 +4,7 @@ VENV    := .venv
 PY      := $(VENV)/bin/python
 STAMP   := $(VENV)/.installed-stamp
 
-.PHONY: all demo test test-c test-py test-light-install firmware bench protocol clean help
+.PHONY: all demo test test-c test-py test-board test-light-install firmware bench protocol clean help
 all: firmware
 
 help:
@@ -44,6 +44,16 @@ test-c:
 test-py: $(STAMP) firmware
 	$(PY) -m pytest -q
 
+# The device tests against ONE host-firmware process kept up for the whole session and reached as a board is
+# (its pty path as --uwb-port, target serial): a board on the bench is not restarted between tests, so every
+# test compares STATS deltas or resets what it needs through CONFIG (harness/device/pretend_board.py).
+# `hardware`-marked tests run here. BOARD_TESTS: what runs (the tests that drive the board through
+# uwb_device; `make test-board BOARD_TESTS=tests/device` for the whole folder).
+BOARD_TESTS ?= tests/device/test_pretend_board.py tests/device/test_radio_level.py tests/device/test_device.py \
+	tests/device/test_measurement_gaps.py tests/device/test_end_to_end.py
+test-board: $(STAMP) firmware
+	$(PY) -m harness.device.pretend_board -- $(PY) -m pytest -q -p no:cacheprovider --uwb-port {port} $(BOARD_TESTS)
+
 # `pip install -e .` without extras in a fresh virtualenv (no PyTorch): demo and run work, train says how to
 # get torch. LIGHT_VENV is rebuilt each time (local wheels: about a minute).
 LIGHT_VENV ?= build/light-venv
@@ -66,7 +76,7 @@ test-fuzz:
 longflight: $(STAMP) firmware
 	UWB_LONGFLIGHT_S=3600 $(PY) -m pytest -q -s tests/device/test_long_flight.py --timeout=7200
 
-test: test-c test-fuzz stm32 net-tools test-py test-light-install
+test: test-c test-fuzz stm32 net-tools test-py test-board test-light-install
 
 bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench

@@ -50,7 +50,16 @@ def _fmt(x: float, digits: int = 3) -> str:
     return "-" if x != x else f"{x:.{digits}f}"
 
 
+def device_line(device: dict[str, Any] | None, stages: Any) -> str:
+    """One line naming the device that ran: target, port, build id, model hash, stages."""
+    d = device or {}
+    return (f"device: target {d.get('target', '-')}, port {d.get('port') or '-'}"
+            + (f" (USB serial {d['usb_serial']})" if d.get("usb_serial") else "")
+            + f", build {d.get('build_id', '-')}, model {d.get('model_hash', '-')}, stages {stages}")
+
+
 def print_run(summary: dict[str, Any]) -> None:
+    print(device_line(summary.get("device"), summary.get("config")))
     acc = summary["accuracy"]
     comp = summary["compute"]
     rtt = summary["round_trip_us"]
@@ -153,8 +162,8 @@ def _print_demo_table(rows: list[dict[str, Any]], device: dict[str, Any]) -> Non
     from rich.console import Console
     from rich.table import Table
     unit = rows[0]["compute_unit"] if rows else "us"
-    table = Table(title=f"uwb-hil demo - device {device['target']} fw {device['firmware']} "
-                        f"build {device['build_id']} model {device['model_hash']}")
+    print(device_line(device, "per row") + f", firmware {device.get('firmware', '-')}")
+    table = Table(title="uwb-hil demo")
     for col in ("mode", "config", "RMSE [m]", "accepted", "rej. kin", "rej. chi2", f"compute p50 [{unit}]",
                 f"compute p99 [{unit}]", "RTT p50 [us]", "RTT p99 [us]", "lost", "speed"):
         table.add_column(col, justify="right" if col not in ("mode", "config") else "left")

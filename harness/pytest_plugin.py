@@ -227,7 +227,8 @@ def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | 
     """A started device whose HELLO was checked (protocol version, optional model hash); its lifetime is
     --uwb-scope (function by default).
 
-    The HELLO (firmware version, build id, model hash, target) and the target kind become JUnit
+    The HELLO (firmware version, build id, model hash as the CLI prints it), the target kind and the
+    connection (port, baud, USB serial number when the port has one) become JUnit
     test-suite properties (once per distinct value), which xunit2 accepts; per-device details (link,
     exit code, log) go to the report of a failing test instead of testcase properties, which it rejects.
     """
@@ -247,6 +248,9 @@ def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | 
     with started(device, uwb_timeout, uwb_expected_model_hash):
         for key, value in device.identity.properties().items():
             suite_property(key, value)
+        for key, value in device.connection().items():   # port, baud, usb_serial (when known)
+            if value is not None:
+                suite_property(f"uwb_{key}", value)
         if uwb_flashed:
             suite_property("uwb_flash_cmd", uwb_flashed)
         yield device

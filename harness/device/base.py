@@ -128,6 +128,20 @@ class Device(ABC):
             out.update(self._channel.identity.describe())
         return out
 
+    def connection(self) -> dict[str, Any]:
+        """How the device is reached, for run summaries and JUnit: port (device path, URL or the host build's
+        pty), baud (a serial link's), usb_serial (the USB serial number of a local serial port, if any)."""
+        try:
+            info = self.link.info()
+        except Exception:  # noqa: BLE001 - not started: nothing to say
+            return {"port": None, "baud": None, "usb_serial": None}
+        port = info.get("url") or info.get("slave") or info.get("name")
+        usb = None
+        if info.get("kind") == "serial" and port:
+            from harness.link.ports import serial_number_of
+            usb = serial_number_of(str(port))
+        return {"port": port, "baud": info.get("baud"), "usb_serial": usb}
+
     # ------------------------------------------------------------------------ context manager
     def __enter__(self) -> Device:
         self.start()

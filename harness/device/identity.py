@@ -43,12 +43,12 @@ class DeviceIdentity:
                 "layout_tdoa": self.layout_tdoa, "cost_unit": self.cost_unit}
 
     def describe(self) -> dict[str, Any]:
-        """The identity as `Device.describe()` reports it (hash with 0x, as the JUnit properties)."""
-        return {**self.as_dict(), "model_hash": f"{self.model_hash:#018x}"}
+        """The identity as `Device.describe()` reports it (the hash as the CLI prints it: 16 hex digits, no 0x)."""
+        return self.as_dict()
 
     def properties(self) -> dict[str, str]:
-        """JUnit test-suite properties (pytest plugin)."""
+        """JUnit test-suite properties (pytest plugin); the model hash in the CLI's form (no 0x)."""
         return {"uwb_fw_version": self.firmware, "uwb_build_id": self.build_id,
-                "uwb_model_hash": f"{self.model_hash:#018x}", "uwb_device_target": self.target,
+                "uwb_model_hash": f"{self.model_hash:016x}", "uwb_device_target": self.target,
                 "uwb_proto_version": str(self.proto_version),
                 "uwb_layouts": f"twr={self.layout_twr} tdoa={self.layout_tdoa}"}

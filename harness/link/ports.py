@@ -64,3 +64,15 @@ def default_port() -> str | None:
 def is_local_device(url: str) -> bool:
     """A device path (not a pyserial URL such as rfc2217:// or socket://)."""
     return "://" not in url
+
+
+def serial_number_of(url: str, ports: list[PortInfo] | None = None) -> str | None:
+    """The USB serial number of a local port (by its resolved device path), None for a URL or a port without one."""
+    if not is_local_device(url):
+        return None
+    try:
+        ports = list_ports() if ports is None else ports
+    except Exception:  # noqa: BLE001 - listing ports is best effort: the run does not depend on it
+        return None
+    want = os.path.realpath(url)
+    return next((p.serial_number for p in ports if os.path.realpath(p.device) == want and p.serial_number), None)

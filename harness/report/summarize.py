@@ -21,13 +21,15 @@ class Identity(Protocol):
 
 
 def summarize_run(run: RunResult, flight: Flight, identity: Identity, config: str | None = None,
-                  radio_streamer: Streamer | None = None) -> dict[str, Any]:
+                  radio_streamer: Streamer | None = None,
+                  connection: dict[str, Any] | None = None) -> dict[str, Any]:
     """The summary of one run (without a verdict). `config`: the preset or stages label the run was asked
-    with; `radio_streamer`: the streamer of a radio-level run, still connected (its clocks are queried)."""
+    with; `radio_streamer`: the streamer of a radio-level run, still connected (its clocks are queried);
+    `connection`: how the device was reached (Device.connection(): port, baud, USB serial number)."""
     summary: dict[str, Any] = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=identity.cost_unit)
     if config is not None:
         summary["config"] = config
-    summary["device"] = identity.as_dict()
+    summary["device"] = {**identity.as_dict(), **(connection or {})}
     if "range_offset" in flight.meta:
         summary["range_offset"] = flight.meta["range_offset"]
     warnings = flight.meta.get("warnings")     # the reader's (a CRC mismatch loaded with --ignore-crc, ...)

@@ -36,12 +36,14 @@ def run_demo(spec: DeviceSpec, flights: DemoFlights, pacing: Pacing,
     rows = []
     with open_device(spec) as device:
         ident = device.identity
+        connection = device.connection()
         streamer = Streamer(device, timeout_s=timeout_s)
 
         def fly(flight: Flight, preset: str, mode: str, radio: bool = False) -> dict[str, Any]:
             cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
             run = streamer.run(flight, cfg, pacing, radio=radio)
-            s = summarize_run(run, flight, ident, config=preset, radio_streamer=streamer if radio else None)
+            s = summarize_run(run, flight, ident, config=preset, radio_streamer=streamer if radio else None,
+                              connection=connection)
             s["mode"] = mode
             return s
 
@@ -53,4 +55,4 @@ def run_demo(spec: DeviceSpec, flights: DemoFlights, pacing: Pacing,
         for protocol in RADIO_PROTOCOLS:
             flight = radio_level(base, protocol, seed=flights.seed)
             rows += [fly(flight, preset, f"{protocol} radio", radio=True) for preset in RADIO_PRESETS]
-    return ident.as_dict(), rows
+    return {**ident.as_dict(), **connection}, rows

@@ -74,7 +74,10 @@ def test_junit_xunit2_file_validates_with_the_device_identity_as_suite_propertie
     names = [n for n, _ in props]
     for name in ("uwb_target", "uwb_fw_version", "uwb_build_id", "uwb_model_hash", "uwb_proto_version"):
         assert names.count(name) == 1, props               # once, although two tests started a device
-    assert dict(props)["uwb_target"] == "host" and len(dict(props)["uwb_model_hash"]) == 18
+    # the hash as the CLI prints it (16 hex digits, no 0x); the port of each device (a pty per host device)
+    model_hash = dict(props)["uwb_model_hash"]
+    assert dict(props)["uwb_target"] == "host" and len(model_hash) == 16 and not model_hash.startswith("0x")
+    assert dict(props)["uwb_port"].startswith("/dev/")
     assert ET.parse(xml).getroot().find(".//testcase/properties") is None
 
 

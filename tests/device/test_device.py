@@ -117,7 +117,7 @@ def test_hello_and_check_against_a_protocol_speaking_stand_in(fake_fw: Path, log
         assert dev.check(expected_model_hash=FAKE_HASH) is reply
         assert dev.check(expected_model_hash=f"{FAKE_HASH:x}", expected_layouts=(1, 2)) is reply
         desc = dev.describe()
-        assert desc["model_hash"] == f"{FAKE_HASH:#018x}" and desc["build_id"] == "fake-id"
+        assert desc["model_hash"] == f"{FAKE_HASH:016x}" and desc["build_id"] == "fake-id"
         assert desc["link"]["kind"] == "pty"
         assert dev.link.name.startswith("pty:/dev/")
         log = dev.log_path
@@ -457,8 +457,8 @@ def test_plugin_uwb_device_records_hello(pytester: pytest.Pytester, fake_fw: Pat
     result.stdout.fnmatch_lines(["uwb-hil: target host, firmware *fake-fw", "*DEVICE pty:/dev/*"])
     text = xml.read_text()
     for expected in ('name="uwb_fw_version" value="1.2.3"', 'name="uwb_build_id" value="fake-id"',
-                     f'name="uwb_model_hash" value="{FAKE_HASH:#018x}"', 'name="uwb_device_target" value="fake"',
-                     'name="uwb_target" value="host"'):
+                     f'name="uwb_model_hash" value="{FAKE_HASH:016x}"', 'name="uwb_device_target" value="fake"',
+                     'name="uwb_target" value="host"', 'name="uwb_port" value="/dev/'):
         assert expected in text
     # test-suite properties (xunit2 rejects them inside a testcase)
     assert text.index("<properties>") < text.index("<testcase") and "</properties></testcase>" not in text

@@ -99,7 +99,7 @@ def test_one_hello_gives_the_identity_and_check_does_not_send_another() -> None:
     assert ident.as_dict() == {"proto_version": PROTOCOL_VERSION, "firmware": "1.2.3", "build_id": "bid",
                                "target": "mem", "model_hash": "0000000000000abc", "layout_twr": 1,
                                "layout_tdoa": 2, "cost_unit": 1}
-    assert dev.describe()["model_hash"] == "0x0000000000000abc"
+    assert dev.describe()["model_hash"] == "0000000000000abc"
     assert ident.properties()["uwb_fw_version"] == "1.2.3" and ident.layouts == (1, 2)
 
 
