@@ -35,6 +35,9 @@ def add_verdict_options(p: argparse.ArgumentParser) -> None:
         g.add_argument("--" + name.replace("_", "-"), type=float, default=None, metavar="X", help=text)
     g.add_argument("--vdop-threshold", type=float, default=None, metavar="X",
                    help="z counts as not observable when VDOP is above this for most of the flight (default 5)")
+    g.add_argument("--allow-unobservable", action="store_true", default=None,
+                   help="a flight whose position is not observable (no axis) is reported, not failed "
+                        "(default: it fails)")
     g.add_argument("--criteria", metavar="FILE.toml",
                    help="criteria from a TOML file (same names with underscores, e.g. max_rmse = 0.3); "
                         "options given on the command line win")
@@ -57,6 +60,7 @@ def criteria_from(args: argparse.Namespace, applicable: Collection[str] | None =
             else Criteria())
     given = {name: getattr(args, name, None) for name, _ in _CRITERIA_OPTIONS}
     given["vdop_threshold"] = getattr(args, "vdop_threshold", None)
+    given["allow_unobservable"] = getattr(args, "allow_unobservable", None)
     try:
         return base.overridden_by(given)
     except CriteriaError as exc:   # name the option the user typed
@@ -84,8 +88,9 @@ def finish(args: argparse.Namespace, payload: dict[str, Any], summaries: list[di
 
 
 def print_verdict(verdict: Verdict) -> None:
+    notes = "".join(f"; {n}" for n in dict.fromkeys(verdict.notes()))
     print(f"verdict: {'PASS' if verdict.passed else 'FAIL'} ({len(verdict.checks)} checks"
-          + (f"; failed: {verdict.reason()}" if not verdict.passed else "") + ")")
+          + (f"; failed: {verdict.reason()}" if not verdict.passed else notes) + ")")
 
 
 def print_health(summary: dict[str, Any]) -> None:

@@ -8,6 +8,11 @@ Criteria (all optional; from options `--max-rmse ...` or a TOML file with the sa
   max_lost             measurements without an answer
   max_deadline_misses  compute over the budget, plus (lockstep/realtime pacing) round trips over it
   vdop_threshold       z counts as unobservable when VDOP is above this for most of the flight (5)
+  allow_unobservable   false (default): a flight whose position is not observable (no axis: the anchors
+                       cannot localise it, or they stand on one vertical plane) fails, whatever its RMSE;
+                       true: reported, not failed (`--allow-unobservable`)
+When z alone is not observable, the horizontal position is judged and the check "observable" says so
+(the verdict line names it).
 
 The filter's health is always checked, criteria or not: no supervisor reset (DIVERGED), no non-finite
 estimate, no sign that P is not positive definite (a variance <= 0, or S = H P H^T + R below R), at
@@ -44,11 +49,14 @@ class Criteria:
     max_lost: float | None = None
     max_deadline_misses: float | None = None
     vdop_threshold: float = DEFAULT_VDOP_THRESHOLD
+    allow_unobservable: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.allow_unobservable, bool):
+            raise CriteriaError(f"allow_unobservable must be true or false, got {self.allow_unobservable!r}")
         for f in fields(self):
             v = getattr(self, f.name)
-            if v is None:
+            if v is None or f.name == "allow_unobservable":
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise CriteriaError(f"{f.name} must be a finite number >= 0, got {v!r}")
@@ -115,6 +123,10 @@ class Verdict:
     def failures(self) -> list[Check]:
         return [c for c in self.checks if not c.passed]
 
+    def notes(self) -> list[str]:
+        """What a passed verdict judged differently from what was asked (e.g. xy only: z not observable)."""
+        return [c.detail for c in self.checks if c.passed and c.name.endswith("observable") and c.detail]
+
     def reason(self) -> str:
         """One line naming every failed check."""
         return "; ".join(f"{c.name} {_fmt(c.value)}" + (f" > {_fmt(c.threshold)}" if c.threshold is not None else "")
@@ -175,6 +187,25 @@ def _refusal_checks(summary: Mapping[str, Any]) -> list[Check]:
                      f"the device refused frames the harness sent as valid: {named}" if total else "")]
 
 
+def observability_check(geo: Mapping[str, Any], allow_unobservable: bool = False) -> Check | None:
+    """"observable": fails when no axis is observable (the RMSE of such a flight means nothing: the anchors
+    cannot localise it, or its mirror image across the anchors' plane has the same ranges) unless allowed;
+    passes with a note when only z is not observable (xy judged); None when both are."""
+    if not geo.get("xy_observable", True):
+        why = (f"anchors on one vertical plane in {100 * geo['mirror_share']:.0f} % of epochs: the mirror "
+               "image across it has the same ranges, so the horizontal position is ambiguous"
+               if geo.get("mirror_axis") == "xy" else "the anchors cannot localise this flight")
+        return Check("observable", None, None, allow_unobservable,
+                     f"position not observable (HDOP p50 {_fmt(geo.get('hdop_p50'))}, VDOP p50 "
+                     f"{_fmt(geo.get('vdop_p50'))}): {why}" + ("; allowed" if allow_unobservable else ""))
+    if not geo.get("z_observable", True):
+        mirror = (f"; anchors on one plane in {100 * geo['mirror_share']:.0f} % of epochs: the mirror image "
+                  "has the same ranges" if geo.get("mirror_axis") == "z" else "")
+        return Check("observable", None, None, True,
+                     f"z not observable (VDOP p50 {_fmt(geo.get('vdop_p50'))}{mirror}): xy judged")
+    return None
+
+
 def evaluate(summary: Mapping[str, Any], criteria: Criteria = Criteria()) -> Verdict:
     """The verdict of one run summary (harness.report.metrics.run_summary) under `criteria`."""
     checks = health_checks(summary)
@@ -182,24 +213,18 @@ def evaluate(summary: Mapping[str, Any], criteria: Criteria = Criteria()) -> Ver
     geo = summary.get("geometry") or {}
     comp = summary.get("compute") or {}
     rtt = summary.get("round_trip_us") or {}
+    obs = observability_check(geo, criteria.allow_unobservable)
+    if obs is not None:
+        checks.append(obs)
     if criteria.max_rmse is not None:
         if not geo.get("xy_observable", True):
-            # no axis to judge the RMSE on: the anchors cannot localise this flight (e.g. on a line), or they
-            # stand on one vertical plane (a wall) and the tag's reflection across it has the same ranges
-            why = (f"anchors on one vertical plane in {100 * geo['mirror_share']:.0f} % of epochs: the mirror "
-                   "image across it has the same ranges, so the horizontal position is ambiguous"
-                   if geo.get("mirror_axis") == "xy" else "the anchors cannot localise this flight")
-            checks.append(Check("rmse", criteria.max_rmse, acc.get("rmse"), False,
-                                f"position not observable (HDOP p50 {_fmt(geo.get('hdop_p50'))}, VDOP p50 "
-                                f"{_fmt(geo.get('vdop_p50'))}): {why}"))
+            checks.append(Check("rmse", criteria.max_rmse, acc.get("rmse"), criteria.allow_unobservable,
+                                "not judged: position not observable"))
         elif geo.get("z_observable", True):
             checks.append(_at_most("rmse", acc.get("rmse"), criteria.max_rmse))
         else:
-            mirror = (f"; anchors on one plane in {100 * geo['mirror_share']:.0f} % of epochs: the mirror image "
-                      "has the same ranges" if geo.get("mirror_axis") == "z" else "")
             checks.append(_at_most("rmse", acc.get("rmse_xy"), criteria.max_rmse,
-                                   f"z not observable (VDOP p50 {_fmt(geo.get('vdop_p50'))}{mirror}): horizontal "
-                                   f"RMSE; z RMSE {_fmt(acc.get('rmse_z'))} reported, not judged"))
+                                   f"horizontal RMSE; z RMSE {_fmt(acc.get('rmse_z'))} reported, not judged"))
     if criteria.max_rmse_xy is not None:
         checks.append(_at_most("rmse_xy", acc.get("rmse_xy"), criteria.max_rmse_xy))
     if criteria.max_p99_compute_us is not None:

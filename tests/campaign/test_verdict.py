@@ -92,10 +92,29 @@ def test_thresholds_each_named_with_value() -> None:
     assert not evaluate(summary(accuracy={"rmse": float("nan")}), Criteria(max_rmse=2.0)).passed
 
 
-def test_unobservable_z_judges_the_horizontal_rmse() -> None:
+def test_unobservable_z_judges_the_horizontal_rmse_and_says_so() -> None:
     s = summary(geometry={"z_observable": False, "vdop_p50": 10.4})
-    check = {c.name: c for c in evaluate(s, Criteria(max_rmse=0.3)).checks}["rmse"]
-    assert check.passed and check.value == 0.1 and "z not observable" in check.detail
+    verdict = evaluate(s, Criteria(max_rmse=0.3))
+    checks = {c.name: c for c in verdict.checks}
+    assert checks["rmse"].passed and checks["rmse"].value == 0.1 and "horizontal RMSE" in checks["rmse"].detail
+    assert verdict.passed and verdict.notes() == ["z not observable (VDOP p50 10.4): xy judged"]
+    from harness.cli_verdict import print_verdict
+    import contextlib, io
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        print_verdict(verdict)
+    assert out.getvalue().startswith("verdict: PASS (") and "z not observable (VDOP p50 10.4): xy judged" in out.getvalue()
+
+
+def test_position_not_observable_fails_without_criteria_unless_allowed() -> None:
+    """No axis observable: the RMSE means nothing (issue 27: rcv_twr sequence2 passed with 4.74 m)."""
+    s = summary(geometry={"z_observable": False, "xy_observable": False, "hdop_p50": 40.0, "vdop_p50": 99.0})
+    verdict = evaluate(s)
+    assert not verdict.passed and "observable n/a (position not observable (HDOP p50 40" in verdict.reason()
+    allowed = evaluate(s, Criteria(max_rmse=0.3, allow_unobservable=True))
+    assert allowed.passed and "allowed" in {c.name: c for c in allowed.checks}["observable"].detail
+    with pytest.raises(CriteriaError, match="allow_unobservable must be true or false"):
+        Criteria(allow_unobservable=1)  # type: ignore[arg-type]
 
 
 def test_assert_verdict_helper() -> None:
@@ -148,12 +167,13 @@ def test_coplanar_anchors_leave_a_mirror_image_the_dop_does_not_see() -> None:
     assert box.mirror_share == 0.0 and box.z_observable
     s = summary(geometry={"z_observable": False, "xy_observable": True, "vdop_p50": 1.7, "mirror_share": 0.98,
                           "mirror_axis": "z"})
-    check = {c.name: c for c in evaluate(s, Criteria(max_rmse=0.3)).checks}["rmse"]
-    assert check.value == 0.1 and "anchors on one plane in 98 % of epochs: the mirror image" in check.detail
+    checks = {c.name: c for c in evaluate(s, Criteria(max_rmse=0.3)).checks}
+    assert checks["rmse"].value == 0.1
+    assert "anchors on one plane in 98 % of epochs: the mirror image" in checks["observable"].detail
     # anchors on a wall (one vertical plane): the verdict names the mirror, not "cannot localise"
     wall = summary(geometry={"z_observable": True, "xy_observable": False, "hdop_p50": 1.4, "vdop_p50": 1.1,
                              "mirror_share": 0.9, "mirror_axis": "xy"})
-    check = {c.name: c for c in evaluate(wall, Criteria(max_rmse=0.3)).checks}["rmse"]
+    check = {c.name: c for c in evaluate(wall, Criteria(max_rmse=0.3)).checks}["observable"]
     assert not check.passed and "one vertical plane in 90 % of epochs" in check.detail
     assert "cannot localise" not in check.detail
 
@@ -231,8 +251,19 @@ def test_planar_mode_localises_rcv_twr_in_3d() -> None:
 
 def test_unobservable_position_fails_the_rmse_check() -> None:
     s = summary(geometry={"z_observable": False, "xy_observable": False, "hdop_p50": 95.0, "vdop_p50": 165.0})
-    check = {c.name: c for c in evaluate(s, Criteria(max_rmse=100.0)).checks}["rmse"]
-    assert not check.passed and "position not observable (HDOP p50 95" in check.detail
+    checks = {c.name: c for c in evaluate(s, Criteria(max_rmse=100.0)).checks}
+    assert not checks["rmse"].passed and "not judged: position not observable" in checks["rmse"].detail
+    assert not checks["observable"].passed and "position not observable (HDOP p50 95" in checks["observable"].detail
+
+
+@needs_rcv
+def test_a_recording_whose_position_is_not_observable_fails_by_default() -> None:
+    """rcv_twr sequence5 (four anchors on a line) with outlier rejection only: it exited 0 with a 5 m RMSE."""
+    r = uwb_hil("run", "--recording", str(RCV / "sequence5"), "--stages", "outlier")
+    assert r.returncode == 1, r.stderr
+    assert "uwb-hil: verdict failed: observable n/a (position not observable" in r.stderr
+    allowed = uwb_hil("run", "--recording", str(RCV / "sequence5"), "--stages", "outlier", "--allow-unobservable")
+    assert allowed.returncode == 0, allowed.stderr
 
 
 def test_fly_verdict_checks_takeoff_completion_and_tracking() -> None:
