@@ -17,6 +17,16 @@ from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
 
+#: set to 1 (e.g. on a CI machine without the shared data) to make --no-recorded the default
+NO_RECORDED_ENV = "UWB_HIL_NO_RECORDED"
+
+
+def _recorded(args: argparse.Namespace) -> bool:
+    if args.recorded is not None:
+        return bool(args.recorded)
+    return os.environ.get(NO_RECORDED_ENV, "").strip() not in ("1", "true", "yes")
+
+
 def _csv(text: str) -> tuple[str, ...]:
     return tuple(x.strip() for x in text.split(",") if x.strip())
 
@@ -36,8 +46,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--trajectories", type=_csv, default=TRAJECTORIES, help="circle,circle-z")
     p.add_argument("--configs", type=_csv, default=CONFIGS, help=f"comma list of configurations (default {','.join(CONFIGS)}; also robust, "
                         "robust+nn, outlier+nn+states, ...: harness/config.py PRESETS)")
-    p.add_argument("--recorded", action=argparse.BooleanOptionalAction, default=True,
-                   help="also replay the held-out recorded flights of the shared data")
+    p.add_argument("--recorded", action=argparse.BooleanOptionalAction, default=None,
+                   help="also replay the held-out recorded flights of the shared data; missing data is an error "
+                        f"(default: yes, unless ${NO_RECORDED_ENV}=1)")
     p.add_argument("--data-dir", default=None, help="recorded data (default ../shared/data or $UWB_HIL_DATA)")
     p.add_argument("--firmware", default=str(DEFAULT_FIRMWARE), help="host firmware binary")
     p.add_argument("--sim-model", default=None,
@@ -73,7 +84,7 @@ def add_parser(sub: Any) -> None:
 def cmd_campaign(args: argparse.Namespace) -> int:
     opts = CampaignOptions(seeds=args.seeds, first_seed=args.first_seed, duration_s=args.duration,
                            modes=tuple(args.modes), trajectories=tuple(args.trajectories), configs=tuple(args.configs),
-                           recorded=args.recorded,
+                           recorded=_recorded(args),
                            data_dir=Path(args.data_dir) if args.data_dir else shared_data_dir(),
                            firmware=Path(args.firmware).resolve(), pacing=args.pacing,
                            latency_runs=args.latency_runs,

@@ -245,6 +245,17 @@ def recorded_flights(data_dir: Path, modes: tuple[str, ...], with_models: bool =
     return flights, notes, models
 
 
+def _refuse_missing_recordings(data_dir: Path, notes: list[str]) -> None:
+    """Recorded flights asked for (--recorded, the default) but absent are an input error, not a silent skip."""
+    missing = [n for n in notes if n.endswith("not found: skipped")]
+    if not missing:
+        return
+    where = (f"the data folder {data_dir} does not exist" if not data_dir.is_dir()
+             else f"{len(missing)} held-out recording(s) missing under {data_dir}, e.g. {missing[0]}")
+    raise PlanError(f"recorded flights asked for but {where}: give --data-dir DIR (or $UWB_HIL_DATA), or "
+                    "--no-recorded (or UWB_HIL_NO_RECORDED=1)")
+
+
 def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
     """Every run of the campaign (simulated first), plus notes on what was left out and why."""
     opts.validate()
@@ -258,8 +269,12 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
     models: dict[str, str | None] = {f.flight_id: (str(opts.sim_model) if opts.sim_model else None) for f in flights}
     if opts.recorded:
         rec, notes, rec_models = recorded_flights(Path(opts.data_dir), opts.modes, opts.recorded_models)
+        _refuse_missing_recordings(Path(opts.data_dir), notes)
         flights += rec
         models.update(rec_models)
+    if not flights:
+        raise PlanError("no runs planned (--seeds 0 and no recorded flight): a campaign that flies nothing "
+                        "cannot pass; give --seeds N or recorded data")
     blind = {f.flight_id for f in flights if f.uwb_only and _needs_attitude(models[f.flight_id], f.mode)}
     for f in flights:
         if f.flight_id in blind:

@@ -116,3 +116,28 @@ def test_campaign_verdict_judges_each_run_and_names_the_failing_one(tmp_path: Pa
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"]["passed"] is False and len(report["verdict"]["failed_runs"]) == 2
     assert "Verdict: FAIL" in (out / "report.md").read_text()
+
+
+def test_a_campaign_with_no_runs_fails(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`--seeds 0` without recorded flights planned 0 runs and printed "verdict: PASS" (issue 27)."""
+    out = tmp_path / "c"
+    assert main(["campaign", "--out", str(out), "--seeds", "0", "--no-recorded"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("uwb-hil: error: no runs planned (--seeds 0") and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_recorded_data_asked_for_but_absent_is_an_error(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    out, nodata = tmp_path / "c", tmp_path / "no-data"
+    monkeypatch.delenv("UWB_HIL_NO_RECORDED", raising=False)
+    assert main(["campaign", "--out", str(out), "--seeds", "1", "--data-dir", str(nodata)]) == 2
+    err = capsys.readouterr().err
+    assert f"recorded flights asked for but the data folder {nodata} does not exist" in err
+    assert "--no-recorded (or UWB_HIL_NO_RECORDED=1)" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+    # the stated environment variable makes --no-recorded the default: the plan goes on without them
+    from argparse import Namespace
+    from harness.campaign.cli import _recorded
+    monkeypatch.setenv("UWB_HIL_NO_RECORDED", "1")
+    assert _recorded(Namespace(recorded=None)) is False and _recorded(Namespace(recorded=True)) is True
