@@ -127,7 +127,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         return cmd_resume(args)
     criteria = cli_verdict.criteria_from(args)
     src = RunSource.from_mapping(vars(args))
-    results = checked_results_path(args.results, args.overwrite)
+    inputs = [src.recording, src.anchors, src.range_offset, src.model, getattr(args, "criteria", None),
+              *(x for x in src.set if x.startswith("@"))]
+    results = checked_results_path(args.results, args.overwrite, inputs)
     spec, want_hash = model_device_spec(args)
     summary = run_one(spec, want_hash, src, Pacing(mode=args.pacing, window=args.window, speed=args.speed),
                       args.timeout, results=results, overwrite=args.overwrite, progress=_progress_bar)
@@ -208,7 +210,7 @@ def _add_pacing_options(p: argparse.ArgumentParser) -> None:
                    help="windowed (up to --window measurements in flight, default), lockstep (one at a time) or "
                         "realtime (at the flight's own time stamps x --speed)")
     g.add_argument("--window", type=options.window, default=64, help="measurements in flight (windowed, 1..1024)")
-    g.add_argument("--speed", type=options.speed, default=1.0, help="real-time pacing speed factor (> 0)")
+    g.add_argument("--speed", type=options.speed, default=1.0, help="real-time pacing speed factor, 0.01 to 1e6 (default %(default)s)")
 
 
 def build_parser() -> argparse.ArgumentParser:

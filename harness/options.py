@@ -42,7 +42,8 @@ baud = number(int, 1, 100_000_000, unit=" baud")
 timeout_s = number(float, 0.0, 86_400.0, lo_open=True, unit=" s")
 sim_duration_s = number(float, 0.0, MAX_SIM_DURATION_S, lo_open=True, unit=" s")
 window = number(int, 1, 1024)
-speed = number(float, 0.0, 1e6, lo_open=True)
+#: as harness/stream/streamer.py's MIN_SPEED, MAX_SPEED (a speed of 1e-300 would pace for ever)
+speed = number(float, 0.01, 1e6)
 
 #: largest |component| of a tag lever arm [m] (a Crazyflie-sized vehicle; a mistyped mm value is refused)
 MAX_LEVER_ARM_M = 1.0

@@ -18,3 +18,24 @@ SHARED_DATA = REPO_ROOT.parent / "shared" / "data"                # the recordin
 def shared_data_dir() -> Path:
     """The shared recordings: $UWB_HIL_DATA, else SHARED_DATA (../shared/data beside the checkout)."""
     return Path(os.environ.get("UWB_HIL_DATA", SHARED_DATA))
+
+
+def same_file_as_input(output: Path, inputs: "list[str | Path | None]") -> str | None:
+    """The input `output` would overwrite: the same file (by inode, whatever the path: links, `..`), or a
+    file inside an input directory (a recording folder); None when it is none of them."""
+    out = Path(output)
+    if not out.exists():
+        return None
+    real = out.resolve()
+    for item in inputs:
+        if not item:
+            continue
+        src = Path(str(item).lstrip("@"))
+        try:
+            if src.is_dir() and real.is_relative_to(src.resolve()):
+                return str(item)
+            if src.exists() and os.path.samefile(out, src):
+                return str(item)
+        except OSError:
+            continue
+    return None

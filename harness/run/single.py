@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 from harness.config import EstimatorConfig
 from harness.errors import ResultsFileError
@@ -34,14 +34,20 @@ def _shown(progress: ProgressFactory, label: str) -> Iterator[Progress]:
         stop()
 
 
-def checked_results_path(results: str | None, overwrite: bool) -> Path | None:
-    """The results file, refused before any device starts if it is a directory or an unfinished run."""
+def checked_results_path(results: str | None, overwrite: bool, inputs: Sequence[str | None] = ()) -> Path | None:
+    """The results file, refused before any device starts if it is a directory, an unfinished run, or one
+    of the run's `inputs` (recording, anchors, model, ...: by inode, --overwrite or not)."""
     if not results:
         return None
+    from harness.paths import same_file_as_input
     from harness.stream.results_file import check_not_in_use, describe_existing
     path = Path(results)
     if path.is_dir():
         raise ResultsFileError(f"results file {path} is a directory: give a file name, e.g. {path / 'run.jsonl'}")
+    clash = same_file_as_input(path, list(inputs))
+    if clash is not None:
+        raise ResultsFileError(f"results file {path} is an input of this run ({clash[:100]}): it would be "
+                               "destroyed; give another file name")
     check_not_in_use(path)
     why = describe_existing(path)
     if why is not None and not overwrite:

@@ -34,6 +34,10 @@ from protocol.framing import DecoderErrors
 PACING_MODES = ("lockstep", "windowed", "realtime")
 
 
+#: real-time pacing speed factor: at most 100 times slower than real time, a million times faster
+MIN_SPEED, MAX_SPEED = 0.01, 1e6
+
+
 @dataclass(frozen=True)
 class Pacing:
     mode: str = "windowed"
@@ -45,8 +49,8 @@ class Pacing:
             raise ValueError(f"pacing mode must be one of {PACING_MODES}, got {self.mode!r}")
         if self.window < 1:
             raise ValueError("window must be >= 1")
-        if not self.speed > 0:
-            raise ValueError("speed must be > 0")
+        if not MIN_SPEED <= self.speed <= MAX_SPEED:   # also refuses nan; 1e-300 would wait for ever
+            raise ValueError(f"speed must be in [{MIN_SPEED:g}, {MAX_SPEED:g}], got {self.speed!r}")
 
     @property
     def in_flight(self) -> int:
