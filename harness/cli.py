@@ -92,9 +92,28 @@ def print_run(summary: dict[str, Any]) -> None:
 _RESUME_FIXED = (*RunSource.keys(), "pacing", "window", "speed", "results", "overwrite")
 
 
+def given_dests(parser: argparse.ArgumentParser, argv: Sequence[str]) -> set[str]:
+    """The destinations of the options typed in `argv` (a value equal to the default counts as given; an
+    abbreviation, as argparse accepts it, too)."""
+    flags = {s: a.dest for a in parser._actions for s in a.option_strings}
+    out: set[str] = set()
+    for token in argv:
+        if token == "--":
+            break
+        if not token.startswith("--"):
+            continue
+        name = token.split("=", 1)[0]
+        hits = {dest for flag, dest in flags.items() if flag == name} or \
+            {dest for flag, dest in flags.items() if flag.startswith(name)}
+        if len(hits) == 1:
+            out |= hits
+    return out
+
+
 def _refuse_resume_conflicts(args: argparse.Namespace) -> None:
-    defaults = vars(build_parser().parse_args(["run"]))
-    given = [k for k in _RESUME_FIXED if k in defaults and getattr(args, k, None) != defaults[k]]
+    run_parser = _subparser(build_parser(), "run")
+    typed = given_dests(run_parser, getattr(args, "argv", ()))
+    given = [k for k in _RESUME_FIXED if k in typed]
     if given:
         flags = ", ".join("--" + k.replace("_", "-") for k in given)
         raise UsageError(f"--resume {args.resume} takes the flight, configuration and pacing from the file's header; "
@@ -272,8 +291,15 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _subparser(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices[name]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    args.argv = argv          # what was typed: options are compared as given or not, never with their default
     try:
         code = int(args.func(args))
         sys.stdout.flush()       # a closed pipe shows here, inside the handlers below, not at exit

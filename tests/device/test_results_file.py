@@ -158,6 +158,14 @@ def test_resume_refuses_flags_that_conflict_with_the_header(tmp_path: Path, comp
     path = _cut(complete, tmp_path / "p.jsonl", keep=100)
     rc, _, err = _resume(path, capsys, "--mode", "tdoa", "--duration", "5")
     assert rc == 2 and "drop --mode, --duration" in err, err
+    # compared as given or not: a value equal to its default is refused too (issue 27: `--stages outlier+nn`,
+    # the default, on an outlier run finished as outlier, exit 0); an abbreviation as well
+    before = path.read_bytes()
+    for flags, named in ((("--stages", "outlier+nn"), "--stages"), (("--stages=outlier+nn",), "--stages"),
+                         (("--stag", "outlier+nn"), "--stages"), (("--seed", "1"), "--seed")):
+        rc, _, err = _resume(path, capsys, *flags)
+        assert rc == 2 and f"drop {named} " in err, (flags, err)
+        assert path.read_bytes() == before
     rc, _, err = _resume(path, capsys, "--timeout", "3")          # device options are fine
     assert rc == 0, err
 
