@@ -16,12 +16,12 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from harness import cli_verdict, options
 from harness.config import PRESETS
 from harness.device_args import add_device_options, device_spec, model_device_spec
-from harness.errors import UsageError, UwbHilError
+from harness.errors import ResultsFileError as ResumeError, UsageError, UwbHilError
 from harness.run.demo import DemoFlights, run_demo
 from harness.run.single import checked_results_path, resume_one, run_one
 from harness.run.source import RunSource
@@ -120,6 +120,43 @@ def _refuse_resume_conflicts(args: argparse.Namespace) -> None:
                          f"drop {flags} (or start a new run without --resume)")
 
 
+def check_header_source(src: Mapping[str, Any], where: str) -> None:
+    """A results header's source through the `run` options' own types, choices and bounds (a header edited
+    by hand: `duration 20000` is refused as `--duration 20000` is, before any flight is built)."""
+    actions = {a.dest: a for a in _subparser(build_parser(), "run")._actions if a.option_strings}
+    for key in RunSource.keys():
+        value, action = src.get(key), actions.get(key)
+        if value is None or action is None:
+            continue
+        flag = action.option_strings[-1]
+        if action.nargs == 0:                    # a switch: true or false
+            if not isinstance(value, bool):
+                raise ResumeError(f"{where} {key} = {str(value)[:100]!r}: {flag} is a switch, expected true or false")
+            continue
+        many = isinstance(action, argparse._AppendAction)
+        if many != isinstance(value, list) or any(isinstance(v, (dict, list, bool)) for v in
+                                                   (value if many else [value])):
+            raise ResumeError(f"{where} {key} = {str(value)[:100]!r}: not a value {flag} takes")
+        for v in (value if many else [value]):
+            _check_option_value(action, flag, v, f"{where} {key}")
+
+
+#: longest option value a results header may hold (paths, --set items)
+MAX_HEADER_VALUE = 4096
+
+
+def _check_option_value(action: argparse.Action, flag: str, value: Any, where: str) -> None:
+    text = str(value)
+    if len(text) > MAX_HEADER_VALUE:
+        raise ResumeError(f"{where} = {text[:100]!r}...: too long ({len(text)} characters, at most {MAX_HEADER_VALUE})")
+    try:
+        parsed = action.type(text) if callable(action.type) else text
+    except (argparse.ArgumentTypeError, ValueError) as exc:
+        raise ResumeError(f"{where} = {text[:100]!r}: {flag} {exc}") from None
+    if action.choices is not None and parsed not in action.choices:
+        raise ResumeError(f"{where} = {text[:100]!r}: {flag} must be one of {', '.join(map(str, action.choices))}")
+
+
 def cmd_resume(args: argparse.Namespace) -> int:
     """Continue an interrupted run from its results file (see harness/stream/resume.py)."""
     _refuse_resume_conflicts(args)
@@ -128,7 +165,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
     def spec_for(src: RunSource) -> tuple[DeviceSpec, int | None]:
         return model_device_spec(argparse.Namespace(**{**vars(args), "model": src.model}))
 
-    summary = resume_one(path, spec_for, args.timeout, progress=_progress_bar)
+    summary = resume_one(path, spec_for, args.timeout, progress=_progress_bar, check_source=check_header_source)
     info = summary["resume"]
     if info.get("partial_line_bytes_dropped"):
         print(f"uwb-hil: {path}: cut a partial last line ({info['partial_line_bytes_dropped']} bytes, written "

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from harness.config import EstimatorConfig
 from harness.errors import ResultsFileError
@@ -93,10 +93,12 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
 
 
 def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, int | None]], timeout_s: float,
-               progress: ProgressFactory = no_progress) -> dict[str, Any]:
+               progress: ProgressFactory = no_progress,
+               check_source: Callable[[Mapping[str, Any], str], None] = lambda src, where: None) -> dict[str, Any]:
     """Continue the interrupted run recorded in `path`: the flight, configuration and pacing come from its
     header; `device_spec` gives the device (and the model hash it must carry) for the recorded source.
-    Returns the summary over the whole flight, with `resume` = what the resume did."""
+    Returns the summary over the whole flight, with `resume` = what the resume did. `check_source(source,
+    where)` validates the header's source (the command line's types and bounds) before anything is built."""
     from harness.stream.resume import ResumeError, check_resumable, read_results, resume_run
     from harness.stream.results_file import LockedResults
     locked = LockedResults.existing(path)     # held until the resume is done
@@ -109,6 +111,8 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
         if header_src.get("radio"):
             raise ResumeError(f"{rec.path}: a radio-level run cannot be resumed (the tag's TDoA engine state "
                               "is not in the results file): run it again")
+        # a header edited by hand passes the command line's schema and bounds before anything is built
+        check_source(header_src, f"{rec.path}:1: header source")
         src = RunSource.from_mapping(header_src)
         flight = make_flight(src)
         cfg = run_config(src, flight)

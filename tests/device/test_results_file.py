@@ -113,6 +113,19 @@ REFUSED = {
     "another config": (_header(config__std_twr=0.5), "recorded configuration differs .*std_twr 0.5"),
     "another firmware": (_header(device__build_id="0000000"), "recorded with another firmware .*build_id '0000000'"),
     "another model": (_header(device__model_hash="0123456789abcdef"), "model_hash '0123456789abcdef'"),
+    # a header edited by hand: the command line's schema and bounds, one line, exit 2 (was a traceback, exit 1;
+    # duration 20000 built 4 million measurements before refusing)
+    "bogus stages": (_header(source__stages="bogus"), r"p.jsonl:1: header source stages = 'bogus': --stages must "
+                                                      "be one of none, outlier"),
+    "text duration": (_header(source__duration="abc"), r"header source duration = 'abc': --duration expected a "
+                                                       "number, got 'abc'"),
+    "huge duration": (_header(source__duration=1e9), r"header source duration = '1000000000.0': --duration must "
+                                                     r"be > 0 and <= 14400 s"),
+    "long duration": (_header(source__duration=20000), r"header source duration = '20000': --duration must be"),
+    "long text": (_header(source__scenario="x" * 10_000), r"header source scenario = 'x{100}'\.\.\.: too long "
+                                                          r"\(10000 characters"),
+    "switch as text": (_header(source__force="yes"), r"header source force = 'yes': --force is a switch"),
+    "set not a list": (_header(source__set="std_twr=1"), r"header source set = 'std_twr=1': not a value --set takes"),
 }
 
 
