@@ -44,6 +44,20 @@ class FlightError(ValueError):
     """A flight is inconsistent (shapes, ordering, unknown anchors)."""
 
 
+#: the largest float32: a finite float64 above it (1e39) becomes inf on the device
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def _check_float32(name: str, what: str, arr: np.ndarray) -> None:
+    """Finite values beyond the float32 range are refused at load (the device would get inf)."""
+    values = np.asarray(arr, dtype=np.float64)
+    bad = np.nonzero(np.isfinite(values) & (np.abs(values) > FLOAT32_MAX))
+    if bad[0].size:
+        k = int(bad[0][0])
+        raise FlightError(f"{name}: {what} {float(values[bad][0]):g} (index {k}) is outside the device's 32-bit "
+                          f"float range (|x| <= {FLOAT32_MAX:.4g})")
+
+
 @dataclass(frozen=True)
 class Anchors:
     """Anchor constellation: integer ids and positions [m]; optional orientations (w, x, y, z)."""
@@ -204,6 +218,8 @@ class Flight:
         missing = used - known
         if missing:
             raise FlightError(f"{self.name}: measurements name unknown anchors {sorted(missing)}")
+        for what, arr in self._device_values():
+            _check_float32(self.name, what, arr)
         if self.imu is not None and len(self.imu) and np.any(np.diff(self.imu.t_us) < 0):
             raise FlightError(f"{self.name}: IMU timestamps go backwards")
         h = self.height
@@ -212,6 +228,13 @@ class Flight:
                 raise FlightError(f"{self.name}: height stream must be time-ordered with one z per time")
             if not (np.all(np.isfinite(h.z)) and np.isfinite(h.std) and h.std > 0):
                 raise FlightError(f"{self.name}: heights must be finite and their std > 0")
+
+    def _device_values(self) -> list[tuple[str, np.ndarray]]:
+        """The values that travel to the device as 32-bit floats."""
+        out = [("uwb value", self.uwb.value), ("anchor position", self.anchors.positions)]
+        if self.imu is not None:
+            out += [("IMU acceleration", self.imu.acc), ("IMU rate", self.imu.gyro)]
+        return out
 
     def events(self) -> Iterator[tuple[int, Source, int]]:
         """Time-ordered merge: yields (t_us, source, index) in stream order (SOURCE_ORDER at equal times)."""

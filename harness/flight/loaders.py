@@ -23,7 +23,7 @@ from harness.flight.formats.anchors import (load_anchor_yaml, load_anchors, load
                                             load_survey_txt)
 from harness.flight.formats.cf_usd import is_cf_usd
 from harness.flight.formats.cf_usd_flight import UsdOptions, load_cf_usd
-from harness.flight.formats.common import RecordingError
+from harness.flight.formats.common import RecordingError, bounded_lines, quote
 from harness.flight.formats.rcv_twr import (RANGE_COLUMNS, FROM_DATA_README, GT_COLUMNS, is_rcv_twr_dir,
                                             load_rcv_twr)
 from harness.flight.formats.util import constellation_from_name, load_util_csv, util_layout
@@ -93,7 +93,8 @@ def _load(path: Path, anchors: AnchorsArg, constellation: int | None,
     if "anchor_id" in header:
         raise RecordingError("this is an anchor file: pass it as the anchors, with a recording", path=path)
     raise RecordingError("unknown recording format: expected a UTIL flight CSV (8 or 27 columns), an rcv_twr "
-                         f"sequence directory or a native .npz; the header is {','.join(header)}", path=path, line=1)
+                         f"sequence directory or a native .npz; the header is {quote(','.join(header))}", path=path,
+                         line=1)
 
 
 def time_slice(flight: Flight, start_s: float, end_s: float) -> Flight:
@@ -178,7 +179,7 @@ def _header(path: Path) -> tuple[str, ...]:
     """The first non-blank line of a text file, split on commas (cheap: the dispatch reads nothing else)."""
     try:
         with open(path, encoding="utf-8-sig", newline="") as f:
-            for line in f:
+            for line in bounded_lines(f, path):
                 if line.strip():
                     return tuple(c.strip() for c in line.rstrip("\r\n").split(","))
     except UnicodeDecodeError:

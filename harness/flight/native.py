@@ -145,6 +145,8 @@ def load_flight(path: Path | str) -> Flight:
     for member, arr in data.items():
         if member != HEADER_KEY and arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
             raise RecordingError("non-finite values", path=path, field=member)
+    for member in ("anchors_ids", "uwb_anchor_a", "uwb_anchor_b"):
+        _check_integral(data, member, path)
     try:
         anchors = Anchors(ids=data["anchors_ids"], positions=data["anchors_positions"],
                           orientations=data.get("anchors_orientations"))
@@ -160,6 +162,20 @@ def load_flight(path: Path | str) -> Flight:
     except FlightError as exc:
         raise RecordingError(str(exc), path=path) from None
     return flight
+
+
+def _check_integral(data: dict[str, np.ndarray], member: str, path: Path) -> None:
+    """Anchor ids are integers: a float id that is not integral (5.9) would be truncated to another anchor."""
+    arr = data.get(member)
+    if arr is None or arr.dtype.kind in "iu":
+        return
+    if arr.dtype.kind != "f":
+        raise RecordingError(f"expected integer anchor ids, got dtype {arr.dtype}", path=path, field=member)
+    bad = np.nonzero(arr != np.round(arr))[0]
+    if bad.size:
+        raise RecordingError(f"expected integer anchor ids, got {float(arr.flat[bad[0]]):g} at index {int(bad[0])} "
+                             f"({bad.size} non-integral)", path=path, field=member)
+    data[member] = arr.astype(np.int64)
 
 
 def _check_shapes(uwb: UwbStream, truth: Truth, imu: ImuStream | None, anchors: Anchors) -> None:

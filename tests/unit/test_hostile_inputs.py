@@ -51,3 +51,96 @@ def test_results_inside_a_recording_folder_is_refused(tmp_path: Path, capsys: py
     victim.write_text("t,range\n")
     assert cli.main(["run", "--recording", str(seq), "--results", str(victim), "--overwrite"]) == 2
     assert "is an input of this run" in _one_error(capsys) and victim.read_text() == "t,range\n"
+
+
+# ------------------------------------------------------------------------------ recordings
+def test_a_2gb_file_without_newline_fails_fast_in_small_memory(tmp_path: Path) -> None:
+    """It took 28 s, 8.4 GB and printed a 2 GB error message (the first line was read whole and echoed).
+    A sparse file: no disk space used."""
+    import subprocess
+    import sys
+    big = tmp_path / "big.csv"
+    with open(big, "wb") as f:
+        f.truncate(2 << 30)
+    probe = ("import resource, subprocess, sys, time; t = time.monotonic(); "
+             "p = subprocess.run([sys.executable, '-m', 'harness.cli', 'run', '--recording', sys.argv[1], '--anchors', "
+             "sys.argv[2]], capture_output=True, text=True); "
+             "print(p.returncode, time.monotonic() - t, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); "
+             "sys.stdout.write(p.stderr)")
+    out = subprocess.run([sys.executable, "-c", probe, str(big), str(FIX / "anchors.csv")], capture_output=True,
+                         text=True, timeout=120, cwd=ROOT)
+    first, _, err = out.stdout.partition("\n")
+    code, seconds, rss_kb = first.split()
+    assert int(code) == 2, out.stdout + out.stderr
+    assert float(seconds) < 20 and int(rss_kb) < 400_000, first
+    assert len(err.strip().splitlines()) == 1 and len(err) < 800, err     # 100 characters quoted (NULs: \x00)
+    assert "line 1: line longer than 65536 characters (not a text recording?)" in err
+    assert err.count("\\x00") == 100 and err.rstrip().endswith("... (65537 characters)"), err
+
+
+def _fixture_lines() -> list[str]:
+    return REDUCED.read_text().splitlines(keepends=True)
+
+
+def test_a_last_line_cut_inside_its_last_field_is_dropped_with_a_warning(tmp_path: Path,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    from harness.flight.formats.common import RecordingWarning
+    from harness.flight.loaders import load_recording
+    lines = _fixture_lines()
+    cut, whole = tmp_path / "const1-cut.csv", tmp_path / "const1-whole.csv"
+    cut.write_text("".join(lines[:-1]) + lines[-1].rstrip("\n")[:-3])        # the file ends inside a field
+    whole.write_text("".join(lines[:-1]))
+    with pytest.warns(RecordingWarning, match=r"const1-cut.csv, line 41: the last line has no newline .*dropped"):
+        got = load_recording(cut, anchors=FIX / "anchors.csv", check=False)
+    want = load_recording(whole, anchors=FIX / "anchors.csv", check=False)
+    assert len(got.uwb) == len(want.uwb) and (got.uwb.value == want.uwb.value).all()
+    code = cli.main(["run", "--recording", str(cut), "--anchors", str(FIX / "anchors.csv"), "--duration", "1",
+                     "--stages", "outlier", "--force", "--firmware", "/nonexistent/uwb-fw"])
+    err = capsys.readouterr().err
+    assert "uwb-hil: warning: " in err and "the last line has no newline" in err, err
+    assert code == 2     # the firmware path is refused after the load: no device needed here
+
+
+def test_a_value_outside_float32_is_refused_at_load(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A TDoA of 1e39 (finite in float64, inf in float32) reached the device ("device refused", exit 1)."""
+    lines = _fixture_lines()
+    cells = lines[5].split(",")
+    cells[2] = "1e39"
+    bad = tmp_path / "const1-bad.csv"
+    bad.write_text("".join(lines[:5]) + ",".join(cells) + "".join(lines[6:]))
+    before = _digest(bad)
+    assert cli.main(["run", "--recording", str(bad), "--anchors", str(FIX / "anchors.csv"), "--force"]) == 2
+    err = _one_error(capsys)
+    assert "uwb value 1e+39 (index 4) is outside the device's 32-bit float range" in err, err
+    assert _digest(bad) == before
+
+
+def test_float_anchor_ids_in_a_native_file_must_be_integral(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Float ids in a .npz were truncated (5.9 -> 5): another anchor."""
+    import numpy as np
+    from harness.flight.native import save_flight
+    from harness.flight.scenarios import scenario_flight
+    path = save_flight(scenario_flight("circle", mode="twr", duration_s=2.0, seed=1), tmp_path / "f.npz")
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    ids = data["uwb_anchor_a"].astype(np.float64)
+    exact = tmp_path / "exact.npz"
+    np.savez(exact, **{**data, "uwb_anchor_a": ids})                      # integral floats: accepted
+    ids[3] += 0.9
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **{**data, "uwb_anchor_a": ids})
+    from harness.flight.loaders import load_recording
+    assert load_recording(exact).uwb.anchor_a.dtype.kind == "i"
+    assert cli.main(["run", "--recording", str(bad)]) == 2
+    err = _one_error(capsys)
+    assert "field 'uwb_anchor_a': expected integer anchor ids, got " in err and "at index 3" in err, err
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".txt", ".csv"])
+def test_a_huge_anchor_file_is_refused_before_it_is_read(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                         suffix: str) -> None:
+    big = tmp_path / f"anchors{suffix}"
+    with open(big, "wb") as f:
+        f.truncate(2 << 30)
+    assert cli.main(["run", "--recording", str(REDUCED), "--anchors", str(big)]) == 2
+    assert "too large for an anchor file" in _one_error(capsys)

@@ -26,6 +26,8 @@ from harness.flight.data import Anchors, FlightError
 
 ANCHORS_CSV_COLUMNS = ("constellation", "anchor_id", "x_m", "y_m", "z_m")
 MAX_ANCHOR_ID = 15   # the firmware's ESTIMATOR_MAX_ANCHORS - 1
+#: an anchor file holds a few lines: a larger file is not one (and would be read whole)
+MAX_ANCHOR_FILE_BYTES = 1 << 20
 
 
 def load_anchors(path: Path | str, constellation: int | None = None) -> Anchors:
@@ -34,6 +36,9 @@ def load_anchors(path: Path | str, constellation: int | None = None) -> Anchors:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"anchor file {path} not found")
+    if path.is_file() and path.stat().st_size > MAX_ANCHOR_FILE_BYTES:
+        raise RecordingError(f"{path.stat().st_size} bytes: too large for an anchor file (at most "
+                             f"{MAX_ANCHOR_FILE_BYTES})", path=path)
     suffix = path.suffix.lower()
     if suffix == ".csv":
         return load_anchors_csv(path, constellation)

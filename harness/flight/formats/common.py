@@ -8,9 +8,10 @@ only when that fails do we walk the column again to find the offending cell.
 from __future__ import annotations
 
 import csv
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import IO, Iterator, Sequence
 
 import numpy as np
 
@@ -36,6 +37,42 @@ class RecordingError(FlightError):
         if field is not None:
             where += f", field {field!r}"
         super().__init__(f"{where}: {message}")
+
+
+#: longest line a recording may have [characters]: a file without newlines fails at once, in small memory
+MAX_LINE_CHARS = 1 << 16
+#: how much of the input an error message quotes
+QUOTE_CHARS = 100
+
+
+class RecordingWarning(UserWarning):
+    """Something in a recording was left out (e.g. a last line without its newline); the CLI prints it."""
+
+
+def quote(text: str, n: int = QUOTE_CHARS) -> str:
+    """repr() of at most n characters of input, marked when cut."""
+    return repr(text[:n]) + (f"... ({len(text)} characters)" if len(text) > n else "")
+
+
+def bounded_lines(f: IO[str], path: Path) -> Iterator[str]:
+    """The lines of a text file, each at most MAX_LINE_CHARS long (else a RecordingError at once, quoting its
+    start). A last line without its newline may have been cut while written: dropped, with a RecordingWarning."""
+    n = 0
+    while True:
+        line = f.readline(MAX_LINE_CHARS + 1)
+        if not line:
+            return
+        n += 1
+        if line.endswith("\n"):
+            yield line
+            continue
+        if len(line) > MAX_LINE_CHARS:
+            raise RecordingError(f"line longer than {MAX_LINE_CHARS} characters (not a text recording?), starting "
+                                 f"{quote(line)}", path=path, line=n)
+        if line.strip():
+            warnings.warn(RecordingWarning(f"{path}, line {n}: the last line has no newline (the file may have "
+                                           "been cut while written): dropped"), stacklevel=2)
+        return
 
 
 @dataclass(frozen=True)
@@ -89,14 +126,14 @@ class CsvTable:
                 try:
                     float(c)
                 except ValueError:
-                    raise RecordingError(f"expected a number, got {c!r}", path=self.path,
+                    raise RecordingError(f"expected a number, got {quote(c)}", path=self.path,
                                          line=int(self.lines[k]), field=name) from None
             raise  # pragma: no cover - numpy and float() agree on what a number is
         if finite:
             bad = np.nonzero(~np.isfinite(values))[0]
             if bad.size:
                 k = int(bad[0])
-                raise RecordingError(f"expected a finite number, got {cells[k].strip()!r} "
+                raise RecordingError(f"expected a finite number, got {quote(cells[k].strip())} "
                                      f"({bad.size} non-finite cell(s) in this column)", path=self.path,
                                      line=int(self.lines[k]), field=name)
         return values
@@ -107,7 +144,7 @@ class CsvTable:
         bad = np.nonzero((values != np.round(values)) | (values < lo) | (values > hi))[0]
         if bad.size:
             k = int(bad[0])
-            raise RecordingError(f"expected an integer id in [{lo}, {hi}], got {self.column(name)[k]!r}",
+            raise RecordingError(f"expected an integer id in [{lo}, {hi}], got {quote(self.column(name)[k])}",
                                  path=self.path, line=int(self.lines[k]), field=name)
         return values.astype(np.int64)
 
@@ -121,7 +158,7 @@ def read_csv_table(path: Path, what: str) -> CsvTable:
         raise RecordingError(f"expected a {what} file, got a directory", path=path)
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
-            reader = csv.reader(f)
+            reader = csv.reader(bounded_lines(f, path))
             header: list[str] | None = None
             rows: list[list[str]] = []
             lines: list[int] = []
@@ -143,7 +180,7 @@ def read_csv_table(path: Path, what: str) -> CsvTable:
     if header is None:
         raise RecordingError(f"empty file, expected a {what} with a header line", path=path, line=1)
     if len(set(header)) != len(header):
-        raise RecordingError(f"duplicate column names in the header: {header}", path=path, line=1)
+        raise RecordingError(f"duplicate column names in the header: {quote(','.join(header))}", path=path, line=1)
     return CsvTable(path=path, header=tuple(header), rows=rows, lines=np.asarray(lines, dtype=np.int64))
 
 
