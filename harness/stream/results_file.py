@@ -217,7 +217,8 @@ def read_run(path: Path, error: type[Exception] = ResultsFileError, columns: Ite
 
 def _count_results(fh: IO[str]) -> int:
     prefix = json.dumps({"type": REC_RESULT})[:-1]
-    return sum(1 for line in fh if line.startswith(prefix) and line.endswith("}\n"))
+    lines = iter(lambda: fh.readline(MAX_HEADER_CHARS), "")      # bounded: no line is read whole
+    return sum(1 for line in lines if line.startswith(prefix) and line.endswith("}\n"))
 
 
 # ------------------------------------------------------------------------------------------ opening
@@ -257,6 +258,10 @@ def check_not_in_use(path: Path) -> None:
         lock_file(Path(path), "r+").close()
 
 
+#: longest header line (and read chunk) of a results file [characters]
+MAX_HEADER_CHARS = 1 << 20
+
+
 def describe_existing(path: Path) -> str | None:
     """Why `path` must not be overwritten silently (None if it may): an unfinished run, or not a results file.
     A complete run (every measurement has a line) may be replaced: it is finished, nothing is lost that a
@@ -265,9 +270,9 @@ def describe_existing(path: Path) -> str | None:
         if not path.is_file() or path.stat().st_size == 0:
             return None
         with open(path, encoding="utf-8", errors="replace") as fh:
-            first = fh.readline()
+            first = fh.readline(MAX_HEADER_CHARS + 1)      # bounded: a file without newlines is not read whole
             try:
-                header = json.loads(first)
+                header = json.loads(first) if len(first) <= MAX_HEADER_CHARS else None
             except json.JSONDecodeError:
                 header = None
             if not isinstance(header, dict) or header.get("type") != REC_HEADER or "n_measurements" not in header:

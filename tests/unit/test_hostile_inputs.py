@@ -144,3 +144,16 @@ def test_a_huge_anchor_file_is_refused_before_it_is_read(tmp_path: Path, capsys:
         f.truncate(2 << 30)
     assert cli.main(["run", "--recording", str(REDUCED), "--anchors", str(big)]) == 2
     assert "too large for an anchor file" in _one_error(capsys)
+
+
+def test_results_target_without_newlines_is_judged_in_small_memory(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """--results naming a 2 GB file without newline: refused as not a results file, without reading it whole."""
+    import resource
+    big = tmp_path / "big.jsonl"
+    with open(big, "wb") as f:
+        f.truncate(2 << 30)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    assert cli.main(["run", "--duration", "2", "--results", str(big)]) == 2
+    assert "it is not a uwb-hil results file" in _one_error(capsys)
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000      # kB
