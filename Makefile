@@ -56,8 +56,11 @@ test-board: $(STAMP) firmware
 # `pip install -e .` without extras in a fresh virtualenv (no PyTorch): demo and run work, train says how to
 # get torch. LIGHT_VENV is rebuilt each time (local wheels: about a minute).
 LIGHT_VENV ?= build/light-venv
+# Then the wheel (not editable) in a fresh virtualenv outside the checkout: `uwb-hil run` and `demo` build
+# the host firmware from the shipped sources into a fresh cache (scripts/check_wheel_install.sh).
 test-light-install: firmware
 	PYTHON=$(PYTHON) bash scripts/check_light_install.sh $(LIGHT_VENV)
+	PYTHON=$(PYTHON) bash scripts/check_wheel_install.sh
 
 # Fuzzing (clang + libFuzzer, installed when missing): `make test` runs a bounded fuzz (TEST_FUZZ_SECONDS
 # in total across the targets); `make fuzz FUZZ_SECONDS=600` fuzzes longer. Any crash, leak or

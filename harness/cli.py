@@ -263,51 +263,102 @@ def _add_flight_options(p: argparse.ArgumentParser, recorded: bool = True) -> No
 def _add_pacing_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("pacing")
     g.add_argument("--pacing", choices=PACING_MODES, default="windowed",
-                   help="windowed (up to --window measurements in flight, default), lockstep (one at a time) or "
+                   help="windowed (up to --window measurements in flight), lockstep (one at a time) or "
                         "realtime (at the flight's own time stamps x --speed)")
     g.add_argument("--window", type=options.window, default=64, help="measurements in flight (windowed, 1..1024)")
     g.add_argument("--speed", type=options.speed, default=1.0, help="real-time pacing speed factor, 0.01 to 1e6 (default %(default)s)")
 
 
+def _add_stage_options(p: argparse.ArgumentParser) -> None:
+    """The estimator's stages and settings, and the radio level (`run`)."""
+    g = p.add_argument_group("stages", "what the estimator runs: stages, settings, model, radio level")
+    g.add_argument("--stages", choices=tuple(PRESETS), default="outlier+nn",
+                   help="none | outlier (kinematic + chi-square gates) | outlier+nn (plus bias network) | "
+                        "...+states (plus per-anchor bias states, docs/bias-network.md)")
+    g.add_argument("--uwb-only", action="store_true", help="ignore the IMU (constant-velocity model)")
+    g.add_argument("--model", help="bias model (.npz) the device must carry; the host build is built "
+                                   "with it, any other device is refused if its HELLO reports another model")
+    g.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override an estimator setting, e.g. --set std_tdoa=0.1 (repeatable); --set @FILE.toml "
+                        "takes the [settings] table of a settings file (harness/settings/)")
+    g.add_argument("--radio", choices=("tdoa2", "tdoa3"), default=None,
+                   help="LPS radio level: stream the anchor packets the tag's radio receives (simulated by the "
+                        "radio simulator, or synthesised from a TDoA recording's differences) and let the "
+                        "firmware's TDoA engine form the measurements; the summary gains a radio section")
+    g.add_argument("--radio-loss", type=float, default=0.0, metavar="P",
+                   help="with --radio on a simulated flight: probability that the tag misses a packet [0, 1)")
+
+
+def _add_output_options(p: argparse.ArgumentParser) -> None:
+    """Where the results go (`run`)."""
+    g = p.add_argument_group("output", "what is written and printed")
+    g.add_argument("--results", help="write per-measurement results as JSON Lines here (locked while written; "
+                                     "a file holding an unfinished run is kept unless --overwrite; never an "
+                                     "input of the run)")
+    g.add_argument("--overwrite", action="store_true",
+                   help="let --results replace a file that holds an unfinished (resumable) run")
+    g.add_argument("--resume", metavar="RESULTS.jsonl",
+                   help="continue an interrupted run recorded in this results file (same flight, config and "
+                        "pacing from its header; new results appended; summary over the whole flight)")
+    g.add_argument("--json", action="store_true", help="print the summary (with its verdict) as JSON")
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Every option's default in its help, unless the text already names it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if "default" in text or default in (None, False, [], argparse.SUPPRESS) or not action.option_strings:
+            return text
+        return text + " (default: %(default)s)"
+
+
+def version_text() -> str:
+    """`uwb-hil --version`: the package, the protocol and the firmware sources it carries."""
+    from importlib.metadata import PackageNotFoundError, version
+    from harness.firmware_cache import firmware_source_version
+    from protocol import PROTOCOL_VERSION
+    try:
+        package = version("uwb-hil")
+    except PackageNotFoundError:
+        package = "not installed"
+    return f"uwb-hil {package}, protocol {PROTOCOL_VERSION}, firmware {firmware_source_version()}"
+
+
+class _VersionAction(argparse.Action):
+    """--version, computed only when asked (the metadata and firmware header are read then)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kw: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kw)
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: Any) -> None:
+        print(version_text())
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="uwb-hil", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--version", action=_VersionAction,
+                    help="print the package, protocol and firmware versions and exit")
     sub = ap.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="stream one flight through a device")
+    run = sub.add_parser("run", help="stream one flight through a device", formatter_class=_HelpFormatter)
     _add_flight_options(run)
     _add_pacing_options(run)
     add_device_options(run)
-    run.add_argument("--stages", choices=tuple(PRESETS), default="outlier+nn",
-                     help="none | outlier (kinematic + chi-square gates) | outlier+nn (plus bias network) | "
-                          "...+states (plus per-anchor bias states, docs/bias-network.md)")
-    run.add_argument("--uwb-only", action="store_true", help="ignore the IMU (constant-velocity model)")
-    run.add_argument("--model", help="bias model (.npz) the device must carry; the host build is built "
-                                     "with it, any other device is refused if its HELLO reports another model")
-    run.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                     help="override an estimator setting, e.g. --set std_tdoa=0.1 (repeatable); --set @FILE.toml "
-                          "takes the [settings] table of a settings file (harness/settings/)")
-    run.add_argument("--results", help="write per-measurement results as JSON Lines here (locked while written; "
-                                       "a file holding an unfinished run is kept unless --overwrite)")
-    run.add_argument("--overwrite", action="store_true",
-                     help="let --results replace a file that holds an unfinished (resumable) run")
-    run.add_argument("--resume", metavar="RESULTS.jsonl",
-                     help="continue an interrupted run recorded in this results file (same flight, config and "
-                          "pacing from its header; new results appended; summary over the whole flight)")
-    run.add_argument("--radio", choices=("tdoa2", "tdoa3"), default=None,
-                     help="LPS radio level: stream the anchor packets the tag's radio receives (simulated by the "
-                          "radio simulator, or synthesised from a TDoA recording's differences) and let the "
-                          "firmware's TDoA engine form the measurements; the summary gains a radio section")
-    run.add_argument("--radio-loss", type=float, default=0.0, metavar="P",
-                     help="with --radio on a simulated flight: probability that the tag misses a packet [0, 1)")
-    run.add_argument("--json", action="store_true", help="print the summary (with its verdict) as JSON")
+    _add_stage_options(run)
+    _add_output_options(run)
     cli_verdict.add_planar_options(run)
     cli_verdict.add_verdict_options(run)
     run.set_defaults(func=cmd_run)
-    demo = sub.add_parser("demo", help="TWR and TDoA flights in three configurations, one table")
+    demo = sub.add_parser("demo", help="TWR and TDoA flights in three configurations, one table",
+                          formatter_class=_HelpFormatter)
     _add_flight_options(demo, recorded=False)
     _add_pacing_options(demo)
     add_device_options(demo)
-    demo.add_argument("--json", action="store_true", help="print every run's summary as JSON")
+    demo.add_argument_group("output").add_argument("--json", action="store_true",
+                                                   help="print every run's summary as JSON")
     cli_verdict.add_verdict_options(demo)
     demo.set_defaults(func=cmd_demo, duration=20.0)
     ports = sub.add_parser("ports", help="serial ports of this machine: device, description, USB serial number")

@@ -6,7 +6,9 @@ import os
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-FIRMWARE_DIR = REPO_ROOT / "firmware_sim"
+# a checkout's firmware_sim/, or in an installed package the same sources shipped as uwb_hil_firmware/
+FIRMWARE_DIR = (REPO_ROOT / "firmware_sim" if (REPO_ROOT / "firmware_sim").is_dir()
+                else REPO_ROOT / "uwb_hil_firmware")
 FIRMWARE_BUILD_DIR = FIRMWARE_DIR / "build"
 MODELS_DIR = FIRMWARE_DIR / "models"
 DEFAULT_FIRMWARE = FIRMWARE_BUILD_DIR / "uwb-fw"                  # the host build (`make firmware`)

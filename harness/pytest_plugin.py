@@ -22,7 +22,10 @@ properties on a testcase). Marker `hardware`: the test needs a real board and is
 (or --uwb-target serial) is given. `uwb_verdict(summary, max_rmse=..., ...)` judges a run summary with the
 checks and thresholds of `uwb-hil run` (harness/report/verdict.py).
 
-This module is imported by every pytest run in the environment: it imports nothing heavy at the top.
+Inert unless asked for: this module is imported by every pytest run in the environment (it imports nothing
+heavy at the top), but it prints its header, registers and applies the `hardware` marker only when the
+session gives a --uwb-* option or its ini file says `uwb_hil = true` (this repository's pyproject.toml
+does). Its fixtures work in any session for a test that requests them.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ DEFAULT_TIMEOUT_S = 5.0
 DEFAULT_FLASH_TIMEOUT_S = 600.0
 _PORT_KEY = pytest.StashKey[Optional[str]]()
 _SUITE_PROPS_KEY = pytest.StashKey[Set[Tuple[str, str]]]()
+_ACTIVE_KEY = pytest.StashKey[bool]()
 
 
 # --------------------------------------------------------------------------------------- options
@@ -72,12 +76,25 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                          "(ini uwb_flash_cmd); its output goes to the log")
     group.addoption("--uwb-flash-timeout", type=float, default=None,
                     help=f"seconds the flash command may take (default {DEFAULT_FLASH_TIMEOUT_S:g})")
+    parser.addini("uwb_hil", "activate the uwb-hil plugin (report header, `hardware` marker) without a --uwb-* "
+                  "option", type="bool", default=False)
     parser.addini("uwb_scope", "default of --uwb-scope", default="function")
     parser.addini("uwb_flash_cmd", "default of --uwb-flash-cmd", default="")
 
 
+def plugin_active(config: pytest.Config) -> bool:
+    """Whether this session asked for uwb-hil: a --uwb-* option given, or `uwb_hil = true` in the ini file.
+    Otherwise the plugin is inert (no header, no marker, no skipping): installed in an environment, it
+    must not change unrelated projects' sessions. Its fixtures still work for a test that requests them."""
+    if config.getini("uwb_hil"):
+        return True
+    return any(value is not None for name, value in vars(config.option).items() if name.startswith("uwb_"))
+
+
 def pytest_configure(config: pytest.Config) -> None:
-    config.addinivalue_line("markers", "hardware: needs a real board (--uwb-port or --uwb-target serial)")
+    config.stash[_ACTIVE_KEY] = plugin_active(config)
+    if config.stash[_ACTIVE_KEY]:
+        config.addinivalue_line("markers", "hardware: needs a real board (--uwb-port or --uwb-target serial)")
     scope = config.getoption("uwb_scope") or config.getini("uwb_scope")
     if scope not in SCOPES:
         raise pytest.UsageError(f"uwb_scope must be one of {SCOPES}, got {scope!r}")
@@ -111,7 +128,7 @@ def _hardware_selected(config: pytest.Config) -> bool:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    if _hardware_selected(config):
+    if not config.stash.get(_ACTIVE_KEY, False) or _hardware_selected(config):
         return
     skip = pytest.mark.skip(reason="needs a real board: give --uwb-port (or --uwb-target serial)")
     for item in items:
@@ -119,7 +136,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(skip)
 
 
-def pytest_report_header(config: pytest.Config) -> str:
+def pytest_report_header(config: pytest.Config) -> str | None:
+    if not config.stash.get(_ACTIVE_KEY, False):
+        return None
     port = config.stash.get(_PORT_KEY, None)
     target = canonical_target(config.getoption("uwb_target") or ("serial" if port else "host"))
     if target == "serial":

@@ -110,9 +110,15 @@ def kind_of(spec: DeviceSpec) -> DeviceKind:
 
 def create_device(spec: DeviceSpec) -> Device:
     """The device `spec` describes, not started. UsageError for an unknown kind or a missing port,
-    FileNotFoundError for a missing firmware image (both input errors: nothing was started)."""
+    FileNotFoundError for a missing firmware image (both input errors: nothing was started). The default host
+    firmware, when not built (an installed package), is compiled from the packaged sources on first use
+    (harness/firmware_cache.py)."""
     kind = kind_of(spec)
     firmware = spec.firmware_path()
+    if kind.name == "host" and spec.firmware is None and not firmware.is_file():
+        # no `make firmware` here (an installed package): the build from the shipped sources, cached per user
+        from harness.firmware_cache import cached_host_firmware
+        firmware = cached_host_firmware()
     if kind.firmware is not None and not firmware.is_file():
         raise FileNotFoundError(kind.missing_firmware.format(path=firmware))
     return kind.build(spec, firmware)

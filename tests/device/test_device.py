@@ -423,6 +423,19 @@ def test_board_only():
 """
 
 
+def test_plugin_is_inert_in_a_project_that_does_not_ask_for_it(pytester: pytest.Pytester) -> None:
+    """Installed in an environment, the plugin loads in every pytest session: without a --uwb-* option or
+    `uwb_hil = true` in the ini, no header, and a project's own `hardware` marker is left alone."""
+    pytester.makeini("[pytest]\nmarkers =\n    hardware: this project's own marker\n")
+    pytester.makepyfile("import pytest\n\n@pytest.mark.hardware\ndef test_mine():\n    pass\n")
+    result = _run(pytester)
+    result.assert_outcomes(passed=1)
+    assert "uwb-hil:" not in result.stdout.str()          # (pytest itself lists "plugins: uwb-hil-...")
+    asked = _run(pytester, "--uwb-timeout", "2")             # any --uwb-* option asks for it
+    asked.assert_outcomes(skipped=1)
+    asked.stdout.fnmatch_lines(["uwb-hil: target host, *"])
+
+
 def test_plugin_options_are_in_their_own_help_group(pytester: pytest.Pytester) -> None:
     result = _run(pytester, "--help")
     result.stdout.fnmatch_lines(["*uwb-hil*", "*--uwb-port*", "*--uwb-baud*", "*--uwb-target*",
@@ -431,6 +444,7 @@ def test_plugin_options_are_in_their_own_help_group(pytester: pytest.Pytester) -
 
 def test_plugin_option_fixtures_defaults_cli_and_indirect(pytester: pytest.Pytester) -> None:
     pytester.makepyfile(OPTION_PROBE)
+    pytester.makeini("[pytest]\nuwb_hil = true\n")     # a project that asks for the plugin without options
     result = _run(pytester, "-s", "-rs")
     result.assert_outcomes(passed=2, skipped=1)
     result.stdout.fnmatch_lines(["*VALUES None 115200 host uwb-fw 5.0",
