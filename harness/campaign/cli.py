@@ -55,7 +55,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--report", action=argparse.BooleanOptionalAction, default=True,
                    help="write the report when the runs are done (a shard: its own partial report)")
     p.add_argument("--shard", metavar="K/N", default=None,
-                   help="run only shard K of N (1 <= K <= N; the flights dealt round-robin in plan order), e.g. "
+                   help="run only shard K of N (1 <= K <= N; the flights dealt by estimated run time), e.g. "
                         "one per CI matrix job or Slurm array task; merge with `uwb-hil report DIR... --out M`")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override an estimator setting in every run, e.g. --set proc_acc_xy=0.05 (repeatable; as "

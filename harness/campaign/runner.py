@@ -23,7 +23,8 @@ from typing import Any, Callable
 from harness.biasnet.export import DEFAULT_NPZ
 from harness.campaign.models import snapshot_models
 from harness.campaign.plan import (MODELS_DIR, CampaignOptions, PlanError, RunSpec, attach_firmware, group_by_flight,
-                                   plan_campaign, plan_digest, shard_runs)
+                                   plan_campaign, plan_digest)
+from harness.campaign.shards import costliest_first, shard_runs
 from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, read_json, write_json_atomic
 from harness.campaign.worker import WorkerJob
 from harness.paths import REPO_ROOT
@@ -153,7 +154,7 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
     fw_sha = {fw: file_sha256(Path(fw)) for fw in {r.firmware for r in runs}}
     pending_groups: list[list[RunSpec]] = []
     skipped = 0
-    for group in group_by_flight(runs):
+    for group in costliest_first(group_by_flight(runs)):   # a long flight must not start last
         todo = [r for r in group if not cdir.is_complete(r.run_id, r.fingerprint(), fw_sha[r.firmware])]
         skipped += len(group) - len(todo)
         if todo:
