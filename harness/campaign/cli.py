@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
 from harness.campaign.plan import CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, parse_shard
-from harness.campaign.runner import ExecOptions, plan_and_run
+from harness.campaign.cluster import scheduler_from
+from harness.campaign.runner import ExecOptions, GroupExecutor, plan_and_run
 from harness.campaign.store import CampaignDir
 from harness.campaign.verdict import BASELINE_CONFIG, check_judged, default_judged, judge_campaign
 from harness.cli_verdict import EXIT_PASS, EXIT_VERDICT, add_verdict_options, criteria_from
@@ -66,8 +68,20 @@ def add_parser(sub: Any) -> None:
                    help=f"configurations whose runs the verdict judges (default: every one flown except "
                         f"'{BASELINE_CONFIG}', the no-rejection baseline, which exists to be compared against and "
                         "legitimately diverges on real NLOS/TDoA3 data)")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
+                   help="run every flight as a task on this Dask scheduler (default $UWB_HIL_SCHEDULER; none: the "
+                        "local process pool). Workers need only the package ([cluster] extra); results come back here")
     add_verdict_options(p)
     p.set_defaults(func=cmd_campaign)
+
+
+def _executor(args: argparse.Namespace) -> AbstractContextManager[GroupExecutor | None]:
+    """Where the flights run: a Dask cluster (--scheduler / $UWB_HIL_SCHEDULER), else the local pool."""
+    scheduler = scheduler_from(args.scheduler)
+    if scheduler is None:
+        return nullcontext(None)
+    from harness.campaign.cluster import ClusterOptions, DaskExecutor
+    return DaskExecutor(ClusterOptions(scheduler=scheduler))
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:
@@ -84,13 +98,15 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     judged = check_judged(args.judge, opts.configs) if args.judge is not None else default_judged(opts.configs)
     shard = parse_shard(args.shard) if args.shard else None
     try:
-        outcome = plan_and_run(Path(args.out), opts, ex, shard=shard,
-                               log=lambda s: print(s, file=sys.stderr, flush=True))
+        with _executor(args) as executor:
+            outcome = plan_and_run(Path(args.out), opts, ex, shard=shard, executor=executor,
+                                   log=lambda s: print(s, file=sys.stderr, flush=True))
     except RuntimeError as exc:     # a firmware image for a model could not be built
         print(f"uwb-hil: error: {exc}", file=sys.stderr)
         return 2
+    retried = f", {outcome.retries} retried" if outcome.retries else ""
     print(f"campaign: {outcome.total} runs: {outcome.skipped} resumed, {outcome.ok} ran ok, "
-          f"{len(outcome.failed)} failed", file=sys.stderr)
+          f"{len(outcome.failed)} failed{retried}", file=sys.stderr)
     verdict = judge_campaign(CampaignDir(Path(args.out).resolve()), outcome.runs, criteria, judged)
     if args.report:
         from harness.report.cli import write_report

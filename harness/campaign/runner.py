@@ -18,7 +18,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Protocol
 
 from harness.biasnet.export import DEFAULT_NPZ
 from harness.campaign.models import snapshot_models
@@ -55,6 +55,7 @@ class CampaignOutcome:
     runs: list[RunSpec] = field(default_factory=list)   # this invocation's runs (a shard: its own)
     ok: int = 0
     failed: list[dict[str, Any]] = field(default_factory=list)
+    retries: int = 0                               # flights run again after their worker was lost (cluster)
 
     @property
     def all_ok(self) -> bool:
@@ -118,19 +119,30 @@ class _Active:
 
 
 def plan_and_run(root: Path, options: CampaignOptions, exec_opts: ExecOptions, shard: tuple[int, int] | None = None,
-                 log: Callable[[str], None] = print) -> CampaignOutcome:
+                 log: Callable[[str], None] = print, executor: GroupExecutor | None = None) -> CampaignOutcome:
     """Plan the campaign (the options are checked before anything starts), build the firmware images the
     plan's models need (once each, cached), and run it, or shard K of N of it, into `root`."""
     exec_opts.validate()
     runs, notes = plan_campaign(options)
     runs = attach_firmware(runs)
-    return run_campaign(root, runs, exec_opts, options=options, notes=notes, shard=shard, log=log)
+    return run_campaign(root, runs, exec_opts, options=options, notes=notes, shard=shard, log=log, executor=executor)
+
+
+class GroupExecutor(Protocol):
+    """Runs flights (groups of runs) somewhere: the local process pool (default), a Dask cluster
+    (campaign/cluster.py), boards (campaign/boards.py). Each group's files end up in the campaign directory
+    and `ctx.group_done` is called once per group."""
+
+    def describe(self) -> dict[str, Any]: ...
+
+    def run(self, ctx: ExecContext, groups: list[list[RunSpec]]) -> None: ...
 
 
 def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, options: CampaignOptions | None = None,
                  notes: list[str] | None = None, log: Callable[[str], None] = print,
-                 shard: tuple[int, int] | None = None) -> CampaignOutcome:
-    """Run `runs` (the whole plan, or with `shard` = (K, N) shard K of N of it) into `root`."""
+                 shard: tuple[int, int] | None = None, executor: GroupExecutor | None = None) -> CampaignOutcome:
+    """Run `runs` (the whole plan, or with `shard` = (K, N) shard K of N of it) into `root`, on `executor`
+    (default: one worker process per flight on this machine, `exec_opts.jobs` at a time)."""
     cdir = CampaignDir(Path(root).resolve())
     cdir.make()
     plan = runs
@@ -144,6 +156,7 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
                          # a shard keeps the whole plan: the merged report knows which runs no shard ran
                          "runs": [r.as_dict() for r in plan] if shard is not None else None},
                 "shard": {"index": shard[0], "count": shard[1]} if shard is not None else None,
+                "executor": executor.describe() if executor is not None else {"kind": "local"},
                 "provenance": host_provenance(firmware)}
     write_json_atomic(cdir.manifest, manifest)
     snapshot_models(cdir, [r.model for r in plan], Path(options.sim_model) if options and options.sim_model
@@ -162,20 +175,56 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
     outcome = CampaignOutcome(total=len(runs), skipped=skipped, runs=list(runs))
     n_pending = sum(len(g) for g in pending_groups)
     shard_text = f" (shard {shard[0]}/{shard[1]} of {len(plan)})" if shard is not None else ""
+    where = f"{exec_opts.jobs} at a time" if executor is None else str(executor.describe().get("text", ""))
     log(f"campaign {cdir.root}: {len(runs)} runs{shard_text}, {skipped} already complete, {n_pending} to run "
-        f"({len(pending_groups)} flights, {exec_opts.jobs} at a time)")
-    progress = _Progress(total=len(runs), done=skipped)
+        f"({len(pending_groups)} flights, {where})")
+    ctx = ExecContext(cdir=cdir, opts=exec_opts, fw_sha=fw_sha, outcome=outcome, log=log,
+                      progress=_Progress(total=len(runs), done=skipped), n_groups=len(pending_groups))
+    if executor is not None:
+        executor.run(ctx, pending_groups)
+    else:
+        _run_local(ctx, pending_groups)
+    return outcome
 
+
+@dataclass
+class ExecContext:
+    """What an executor needs to hand a finished group back: where the files go, and the tally."""
+
+    cdir: CampaignDir
+    opts: ExecOptions
+    fw_sha: dict[str, str]                 # firmware path -> SHA-256 prefix (resume compares it)
+    outcome: CampaignOutcome
+    log: Callable[[str], None]
+    progress: _Progress
+    n_groups: int
+    done_groups: int = 0
+
+    def job(self, group: list[RunSpec], root: str | None = None) -> WorkerJob:
+        """The worker job of a group (`root`: where the worker writes; default the campaign directory)."""
+        return WorkerJob(root=root or str(self.cdir.root), runs=tuple(group), window=self.opts.window,
+                         timeout_s=self.opts.timeout_s, firmware_sha256=self.fw_sha[group[0].firmware],
+                         keep_jsonl=self.opts.keep_jsonl)
+
+    def group_done(self, runs: list[RunSpec], why_missing: str, worker_log: Path | None, where: str = "") -> None:
+        """Count the group's runs from their summaries (a run without one failed with `why_missing`), log."""
+        self.done_groups += 1
+        collect_runs(self.cdir, runs, self.outcome, self.log, why_missing, worker_log)
+        self.log(f"[{self.progress.add(len(runs))}] {runs[0].flight.flight_id}{where} "
+                 f"(flight {self.done_groups}/{self.n_groups}): {self.outcome.ok} ok, "
+                 f"{len(self.outcome.failed)} failed")
+
+
+def _run_local(ctx: ExecContext, pending_groups: list[list[RunSpec]]) -> None:
+    """One worker process per flight, up to `jobs` at once; a worker past its wall-clock limit is stopped."""
     env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
                MPLBACKEND="Agg")
     active: list[_Active] = []
     queue = list(pending_groups)
-    done_groups = 0
     try:
         while queue or active:
-            while queue and len(active) < max(1, exec_opts.jobs):
-                group = queue.pop(0)
-                active.append(_start(cdir, group, exec_opts, env, fw_sha[group[0].firmware]))
+            while queue and len(active) < max(1, ctx.opts.jobs):
+                active.append(_start(ctx, queue.pop(0), env))
             time.sleep(0.1)
             for a in list(active):
                 code = a.proc.poll()
@@ -188,10 +237,9 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
                         a.proc.kill()
                     continue
                 active.remove(a)
-                done_groups += 1
-                _collect(cdir, a, code, outcome, log, timed_out=a.term_sent is not None)
-                log(f"[{progress.add(len(a.runs))}] {a.runs[0].flight.flight_id} "
-                    f"(flight {done_groups}/{len(pending_groups)}): {outcome.ok} ok, {len(outcome.failed)} failed")
+                why = (f"worker timed out after {a.limit_s:.0f} s" if a.term_sent is not None
+                       else f"worker exited with code {code} before finishing this run")
+                ctx.group_done(a.runs, why, a.log)
     finally:
         for a in active:           # interrupted: stop our workers (they stop their devices)
             if a.proc.poll() is None:
@@ -202,7 +250,6 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
             except subprocess.TimeoutExpired:
                 a.proc.kill()
                 a.proc.wait()
-    return outcome
 
 
 @dataclass
@@ -246,28 +293,25 @@ def group_stem(group: list[RunSpec]) -> str:
     return f"{group[0].flight.flight_id}.{digest}"
 
 
-def _start(cdir: CampaignDir, group: list[RunSpec], opts: ExecOptions, env: dict[str, str],
-           firmware_sha256: str) -> _Active:
-    fid = group[0].flight.flight_id
-    job = WorkerJob(root=str(cdir.root), runs=tuple(group), window=opts.window,
-                    timeout_s=opts.timeout_s, firmware_sha256=firmware_sha256, keep_jsonl=opts.keep_jsonl)
+def _start(ctx: ExecContext, group: list[RunSpec], env: dict[str, str]) -> _Active:
+    cdir = ctx.cdir
     for run in group:      # a summary left from an earlier attempt must not be mistaken for this one's
         cdir.summary_path(run.run_id).unlink(missing_ok=True)
     stem = group_stem(group)
     job_path = cdir.logs / f"{stem}.job.json"
-    job_path.write_text(job.to_json(), encoding="utf-8")
+    job_path.write_text(ctx.job(group).to_json(), encoding="utf-8")
     log_path = cdir.logs / f"{stem}.worker.log"
     with open(log_path, "wb") as fh:
-        proc = subprocess.Popen([opts.python, "-m", "harness.campaign.worker", str(job_path)], cwd=REPO_ROOT,
+        proc = subprocess.Popen([ctx.opts.python, "-m", "harness.campaign.worker", str(job_path)], cwd=REPO_ROOT,
                                 stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT, env=env)
-    limit = _group_timeout(group, opts)
+    limit = _group_timeout(group, ctx.opts)
     return _Active(proc=proc, runs=group, log=log_path, deadline=time.monotonic() + limit, limit_s=limit)
 
 
-def _collect(cdir: CampaignDir, a: _Active, code: int, outcome: CampaignOutcome, log: Callable[[str], None],
-             timed_out: bool) -> None:
-    """Count the worker's runs; any run it left without a summary failed with the worker itself."""
-    for run in a.runs:
+def collect_runs(cdir: CampaignDir, runs: list[RunSpec], outcome: CampaignOutcome, log: Callable[[str], None],
+                 why_missing: str, worker_log: Path | None) -> None:
+    """Count a group's runs; any run left without a summary failed with its worker (`why_missing`)."""
+    for run in runs:
         summary: dict[str, Any] | None = None
         if cdir.summary_path(run.run_id).exists():
             try:
@@ -280,11 +324,10 @@ def _collect(cdir: CampaignDir, a: _Active, code: int, outcome: CampaignOutcome,
             outcome.ok += 1
             continue
         if summary is None or summary.get("status") != STATUS_FAILED:
-            why = (f"worker timed out after {a.limit_s:.0f} s" if timed_out
-                   else f"worker exited with code {code} before finishing this run")
             summary = {"status": STATUS_FAILED, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
-                       "error_type": "WorkerFailed", "error": why,
-                       "traceback": _tail(a.log), "worker_log": str(a.log)}
+                       "error_type": "WorkerFailed", "error": why_missing,
+                       "traceback": _tail(worker_log) if worker_log else "",
+                       "worker_log": str(worker_log) if worker_log else None}
             write_json_atomic(cdir.summary_path(run.run_id), summary)
         outcome.failed.append({"run_id": run.run_id, "error": summary.get("error", "")})
         first_line = str(summary.get("error", "")).splitlines()[0] if summary.get("error") else ""
