@@ -11,7 +11,6 @@ every run summary's "executor"). Dask is the engine: nothing here schedules.
 
 from __future__ import annotations
 
-import json
 import os
 import uuid
 from dataclasses import dataclass, field
@@ -163,13 +162,9 @@ class DaskExecutor:
         files: dict[str, bytes] = result["files"]
         # summaries last: a run is complete once its summary is there
         for rel in sorted(files, key=lambda r: (r.startswith("runs/") and r.endswith(".json"), r)):
-            data = files[rel]
-            if rel.startswith("runs/") and rel.endswith(".json") and retries:
-                summary = _loads(data)
-                summary.setdefault("executor", {})["retries"] = retries
-                write_json_atomic(ctx.cdir.root / rel, summary)
-                continue
-            _write_atomic(ctx.cdir.root / rel, data)
+            _write_atomic(ctx.cdir.root / rel, files[rel])
+        if retries:
+            ctx.annotate(fl.group, "executor", {"retries": retries})
         ctx.group_done(fl.group, "the cluster task returned no summary for this run", None,
                        where=f" on {worker}" + (f" after {retries} retries" if retries else ""))
 
@@ -179,13 +174,6 @@ class DaskExecutor:
                                 "retried_flights": self.tally.retried, "flights_per_worker": self.tally.workers}
         write_json_atomic(ctx.cdir.manifest, manifest)
         ctx.outcome.retries += self.tally.retries
-
-
-def _loads(data: bytes) -> dict[str, Any]:
-    out = json.loads(data)
-    if not isinstance(out, dict):
-        raise ValueError("run summary is not a JSON object")
-    return out
 
 
 def _write_atomic(path: Path, data: bytes) -> None:

@@ -56,6 +56,7 @@ class CampaignOutcome:
     ok: int = 0
     failed: list[dict[str, Any]] = field(default_factory=list)
     retries: int = 0                               # flights run again after their worker was lost (cluster)
+    boards_out: list[dict[str, Any]] = field(default_factory=list)   # boards taken out (campaign/boards.py)
 
     @property
     def all_ok(self) -> bool:
@@ -109,13 +110,19 @@ def _tail(path: Path, n: int = 20) -> str:
 
 
 @dataclass
-class _Active:
+class Active:
     proc: subprocess.Popen[bytes]
     runs: list[RunSpec]
     log: Path
     deadline: float
     limit_s: float
     term_sent: float | None = None
+
+    def why_missing(self) -> str:
+        """Why a run this worker left without a summary failed."""
+        if self.term_sent is not None:
+            return f"worker timed out after {self.limit_s:.0f} s"
+        return f"worker exited with code {self.proc.returncode} before finishing this run"
 
 
 def plan_and_run(root: Path, options: CampaignOptions, exec_opts: ExecOptions, shard: tuple[int, int] | None = None,
@@ -200,11 +207,22 @@ class ExecContext:
     n_groups: int
     done_groups: int = 0
 
-    def job(self, group: list[RunSpec], root: str | None = None) -> WorkerJob:
-        """The worker job of a group (`root`: where the worker writes; default the campaign directory)."""
-        return WorkerJob(root=root or str(self.cdir.root), runs=tuple(group), window=self.opts.window,
+    def job(self, group: list[RunSpec], device: dict[str, Any] | None = None) -> WorkerJob:
+        """The worker job of a group (`device`: the board it runs on; default its own host build)."""
+        return WorkerJob(root=str(self.cdir.root), runs=tuple(group), window=self.opts.window,
                          timeout_s=self.opts.timeout_s, firmware_sha256=self.fw_sha[group[0].firmware],
-                         keep_jsonl=self.opts.keep_jsonl)
+                         keep_jsonl=self.opts.keep_jsonl, device=device)
+
+    def annotate(self, runs: list[RunSpec], key: str, info: dict[str, Any]) -> None:
+        """Add `info` under `key` to the summaries of `runs` (where they ran: a worker, a board)."""
+        for run in runs:
+            path = self.cdir.summary_path(run.run_id)
+            try:
+                summary = read_json(path)
+            except (OSError, ValueError):
+                continue
+            summary[key] = {**summary.get(key, {}), **info}
+            write_json_atomic(path, summary)
 
     def group_done(self, runs: list[RunSpec], why_missing: str, worker_log: Path | None, where: str = "") -> None:
         """Count the group's runs from their summaries (a run without one failed with `why_missing`), log."""
@@ -215,41 +233,53 @@ class ExecContext:
                  f"{len(self.outcome.failed)} failed")
 
 
+def worker_env() -> dict[str, str]:
+    return dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg")
+
+
 def _run_local(ctx: ExecContext, pending_groups: list[list[RunSpec]]) -> None:
     """One worker process per flight, up to `jobs` at once; a worker past its wall-clock limit is stopped."""
-    env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
-               MPLBACKEND="Agg")
-    active: list[_Active] = []
+    env = worker_env()
+    active: list[Active] = []
     queue = list(pending_groups)
     try:
         while queue or active:
             while queue and len(active) < max(1, ctx.opts.jobs):
-                active.append(_start(ctx, queue.pop(0), env))
+                active.append(start_worker(ctx, queue.pop(0), env))
             time.sleep(0.1)
-            for a in list(active):
-                code = a.proc.poll()
-                now = time.monotonic()
-                if code is None:
-                    if now > a.deadline and a.term_sent is None:
-                        a.proc.send_signal(signal.SIGTERM)      # the worker stops its device on SIGTERM
-                        a.term_sent = now
-                    elif a.term_sent is not None and now - a.term_sent > 10.0:
-                        a.proc.kill()
-                    continue
-                active.remove(a)
-                why = (f"worker timed out after {a.limit_s:.0f} s" if a.term_sent is not None
-                       else f"worker exited with code {code} before finishing this run")
-                ctx.group_done(a.runs, why, a.log)
+            for done in [x for x in active if worker_finished(x)]:
+                active.remove(done)
+                ctx.group_done(done.runs, done.why_missing(), done.log)
     finally:
-        for a in active:           # interrupted: stop our workers (they stop their devices)
-            if a.proc.poll() is None:
-                a.proc.send_signal(signal.SIGTERM)
-        for a in active:
-            try:
-                a.proc.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                a.proc.kill()
-                a.proc.wait()
+        for x in active:           # interrupted: stop our workers (they stop their devices)
+            if x.proc.poll() is None:
+                x.proc.send_signal(signal.SIGTERM)
+        for x in active:
+            stop_worker(x)
+
+
+def worker_finished(a: Active) -> bool:
+    """Whether the worker is done; past its wall-clock limit it is stopped (SIGTERM, SIGKILL 10 s later)."""
+    if a.proc.poll() is not None:
+        return True
+    now = time.monotonic()
+    if now > a.deadline and a.term_sent is None:
+        a.proc.send_signal(signal.SIGTERM)      # the worker stops its device on SIGTERM
+        a.term_sent = now
+    elif a.term_sent is not None and now - a.term_sent > 10.0:
+        a.proc.kill()
+    return False
+
+
+def stop_worker(a: Active) -> None:
+    """Stop a worker (SIGTERM: it stops its device), SIGKILL if it does not end within 10 s."""
+    if a.proc.poll() is None:
+        a.proc.send_signal(signal.SIGTERM)
+    try:
+        a.proc.wait(timeout=10.0)
+    except subprocess.TimeoutExpired:
+        a.proc.kill()
+        a.proc.wait()
 
 
 @dataclass
@@ -293,19 +323,21 @@ def group_stem(group: list[RunSpec]) -> str:
     return f"{group[0].flight.flight_id}.{digest}"
 
 
-def _start(ctx: ExecContext, group: list[RunSpec], env: dict[str, str]) -> _Active:
+def start_worker(ctx: ExecContext, group: list[RunSpec], env: dict[str, str],
+                 device: dict[str, Any] | None = None) -> Active:
+    """A worker process for `group` (on `device`, a board, when given), its log in the campaign's logs/."""
     cdir = ctx.cdir
     for run in group:      # a summary left from an earlier attempt must not be mistaken for this one's
         cdir.summary_path(run.run_id).unlink(missing_ok=True)
     stem = group_stem(group)
     job_path = cdir.logs / f"{stem}.job.json"
-    job_path.write_text(ctx.job(group).to_json(), encoding="utf-8")
+    job_path.write_text(ctx.job(group, device).to_json(), encoding="utf-8")
     log_path = cdir.logs / f"{stem}.worker.log"
     with open(log_path, "wb") as fh:
         proc = subprocess.Popen([ctx.opts.python, "-m", "harness.campaign.worker", str(job_path)], cwd=REPO_ROOT,
                                 stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT, env=env)
     limit = _group_timeout(group, ctx.opts)
-    return _Active(proc=proc, runs=group, log=log_path, deadline=time.monotonic() + limit, limit_s=limit)
+    return Active(proc=proc, runs=group, log=log_path, deadline=time.monotonic() + limit, limit_s=limit)
 
 
 def collect_runs(cdir: CampaignDir, runs: list[RunSpec], outcome: CampaignOutcome, log: Callable[[str], None],
