@@ -19,11 +19,12 @@ help:
 	@echo "make campaign  the paper's experiments through the firmware + report (CAMPAIGN_DIR, CAMPAIGN_ARGS)"
 
 # Extras (pyproject.toml): [train] = PyTorch (uwb-hil train / models, the M4 bench's check), [test] = what
-# the test suite adds. constraints.txt pins torch to the CPU build on disk.
+# the test suite adds, [cluster] = Dask distributed (campaign --scheduler). constraints.txt pins torch to the
+# CPU build on disk.
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -c constraints.txt -e '.[train,test]'
+	$(PY) -m pip install -q -c constraints.txt -e '.[train,test,cluster]'
 	touch $@
 
 firmware:
@@ -83,6 +84,7 @@ test: test-c test-fuzz stm32 net-tools test-py test-board test-light-install
 bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench
 	$(PY) -m harness.bench.qemu
+	$(PY) -m harness.campaign.bench_cluster
 
 # STM32F405 (Crazyflie MCU) build, run under QEMU by tests/mcu/test_qemu.py and harness/bench/qemu.py
 # (docs/qemu.md). The ARM toolchain and QEMU come from Debian when missing: the script runs

@@ -5,14 +5,20 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
 from harness.campaign.plan import CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, parse_shard
-from harness.campaign.runner import ExecOptions, plan_and_run
+from harness.campaign.cluster import scheduler_from
+from harness.campaign.runner import CampaignOutcome, ExecOptions, GroupExecutor, plan_and_run
+from harness.campaign.boards import BoardExecutor, note_boards_in_verdict
+from harness.device.board_list import boards_from_options, check_unique, load_board_list
+from harness.device.registry import TARGET_CHOICES
+from harness.errors import UsageError
 from harness.campaign.store import CampaignDir
 from harness.campaign.verdict import BASELINE_CONFIG, check_judged, default_judged, judge_campaign
-from harness.cli_verdict import EXIT_PASS, EXIT_VERDICT, add_verdict_options, criteria_from
+from harness.cli_verdict import EXIT_DEVICE, EXIT_PASS, EXIT_VERDICT, add_verdict_options, criteria_from
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
@@ -66,7 +72,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--report", action=argparse.BooleanOptionalAction, default=True,
                    help="write the report when the runs are done (a shard: its own partial report)")
     p.add_argument("--shard", metavar="K/N", default=None,
-                   help="run only shard K of N (1 <= K <= N; the flights dealt round-robin in plan order), e.g. "
+                   help="run only shard K of N (1 <= K <= N; the flights dealt by estimated run time), e.g. "
                         "one per CI matrix job or Slurm array task; merge with `uwb-hil report DIR... --out M`")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override an estimator setting in every run, e.g. --set proc_acc_xy=0.05 (repeatable; as "
@@ -77,8 +83,39 @@ def add_parser(sub: Any) -> None:
                    help=f"configurations whose runs the verdict judges (default: every one flown except "
                         f"'{BASELINE_CONFIG}', the no-rejection baseline, which exists to be compared against and "
                         "legitimately diverges on real NLOS/TDoA3 data)")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
+                   help="run every flight as a task on this Dask scheduler (default $UWB_HIL_SCHEDULER; none: the "
+                        "local process pool). Workers need only the package ([cluster] extra); results come back here")
+    boards = p.add_argument_group("boards", "run the flights on boards instead of one host build per flight: each "
+                                  "board serves one flight at a time, the boards in parallel; a board that stops "
+                                  "answering is taken out and its runs move to the others (exit 3)")
+    boards.add_argument("--target", action="append", choices=TARGET_CHOICES, default=[],
+                        help="a board of this kind (repeat: --target qemu --target qemu = two QEMU boards; host = "
+                             "the host build on a pty); with --port: the kind of the ports' boards (default serial)")
+    boards.add_argument("--port", action="append", default=[],
+                        help="a board's serial port or pyserial URL (repeat for several boards)")
+    boards.add_argument("--boards", metavar="FILE", default=None,
+                        help="board list (YAML: name, port or serial_number, target, baud, firmware per board)")
+    boards.add_argument("--baud", type=int, default=115200, help="baud rate of --port boards")
     add_verdict_options(p)
     p.set_defaults(func=cmd_campaign)
+
+
+def _executor(args: argparse.Namespace) -> AbstractContextManager[GroupExecutor | None]:
+    """Where the flights run: boards (--target/--port/--boards), a Dask cluster (--scheduler /
+    $UWB_HIL_SCHEDULER), else the local process pool."""
+    boards = boards_from_options(list(args.target), list(args.port), args.baud)
+    if args.boards:
+        boards = check_unique(boards + load_board_list(Path(args.boards)))
+    scheduler = scheduler_from(args.scheduler)
+    if boards:
+        if args.scheduler:
+            raise UsageError("--scheduler runs flights on cluster workers' host builds: not with boards")
+        return BoardExecutor(boards, log_dir=Path(args.out).resolve() / "logs")
+    if scheduler is None:
+        return nullcontext(None)
+    from harness.campaign.cluster import ClusterOptions, DaskExecutor
+    return DaskExecutor(ClusterOptions(scheduler=scheduler))
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:
@@ -95,20 +132,36 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     judged = check_judged(args.judge, opts.configs) if args.judge is not None else default_judged(opts.configs)
     shard = parse_shard(args.shard) if args.shard else None
     try:
-        outcome = plan_and_run(Path(args.out), opts, ex, shard=shard,
-                               log=lambda s: print(s, file=sys.stderr, flush=True))
+        with _executor(args) as executor:
+            outcome = plan_and_run(Path(args.out), opts, ex, shard=shard, executor=executor,
+                                   log=lambda s: print(s, file=sys.stderr, flush=True))
     except RuntimeError as exc:     # a firmware image for a model could not be built
         print(f"uwb-hil: error: {exc}", file=sys.stderr)
         return 2
+    return _conclude(args, outcome, criteria, judged)
+
+
+def _conclude(args: argparse.Namespace, outcome: CampaignOutcome, criteria: Any, judged: tuple[str, ...]) -> int:
+    """Judge, report and say what happened: 1 when a run failed or the verdict did, else 3 when a board was
+    taken out (the campaign completed on the others), else 0."""
+    retried = f", {outcome.retries} retried" if outcome.retries else ""
     print(f"campaign: {outcome.total} runs: {outcome.skipped} resumed, {outcome.ok} ran ok, "
-          f"{len(outcome.failed)} failed", file=sys.stderr)
-    verdict = judge_campaign(CampaignDir(Path(args.out).resolve()), outcome.runs, criteria, judged)
+          f"{len(outcome.failed)} failed{retried}", file=sys.stderr)
+    cdir = CampaignDir(Path(args.out).resolve())
+    verdict = judge_campaign(cdir, outcome.runs, criteria, judged)
+    if outcome.boards_out:
+        note_boards_in_verdict(cdir, outcome.boards_out)
     if args.report:
         from harness.report.cli import write_report
         write_report(Path(args.out), as_json=False)
+    out_text = "".join(f"; board {b['board']} taken out ({b['reason']}), {b['moved_runs']} runs moved to the others"
+                       for b in outcome.boards_out)
     print(f"verdict: {'PASS' if verdict.passed else 'FAIL'} ({len(verdict.runs)} runs of "
-          f"{', '.join(judged) or 'no configuration'} judged, {verdict.not_judged} not judged)")
-    code = EXIT_PASS
+          f"{', '.join(judged) or 'no configuration'} judged, {verdict.not_judged} not judged){out_text}")
+    code = EXIT_DEVICE if outcome.boards_out else EXIT_PASS
+    if outcome.boards_out:
+        print(f"uwb-hil: {len(outcome.boards_out)} board(s) stopped answering during the campaign: "
+              + ", ".join(b["board"] for b in outcome.boards_out), file=sys.stderr)
     if not outcome.all_ok:
         print(f"uwb-hil: campaign failed: {len(outcome.failed)} runs did not complete: "
               + ", ".join(f["run_id"] for f in outcome.failed), file=sys.stderr)

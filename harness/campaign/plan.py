@@ -338,14 +338,6 @@ def parse_shard(text: str) -> tuple[int, int]:
     return ki, ni
 
 
-def shard_runs(runs: list[RunSpec], index: int, count: int) -> list[RunSpec]:
-    """Shard K of N (1-based): the flights (groups of runs sharing a flight and firmware, in plan order) dealt
-    round-robin, so every run lands in exactly one shard and the split depends only on the plan."""
-    if not 1 <= index <= count:
-        raise PlanError(f"shard {index}/{count}: need 1 <= K <= N")
-    return [r for i, group in enumerate(group_by_flight(runs)) if i % count == index - 1 for r in group]
-
-
 def plan_digest(runs: list[RunSpec]) -> str:
     """What the runs are, without where this machine keeps things (firmware and recording paths differ between
     the machines of a sharded campaign): equal digests = the same campaign, however it was split."""

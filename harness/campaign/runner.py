@@ -18,12 +18,13 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Protocol
 
 from harness.biasnet.export import DEFAULT_NPZ
 from harness.campaign.models import snapshot_models
 from harness.campaign.plan import (MODELS_DIR, CampaignOptions, PlanError, RunSpec, attach_firmware, group_by_flight,
-                                   plan_campaign, plan_digest, shard_runs)
+                                   plan_campaign, plan_digest)
+from harness.campaign.shards import costliest_first, shard_runs
 from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, read_json, write_json_atomic
 from harness.campaign.worker import WorkerJob
 from harness.paths import REPO_ROOT
@@ -54,6 +55,8 @@ class CampaignOutcome:
     runs: list[RunSpec] = field(default_factory=list)   # this invocation's runs (a shard: its own)
     ok: int = 0
     failed: list[dict[str, Any]] = field(default_factory=list)
+    retries: int = 0                               # flights run again after their worker was lost (cluster)
+    boards_out: list[dict[str, Any]] = field(default_factory=list)   # boards taken out (campaign/boards.py)
 
     @property
     def all_ok(self) -> bool:
@@ -107,7 +110,7 @@ def _tail(path: Path, n: int = 20) -> str:
 
 
 @dataclass
-class _Active:
+class Active:
     proc: subprocess.Popen[bytes]
     runs: list[RunSpec]
     log: Path
@@ -115,21 +118,38 @@ class _Active:
     limit_s: float
     term_sent: float | None = None
 
+    def why_missing(self) -> str:
+        """Why a run this worker left without a summary failed."""
+        if self.term_sent is not None:
+            return f"worker timed out after {self.limit_s:.0f} s"
+        return f"worker exited with code {self.proc.returncode} before finishing this run"
+
 
 def plan_and_run(root: Path, options: CampaignOptions, exec_opts: ExecOptions, shard: tuple[int, int] | None = None,
-                 log: Callable[[str], None] = print) -> CampaignOutcome:
+                 log: Callable[[str], None] = print, executor: GroupExecutor | None = None) -> CampaignOutcome:
     """Plan the campaign (the options are checked before anything starts), build the firmware images the
     plan's models need (once each, cached), and run it, or shard K of N of it, into `root`."""
     exec_opts.validate()
     runs, notes = plan_campaign(options)
     runs = attach_firmware(runs)
-    return run_campaign(root, runs, exec_opts, options=options, notes=notes, shard=shard, log=log)
+    return run_campaign(root, runs, exec_opts, options=options, notes=notes, shard=shard, log=log, executor=executor)
+
+
+class GroupExecutor(Protocol):
+    """Runs flights (groups of runs) somewhere: the local process pool (default), a Dask cluster
+    (campaign/cluster.py), boards (campaign/boards.py). Each group's files end up in the campaign directory
+    and `ctx.group_done` is called once per group."""
+
+    def describe(self) -> dict[str, Any]: ...
+
+    def run(self, ctx: ExecContext, groups: list[list[RunSpec]]) -> None: ...
 
 
 def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, options: CampaignOptions | None = None,
                  notes: list[str] | None = None, log: Callable[[str], None] = print,
-                 shard: tuple[int, int] | None = None) -> CampaignOutcome:
-    """Run `runs` (the whole plan, or with `shard` = (K, N) shard K of N of it) into `root`."""
+                 shard: tuple[int, int] | None = None, executor: GroupExecutor | None = None) -> CampaignOutcome:
+    """Run `runs` (the whole plan, or with `shard` = (K, N) shard K of N of it) into `root`, on `executor`
+    (default: one worker process per flight on this machine, `exec_opts.jobs` at a time)."""
     cdir = CampaignDir(Path(root).resolve())
     cdir.make()
     plan = runs
@@ -143,6 +163,7 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
                          # a shard keeps the whole plan: the merged report knows which runs no shard ran
                          "runs": [r.as_dict() for r in plan] if shard is not None else None},
                 "shard": {"index": shard[0], "count": shard[1]} if shard is not None else None,
+                "executor": executor.describe() if executor is not None else {"kind": "local"},
                 "provenance": host_provenance(firmware)}
     write_json_atomic(cdir.manifest, manifest)
     snapshot_models(cdir, [r.model for r in plan], Path(options.sim_model) if options and options.sim_model
@@ -153,7 +174,7 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
     fw_sha = {fw: file_sha256(Path(fw)) for fw in {r.firmware for r in runs}}
     pending_groups: list[list[RunSpec]] = []
     skipped = 0
-    for group in group_by_flight(runs):
+    for group in costliest_first(group_by_flight(runs)):   # a long flight must not start last
         todo = [r for r in group if not cdir.is_complete(r.run_id, r.fingerprint(), fw_sha[r.firmware])]
         skipped += len(group) - len(todo)
         if todo:
@@ -161,47 +182,104 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
     outcome = CampaignOutcome(total=len(runs), skipped=skipped, runs=list(runs))
     n_pending = sum(len(g) for g in pending_groups)
     shard_text = f" (shard {shard[0]}/{shard[1]} of {len(plan)})" if shard is not None else ""
+    where = f"{exec_opts.jobs} at a time" if executor is None else str(executor.describe().get("text", ""))
     log(f"campaign {cdir.root}: {len(runs)} runs{shard_text}, {skipped} already complete, {n_pending} to run "
-        f"({len(pending_groups)} flights, {exec_opts.jobs} at a time)")
-    progress = _Progress(total=len(runs), done=skipped)
+        f"({len(pending_groups)} flights, {where})")
+    ctx = ExecContext(cdir=cdir, opts=exec_opts, fw_sha=fw_sha, outcome=outcome, log=log,
+                      progress=_Progress(total=len(runs), done=skipped), n_groups=len(pending_groups))
+    if executor is not None:
+        executor.run(ctx, pending_groups)
+    else:
+        _run_local(ctx, pending_groups)
+    return outcome
 
-    env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
-               MPLBACKEND="Agg")
-    active: list[_Active] = []
+
+@dataclass
+class ExecContext:
+    """What an executor needs to hand a finished group back: where the files go, and the tally."""
+
+    cdir: CampaignDir
+    opts: ExecOptions
+    fw_sha: dict[str, str]                 # firmware path -> SHA-256 prefix (resume compares it)
+    outcome: CampaignOutcome
+    log: Callable[[str], None]
+    progress: _Progress
+    n_groups: int
+    done_groups: int = 0
+
+    def job(self, group: list[RunSpec], device: dict[str, Any] | None = None) -> WorkerJob:
+        """The worker job of a group (`device`: the board it runs on; default its own host build)."""
+        return WorkerJob(root=str(self.cdir.root), runs=tuple(group), window=self.opts.window,
+                         timeout_s=self.opts.timeout_s, firmware_sha256=self.fw_sha[group[0].firmware],
+                         keep_jsonl=self.opts.keep_jsonl, device=device)
+
+    def annotate(self, runs: list[RunSpec], key: str, info: dict[str, Any]) -> None:
+        """Add `info` under `key` to the summaries of `runs` (where they ran: a worker, a board)."""
+        for run in runs:
+            path = self.cdir.summary_path(run.run_id)
+            try:
+                summary = read_json(path)
+            except (OSError, ValueError):
+                continue
+            summary[key] = {**summary.get(key, {}), **info}
+            write_json_atomic(path, summary)
+
+    def group_done(self, runs: list[RunSpec], why_missing: str, worker_log: Path | None, where: str = "") -> None:
+        """Count the group's runs from their summaries (a run without one failed with `why_missing`), log."""
+        self.done_groups += 1
+        collect_runs(self.cdir, runs, self.outcome, self.log, why_missing, worker_log)
+        self.log(f"[{self.progress.add(len(runs))}] {runs[0].flight.flight_id}{where} "
+                 f"(flight {self.done_groups}/{self.n_groups}): {self.outcome.ok} ok, "
+                 f"{len(self.outcome.failed)} failed")
+
+
+def worker_env() -> dict[str, str]:
+    return dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg")
+
+
+def _run_local(ctx: ExecContext, pending_groups: list[list[RunSpec]]) -> None:
+    """One worker process per flight, up to `jobs` at once; a worker past its wall-clock limit is stopped."""
+    env = worker_env()
+    active: list[Active] = []
     queue = list(pending_groups)
-    done_groups = 0
     try:
         while queue or active:
-            while queue and len(active) < max(1, exec_opts.jobs):
-                group = queue.pop(0)
-                active.append(_start(cdir, group, exec_opts, env, fw_sha[group[0].firmware]))
+            while queue and len(active) < max(1, ctx.opts.jobs):
+                active.append(start_worker(ctx, queue.pop(0), env))
             time.sleep(0.1)
-            for a in list(active):
-                code = a.proc.poll()
-                now = time.monotonic()
-                if code is None:
-                    if now > a.deadline and a.term_sent is None:
-                        a.proc.send_signal(signal.SIGTERM)      # the worker stops its device on SIGTERM
-                        a.term_sent = now
-                    elif a.term_sent is not None and now - a.term_sent > 10.0:
-                        a.proc.kill()
-                    continue
-                active.remove(a)
-                done_groups += 1
-                _collect(cdir, a, code, outcome, log, timed_out=a.term_sent is not None)
-                log(f"[{progress.add(len(a.runs))}] {a.runs[0].flight.flight_id} "
-                    f"(flight {done_groups}/{len(pending_groups)}): {outcome.ok} ok, {len(outcome.failed)} failed")
+            for done in [x for x in active if worker_finished(x)]:
+                active.remove(done)
+                ctx.group_done(done.runs, done.why_missing(), done.log)
     finally:
-        for a in active:           # interrupted: stop our workers (they stop their devices)
-            if a.proc.poll() is None:
-                a.proc.send_signal(signal.SIGTERM)
-        for a in active:
-            try:
-                a.proc.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                a.proc.kill()
-                a.proc.wait()
-    return outcome
+        for x in active:           # interrupted: stop our workers (they stop their devices)
+            if x.proc.poll() is None:
+                x.proc.send_signal(signal.SIGTERM)
+        for x in active:
+            stop_worker(x)
+
+
+def worker_finished(a: Active) -> bool:
+    """Whether the worker is done; past its wall-clock limit it is stopped (SIGTERM, SIGKILL 10 s later)."""
+    if a.proc.poll() is not None:
+        return True
+    now = time.monotonic()
+    if now > a.deadline and a.term_sent is None:
+        a.proc.send_signal(signal.SIGTERM)      # the worker stops its device on SIGTERM
+        a.term_sent = now
+    elif a.term_sent is not None and now - a.term_sent > 10.0:
+        a.proc.kill()
+    return False
+
+
+def stop_worker(a: Active) -> None:
+    """Stop a worker (SIGTERM: it stops its device), SIGKILL if it does not end within 10 s."""
+    if a.proc.poll() is None:
+        a.proc.send_signal(signal.SIGTERM)
+    try:
+        a.proc.wait(timeout=10.0)
+    except subprocess.TimeoutExpired:
+        a.proc.kill()
+        a.proc.wait()
 
 
 @dataclass
@@ -245,28 +323,27 @@ def group_stem(group: list[RunSpec]) -> str:
     return f"{group[0].flight.flight_id}.{digest}"
 
 
-def _start(cdir: CampaignDir, group: list[RunSpec], opts: ExecOptions, env: dict[str, str],
-           firmware_sha256: str) -> _Active:
-    fid = group[0].flight.flight_id
-    job = WorkerJob(root=str(cdir.root), runs=tuple(group), window=opts.window,
-                    timeout_s=opts.timeout_s, firmware_sha256=firmware_sha256, keep_jsonl=opts.keep_jsonl)
+def start_worker(ctx: ExecContext, group: list[RunSpec], env: dict[str, str],
+                 device: dict[str, Any] | None = None) -> Active:
+    """A worker process for `group` (on `device`, a board, when given), its log in the campaign's logs/."""
+    cdir = ctx.cdir
     for run in group:      # a summary left from an earlier attempt must not be mistaken for this one's
         cdir.summary_path(run.run_id).unlink(missing_ok=True)
     stem = group_stem(group)
     job_path = cdir.logs / f"{stem}.job.json"
-    job_path.write_text(job.to_json(), encoding="utf-8")
+    job_path.write_text(ctx.job(group, device).to_json(), encoding="utf-8")
     log_path = cdir.logs / f"{stem}.worker.log"
     with open(log_path, "wb") as fh:
-        proc = subprocess.Popen([opts.python, "-m", "harness.campaign.worker", str(job_path)], cwd=REPO_ROOT,
+        proc = subprocess.Popen([ctx.opts.python, "-m", "harness.campaign.worker", str(job_path)], cwd=REPO_ROOT,
                                 stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT, env=env)
-    limit = _group_timeout(group, opts)
-    return _Active(proc=proc, runs=group, log=log_path, deadline=time.monotonic() + limit, limit_s=limit)
+    limit = _group_timeout(group, ctx.opts)
+    return Active(proc=proc, runs=group, log=log_path, deadline=time.monotonic() + limit, limit_s=limit)
 
 
-def _collect(cdir: CampaignDir, a: _Active, code: int, outcome: CampaignOutcome, log: Callable[[str], None],
-             timed_out: bool) -> None:
-    """Count the worker's runs; any run it left without a summary failed with the worker itself."""
-    for run in a.runs:
+def collect_runs(cdir: CampaignDir, runs: list[RunSpec], outcome: CampaignOutcome, log: Callable[[str], None],
+                 why_missing: str, worker_log: Path | None) -> None:
+    """Count a group's runs; any run left without a summary failed with its worker (`why_missing`)."""
+    for run in runs:
         summary: dict[str, Any] | None = None
         if cdir.summary_path(run.run_id).exists():
             try:
@@ -279,11 +356,10 @@ def _collect(cdir: CampaignDir, a: _Active, code: int, outcome: CampaignOutcome,
             outcome.ok += 1
             continue
         if summary is None or summary.get("status") != STATUS_FAILED:
-            why = (f"worker timed out after {a.limit_s:.0f} s" if timed_out
-                   else f"worker exited with code {code} before finishing this run")
             summary = {"status": STATUS_FAILED, "fingerprint": run.fingerprint(), "spec": run.as_dict(),
-                       "error_type": "WorkerFailed", "error": why,
-                       "traceback": _tail(a.log), "worker_log": str(a.log)}
+                       "error_type": "WorkerFailed", "error": why_missing,
+                       "traceback": _tail(worker_log) if worker_log else "",
+                       "worker_log": str(worker_log) if worker_log else None}
             write_json_atomic(cdir.summary_path(run.run_id), summary)
         outcome.failed.append({"run_id": run.run_id, "error": summary.get("error", "")})
         first_line = str(summary.get("error", "")).splitlines()[0] if summary.get("error") else ""

@@ -41,11 +41,21 @@ class WorkerJob:
     timeout_s: float = 10.0
     firmware_sha256: str = ""       # of the binary the runner saw (resume compares it)
     keep_jsonl: bool = False        # keep the run's JSON Lines (gzip-compressed) besides the binary rows
+    # a board to run on ({"target": "serial", "port": ..., "baud": ...}: campaign/boards.py); None: the run's
+    # own host build
+    device: dict[str, Any] | None = None
 
     def to_json(self) -> str:
         return json.dumps({"root": self.root, "runs": [r.as_dict() for r in self.runs],
                            "window": self.window, "timeout_s": self.timeout_s,
-                           "firmware_sha256": self.firmware_sha256, "keep_jsonl": self.keep_jsonl}, indent=1)
+                           "firmware_sha256": self.firmware_sha256, "keep_jsonl": self.keep_jsonl,
+                           "device": self.device}, indent=1)
+
+    def device_spec(self, run: RunSpec, log_dir: Path) -> DeviceSpec:
+        if self.device is not None:
+            return DeviceSpec(target=str(self.device["target"]), port=self.device.get("port"),
+                              baud=int(self.device.get("baud", 115200)), timeout_s=self.timeout_s, log_dir=log_dir)
+        return DeviceSpec(firmware=Path(run.firmware), timeout_s=self.timeout_s, log_dir=log_dir)
 
     @staticmethod
     def from_json(text: str) -> WorkerJob:
@@ -53,7 +63,7 @@ class WorkerJob:
         return WorkerJob(root=d["root"], runs=tuple(RunSpec.from_dict(r) for r in d["runs"]),
                          window=int(d["window"]), timeout_s=float(d["timeout_s"]),
                          firmware_sha256=str(d.get("firmware_sha256", "")),
-                         keep_jsonl=bool(d.get("keep_jsonl", False)))
+                         keep_jsonl=bool(d.get("keep_jsonl", False)), device=d.get("device"))
 
 
 def build_flight(spec: FlightSpec) -> Flight:
@@ -164,7 +174,7 @@ class _Devices:
 
     def get(self, run: RunSpec) -> Any:
         if self._device is None:
-            spec = DeviceSpec(firmware=Path(run.firmware), timeout_s=self.job.timeout_s, log_dir=self.cdir.logs)
+            spec = self.job.device_spec(run, self.cdir.logs)
             want = int(run.model_hash, 16) if run.model_hash else None
             self._device = self._stack.enter_context(open_device(spec, expected_model_hash=want))
         return self._device

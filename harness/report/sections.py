@@ -311,6 +311,12 @@ def consistency(ctx: ReportContext) -> Section | None:
     return sec
 
 
+def boards(ctx: ReportContext) -> Section | None:
+    """A campaign on several boards, board by board (harness/report/boards_section.py)."""
+    from harness.report.boards_section import boards as boards_section
+    return boards_section(ctx)
+
+
 def closed_loop(ctx: ReportContext) -> Section | None:
     """RUN_DIR/closed_loop.json written by `uwb-hil fly --out` (harness/report/closed_loop.py)."""
     from harness.report.closed_loop import closed_loop_section
@@ -318,6 +324,7 @@ def closed_loop(ctx: ReportContext) -> Section | None:
 
 
 DEFAULT_SECTIONS: tuple[SectionFn, ...] = (headline, rmse_boxes, error_time, paths, measurement_streams, bias_network, recorded,
-                                           radio_level, consistency, closed_loop, latency, failures, provenance)
+                                           radio_level, consistency, closed_loop, latency, failures, boards,
+                                           provenance)
 
 __all__ = ["CONFIG_KEYS", "DEFAULT_SECTIONS", "ReportContext", "SectionFn"]

@@ -13,7 +13,8 @@ from typing import Any
 import pytest
 
 from harness.campaign.merge import MergeError, merge_shards
-from harness.campaign.plan import CampaignOptions, PlanError, parse_shard, plan_campaign, shard_runs
+from harness.campaign.plan import CampaignOptions, PlanError, parse_shard, plan_campaign
+from harness.campaign.shards import shard_runs
 from harness.cli import main
 from harness.paths import DEFAULT_FIRMWARE
 
