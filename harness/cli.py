@@ -368,8 +368,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_fly_parser(sub)
     from harness.calibrate.cli import add_parser as add_calibrate_parser
     add_calibrate_parser(sub)
-    from harness.calibrate.cli import add_range_offset_parser
+    from harness.calibrate.cli import add_lever_arm_parser, add_range_offset_parser
     add_range_offset_parser(sub)
+    add_lever_arm_parser(sub)
     from harness.campaign import cli as campaign_cli
     from harness.report import cli as report_cli
     campaign_cli.add_parser(sub)

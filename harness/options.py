@@ -49,8 +49,11 @@ speed = number(float, 0.01, 1e6)
 MAX_LEVER_ARM_M = 1.0
 
 
-def lever_arm(text: str) -> tuple[float, float, float]:
-    """'x,y,z' in metres (body frame), each component within +-MAX_LEVER_ARM_M."""
+def lever_arm(text: str) -> tuple[float, float, float] | str:
+    """'x,y,z' in metres (body frame), each component within +-MAX_LEVER_ARM_M; or a calibration FILE.json
+    written by `uwb-hil lever-arm` (returned as its path: the reader loads it)."""
+    if text.strip().lower().endswith(".json"):
+        return text.strip()
     parts = [p.strip() for p in text.split(",")]
     if len(parts) != 3:
         raise argparse.ArgumentTypeError(f"expected x,y,z in metres (3 numbers), got {text!r}")
@@ -64,6 +67,6 @@ def add_recording_read_options(p: argparse.ArgumentParser | argparse._ArgumentGr
     harness.flight.loaders.UsdOptions.make)."""
     p.add_argument("--ignore-crc", action="store_true",
                    help="Crazyflie uSD logs: load a log whose CRC-32 does not match (still reported as a warning)")
-    p.add_argument("--lever-arm", type=lever_arm, metavar="X,Y,Z",
-                   help="Crazyflie uSD logs: vehicle origin -> UWB tag in the body frame [m] (default: UTIL's "
-                        "Crazyflie, -0.01245,0.00127,0.0908)")
+    p.add_argument("--lever-arm", type=lever_arm, metavar="X,Y,Z|FILE.json",
+                   help="Crazyflie uSD logs: vehicle origin -> UWB tag in the body frame [m], or a calibration "
+                        "fitted by `uwb-hil lever-arm` (default: UTIL's Crazyflie, -0.01245,0.00127,0.0908)")

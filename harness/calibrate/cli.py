@@ -1,6 +1,7 @@
 """`uwb-hil calibrate`: parses the options, prints the statistics (harness/calibrate/compare.py); and
 `uwb-hil range-offset`: fits a TWR range-offset calibration (antenna delay) on recordings with ground truth and
-writes it for `uwb-hil run --range-offset FILE` (harness/flight/range_offset.py)."""
+writes it for `uwb-hil run --range-offset FILE` (harness/flight/range_offset.py); `uwb-hil lever-arm`: fits the
+tag's lever arm (antenna phase centre, body frame) for `--lever-arm FILE` (harness/flight/lever_arm.py)."""
 
 from __future__ import annotations
 
@@ -112,5 +113,43 @@ def cmd_range_offset(args: argparse.Namespace) -> int:
           f"{len(flights)} flight(s): {', '.join(cal.fitted_on)})")
     for k, v in sorted(cal.per_anchor_m.items()):
         print(f"  anchor {k}: {v:+.4f} m")
+    print(f"written to {args.out}")
+    return 0
+
+
+# --------------------------------------------------------------------------------------- lever-arm
+def add_lever_arm_parser(sub: Any) -> None:
+    p = sub.add_parser("lever-arm", help="fit the UWB tag's lever arm (antenna phase centre in the body frame) on "
+                                         "recordings with attitude, for `--lever-arm FILE`")
+    p.add_argument("--recording", action="append", required=True, metavar="REC",
+                   help="a recording with ground-truth attitude (repeatable); to evaluate, leave the flight you "
+                        "replay out")
+    p.add_argument("--anchors", help="anchor file for the recordings (default: each recording's own)")
+    options.add_recording_read_options(p)
+    p.add_argument("--flight-above", type=float, default=0.4, metavar="Z",
+                   help="use measurements with the truth above this height [m] (the ground phase is NLOS)")
+    p.add_argument("--out", required=True, help="calibration file to write (JSON)")
+    p.add_argument("--force", action="store_true", help="use recordings that fail the plausibility checks")
+    p.add_argument("--json", action="store_true", help="print the calibration as JSON")
+    p.set_defaults(func=cmd_lever_arm)
+
+
+def cmd_lever_arm(args: argparse.Namespace) -> int:
+    from harness.flight.lever_arm import fit_lever_arm, save_lever_arm
+    from harness.flight.loaders import UsdOptions, load_recording
+    usd = UsdOptions.make(args.ignore_crc, args.lever_arm)
+    flights = [load_recording(Path(r), anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
+                              usd=usd) for r in args.recording]
+    fit = fit_lever_arm(flights, flight_above=args.flight_above)
+    save_lever_arm(fit, Path(args.out))
+    if args.json:
+        print(json.dumps(fit.as_dict(), indent=2))
+        return 0
+    vec = ", ".join(f"{v:+.4f}" for v in fit.lever_arm_m)
+    print(f"lever arm ({vec}) m, body frame: the assumed one corrected by "
+          f"({', '.join(f'{v:+.4f}' for v in fit.correction_m)}) m over {fit.measurements} in-flight measurements "
+          f"of {len(flights)} flight(s)")
+    for name, corr in fit.per_flight_m.items():
+        print(f"  {name}: ({', '.join(f'{v:+.4f}' for v in corr)})")
     print(f"written to {args.out}")
     return 0

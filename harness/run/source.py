@@ -37,7 +37,7 @@ class RunSource:
     height_std: float = 0.05
     range_offset: str | None = None     # a range-offset calibration file (harness/flight/range_offset.py)
     ignore_crc: bool = False            # Crazyflie uSD logs: load despite a CRC mismatch
-    lever_arm: Sequence[float] | None = None   # Crazyflie uSD logs: the tag's lever arm (None = the default)
+    lever_arm: Sequence[float] | str | None = None   # uSD logs: the tag's lever arm or its calibration file
 
     @classmethod
     def keys(cls) -> tuple[str, ...]:
@@ -59,6 +59,8 @@ class RunSource:
         for k in ("recording", "anchors", "model", "range_offset"):
             if src[k]:
                 src[k] = str(Path(src[k]).resolve())
+        if isinstance(self.lever_arm, str):      # a calibration file (`uwb-hil lever-arm`)
+            src["lever_arm"] = str(Path(self.lever_arm).resolve())
         return src
 
 

@@ -49,10 +49,14 @@ class UsdOptions:
                                              float(TAG_LEVER_ARM[2]))
 
     @classmethod
-    def make(cls, ignore_crc: bool = False, lever_arm: Sequence[float] | None = None) -> UsdOptions:
-        """From command-line values (lever_arm None = the default)."""
+    def make(cls, ignore_crc: bool = False, lever_arm: Sequence[float] | str | None = None) -> UsdOptions:
+        """From command-line values (lever_arm None = the default; a str = a calibration file of
+        `uwb-hil lever-arm`)."""
         if lever_arm is None:
             return cls(ignore_crc=bool(ignore_crc))
+        if isinstance(lever_arm, str):
+            from harness.flight.lever_arm import load_lever_arm
+            lever_arm = load_lever_arm(Path(lever_arm))
         x, y, z = (float(v) for v in lever_arm)
         return cls(ignore_crc=bool(ignore_crc), lever_arm=(x, y, z))
 
