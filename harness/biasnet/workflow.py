@@ -23,7 +23,7 @@ from harness.errors import InputError
 from harness.flight.data import KIND_TWR, Flight
 from harness.flight.formats.cf_usd_flight import UsdOptions
 from harness.paths import SHARED_DATA
-from harness.flight.run_config import position_only_hint
+from harness.biasnet.registry import position_only_hint
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
 
