@@ -36,6 +36,7 @@ from harness.biasnet.recipes import (FIRST_EVAL_SEED, STD_HEAD_RECIPE, SimRecipe
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.uncertainty import StdHeadConfig, with_std_head
 from harness.biasnet.workflow import compare, distill_dict, distill_kind, train_kind
+from harness.errors import UsageError
 from harness.paths import REPO_ROOT
 
 MODELS_DIR = DEFAULT_NPZ.parent
@@ -119,7 +120,7 @@ def _default_std_head(net: BiasNetwork, train: SimRecipe, quick: bool, xi: float
     recipe = replace(STD_HEAD_RECIPE, mode=train.mode, flights=1 if quick else STD_HEAD_RECIPE.flights,
                      duration_s=30.0 if quick else STD_HEAD_RECIPE.duration_s)
     if set(recipe.seeds()) & set(train.seeds()):
-        raise ValueError(f"std head seeds {recipe.seeds()} overlap the training seeds {train.seeds()}")
+        raise UsageError(f"std head seeds {recipe.seeds()} overlap the training seeds {train.seeds()}")
     samples = build_samples(recipe.build(), net.layout, xi)
     model = with_std_head(BiasModel(**{train.mode: net}), train.mode, samples,  # type: ignore[arg-type]
                           StdHeadConfig(constant=True))

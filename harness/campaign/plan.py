@@ -23,6 +23,7 @@ from typing import Any
 from harness.config import PAPER_PRESETS, PRESETS, STAGE_BIAS_NN, config_with
 from harness.biasnet.registry import RECORDED_MODELS as SHIPPED_RECORDED
 from harness.biasnet.registry import SUMMARY as MODELS_SUMMARY
+from harness.errors import InputError
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
@@ -47,7 +48,7 @@ RCV_TWR_HELD_OUT = ("rcv_twr/sequence5",)     # the rcv_twr network is trained o
 RECORDED_MODELS = {family: (model.name, model.path) for family, model in SHIPPED_RECORDED.items()}
 
 
-class PlanError(ValueError):
+class PlanError(InputError):
     """A campaign option is invalid (names the option)."""
 
 

@@ -22,6 +22,7 @@ from typing import Any
 from harness.campaign.plan import FIRST_EVAL_SEED, ROLE_RADIO, FlightSpec, RunSpec
 from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_array_atomic, save_flight,
                                     write_json_atomic)
+from harness.errors import InputError
 from harness.flight.data import Flight
 from harness.report.summarize import summarize_run
 from harness.device.registry import DeviceSpec, open_device
@@ -84,9 +85,9 @@ def _base_flight(spec: FlightSpec) -> Flight:
     if spec.source == "recorded":
         from harness.flight.loaders import load_recording
         if spec.path is None:
-            raise ValueError(f"{spec.flight_id}: a recorded flight needs a path")
+            raise InputError(f"{spec.flight_id}: a recorded flight needs a path")
         return load_recording(Path(spec.path), anchors=Path(spec.anchors) if spec.anchors else None)
-    raise ValueError(f"unknown flight source {spec.source!r}")
+    raise InputError(f"unknown flight source {spec.source!r}")
 
 
 def flight_meta(spec: FlightSpec, flight: Flight) -> dict[str, Any]:
