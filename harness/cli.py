@@ -21,7 +21,7 @@ from typing import Any, Callable, Mapping, Sequence
 from harness import cli_verdict, options
 from harness.config import PRESETS
 from harness.device_args import add_device_options, device_spec, model_device_spec
-from harness.errors import ResultsFileError as ResumeError, UsageError, UwbHilError
+from harness.errors import ResultsFileError as ResumeError, UsageError, UwbHilError, report_failure
 from harness.run.demo import DemoFlights, run_demo
 from harness.run.single import checked_results_path, resume_one, run_one
 from harness.run.source import RunSource
@@ -405,9 +405,8 @@ def _main(argv: list[str]) -> int:
         code = int(args.func(args))
         sys.stdout.flush()       # a closed pipe shows here, inside the handlers below, not at exit
         return code
-    except (UwbHilError, FileNotFoundError, ValueError, NotImplementedError) as exc:
-        print(f"uwb-hil: error: {exc}", file=sys.stderr)
-        return cli_verdict.exit_code(exc)   # 3: device or link failure, 2: usage or input
+    except UwbHilError as exc:
+        return report_failure(exc, "uwb-hil")    # 3: device or link failure, 2: usage or input
     except KeyboardInterrupt:
         print("uwb-hil: interrupted", file=sys.stderr)
         return 130
@@ -419,8 +418,9 @@ def _main(argv: list[str]) -> int:
     except OSError as exc:
         # a file the command writes (--out DIR, a full disk, no permission): the user's to fix, not a crash;
         # device and link failures arrive as LinkError / DeviceError above (exit 3)
-        print(f"uwb-hil: error: {exc}", file=sys.stderr)
-        return 2
+        return report_failure(exc, "uwb-hil")
+    except Exception as exc:  # noqa: BLE001 - anything else is a bug: exit 4, its traceback in a file
+        return report_failure(exc, "uwb-hil")
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Collection
 
-from harness import errors, options
+from harness import options
 from harness.report import jsonsafe
 from harness.report.verdict import Criteria, CriteriaError, Verdict, evaluate, evaluate_all
 
@@ -121,7 +121,3 @@ def rtt_misses_text(rtt: dict[str, Any]) -> str:
 def _g(x: Any) -> str:
     return "-" if x is None else (f"{x:.2f}" if isinstance(x, float) else str(x))
 
-
-def exit_code(exc: BaseException) -> int:
-    """3 for a device or link failure, 2 for anything else the harness refuses (usage, input)."""
-    return errors.exit_code(exc)

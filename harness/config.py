@@ -12,7 +12,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
-from protocol.messages import ConfigError, EkfMode, EstimatorConfigBase, Stage  # noqa: F401 (ConfigError re-exported)
+from protocol.messages import ConfigError as ProtocolConfigError
+from protocol.messages import EkfMode, EstimatorConfigBase, Stage
+
+from harness.errors import InputError, UsageError
 
 # Protocol enums ekf_mode and stage (protocol/messages.toml), as plain ints.
 MODE_IMU = int(EkfMode.IMU)
@@ -47,12 +50,23 @@ PRESETS: dict[str, int] = {
 PAPER_PRESETS: tuple[str, ...] = ("none", "outlier", "outlier+nn")
 
 
+class ConfigError(UsageError, ProtocolConfigError):
+    """An estimator configuration value out of range (the device would refuse it): an input error, exit 2."""
+
+
 @dataclass(frozen=True)
 class EstimatorConfig(EstimatorConfigBase):
     """What CONFIG carries: the generated fields (defaults = the firmware's power-up values) and validate().
     Kinematic gate: d_max = |v| dt + a_max dt^2 / 2 with dt >= gate_dt_min. Supervisor: a position outside
     the anchors' box widened by sup_margin, a speed above sup_max_speed or a position variance above
     sup_max_var re-initialises the filter (docs/ARCHITECTURE.md)."""
+
+    def validate(self) -> None:
+        """ConfigError naming the first invalid field (the device refuses the same values)."""
+        try:
+            super().validate()
+        except ProtocolConfigError as exc:
+            raise ConfigError(str(exc)) from None
 
     def with_stages(self, stages: int) -> "EstimatorConfig":
         return replace(self, stages=stages)
@@ -67,20 +81,20 @@ def settings_file(path: str | Path) -> list[str]:
     try:
         data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
-        raise ValueError(f"settings file {path}: {exc.strerror or exc}") from None
+        raise InputError(f"settings file {path}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"settings file {path}: {exc}") from None
+        raise InputError(f"settings file {path}: {exc}") from None
     table = data.get("settings")
     if not isinstance(table, dict) or not table:
-        raise ValueError(f"settings file {path}: no [settings] table of FIELD = VALUE")
+        raise InputError(f"settings file {path}: no [settings] table of FIELD = VALUE")
     # a key above the [settings] header would otherwise be dropped without a word (other tables, e.g. a
     # [source] with provenance, are the file's own business)
     stray = [k for k, v in data.items() if not isinstance(v, dict)]
     if stray:
-        raise ValueError(f"settings file {path}: {', '.join(stray)} outside the [settings] table")
+        raise InputError(f"settings file {path}: {', '.join(stray)} outside the [settings] table")
     for k, v in table.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"settings file {path}: {k} = {v!r} is not a number")
+            raise InputError(f"settings file {path}: {k} = {v!r} is not a number")
     return [f"{k}={v}" for k, v in table.items()]
 
 
@@ -96,11 +110,11 @@ def config_with(settings: Sequence[str]) -> EstimatorConfig:
     for item in items:
         name, sep, text = item.partition("=")
         if not sep or name.strip() not in allowed:
-            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(allowed)}")
+            raise InputError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(allowed)}")
         try:
             overrides[name.strip()] = float(text)
         except ValueError:
-            raise ValueError(f"--set {item!r}: {text!r} is not a number") from None
+            raise InputError(f"--set {item!r}: {text!r} is not a number") from None
     cfg = replace(EstimatorConfig(), **overrides)
     cfg.validate()
     return cfg

@@ -13,6 +13,7 @@ from typing import Any
 
 from harness import options
 from harness.device.registry import TARGET_CHOICES, DeviceSpec
+from harness.errors import UsageError
 from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
 
@@ -45,7 +46,7 @@ def device_spec(args: argparse.Namespace) -> DeviceSpec:
     port = args.port
     if getattr(args, "port_serial", None):
         if port:
-            raise ValueError("give --port or --port-serial, not both")
+            raise UsageError("give --port or --port-serial, not both")
         port = port_for_serial(args.port_serial)
     if port is None and args.target in (None, "serial"):
         port = default_port()           # $UWB_HIL_PORT; an explicit --target host/qemu ignores it

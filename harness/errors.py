@@ -1,8 +1,11 @@
-"""Exceptions of the uwb-hil harness.
+"""Exceptions of the uwb-hil harness, and the exit code each family means.
 
-Two families, kept apart like the code that raises them:
-  LinkError    the byte transport failed (pty, UART, TCP): closed, or a write could not make progress;
-  DeviceError  the device misbehaved: died, went silent, or is not the firmware we expected.
+Every error the harness raises on purpose is a UwbHilError:
+  InputError   bad input from the user (options, data files, results files, campaign directories): exit 2;
+  LinkError    the byte transport failed (pty, UART, TCP): closed, or a write could not make progress: exit 3;
+  DeviceError  the device misbehaved: died, went silent, or is not the firmware we expected: exit 3.
+Anything else that reaches a command is a bug of the harness: exit 4 (harness/cli.py writes its traceback
+to a file and says where).
 
 Every exception takes a plain message as its first argument (so `raise DeviceTimeout("...")` works);
 the structured details are keyword-only and kept as attributes for reports.
@@ -20,6 +23,10 @@ class UwbHilError(Exception):
 # ------------------------------------------------------------------------------------------ input
 class InputError(UwbHilError, ValueError):
     """Bad input from the user: an option, a data file, a results file (CLI exit code 2)."""
+
+
+class InputFileNotFound(InputError, FileNotFoundError):
+    """A file the user named (recording, anchors, model, results file, firmware) does not exist."""
 
 
 class UsageError(InputError):
@@ -155,7 +162,46 @@ def _layouts(layouts: tuple[int, int]) -> str:
         return str(tuple(layouts))
 
 
+#: exit codes of every command (docs/verdicts.md): 0 pass, 1 verdict failed, then by error family
+EXIT_INPUT, EXIT_DEVICE, EXIT_BUG = 2, 3, 4
+
+
 def exit_code(exc: BaseException) -> int:
-    """The exit code of a run that ended in `exc`: 3 for a device or link failure, 2 for anything else the
-    harness refuses (usage, input). Every command and `python -m` tool maps its errors through this."""
-    return 3 if isinstance(exc, (DeviceError, LinkError)) else 2
+    """The exit code of a run that ended in `exc`: 3 for a device or link failure, 2 for an input error (and
+    an OSError on a file the user named: a full disk, no permission), 4 for anything else: a bug. Every
+    command and `python -m` tool maps its errors through this."""
+    if isinstance(exc, (DeviceError, LinkError)):
+        return EXIT_DEVICE
+    if isinstance(exc, (UwbHilError, OSError)):
+        return EXIT_INPUT
+    return EXIT_BUG
+
+
+def report_failure(exc: BaseException, prog: str, bug_dir: Path | None = None) -> int:
+    """Say on one line (stderr) why a command ended in `exc` and return its exit code: the message of an
+    input, device or link error; for anything else (a bug of the harness, exit 4) the exception's type and
+    message, and the path of a file that holds its traceback (in `bug_dir`, default the temp directory)."""
+    import sys
+
+    code = exit_code(exc)
+    if code != EXIT_BUG:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return code
+    import tempfile
+    import time
+    import traceback
+
+    text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    try:
+        directory = Path(bug_dir) if bug_dir is not None else Path(tempfile.gettempdir())
+        fd, name = tempfile.mkstemp(prefix=f"uwb-hil-bug-{time.strftime('%Y%m%d-%H%M%S')}-", suffix=".txt",
+                                    dir=directory)
+        with open(fd, "w", encoding="utf-8") as fh:
+            fh.write(f"{prog}: {' '.join(sys.argv)}\n{text}")
+        where = f"traceback written to {name}"
+    except OSError as write_exc:
+        where = f"traceback not written ({write_exc.strerror or write_exc})"
+    first = (str(exc).splitlines() or [""])[0]
+    print(f"{prog}: internal error (a bug in uwb-hil, not in your input): {type(exc).__name__}: {first}; "
+          f"{where}; please report it", file=sys.stderr)
+    return code

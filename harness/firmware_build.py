@@ -14,7 +14,7 @@ import subprocess
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from harness.errors import UwbHilError
+from harness.errors import UsageError, UwbHilError
 from harness.paths import FIRMWARE_BUILD_DIR, FIRMWARE_DIR
 
 if TYPE_CHECKING:
@@ -60,12 +60,12 @@ def build_firmware(target: str, model: BiasModel | None = None, build_dir: Path 
     and the other ``make_targets`` in it). Incremental; a model, header or make variables need their own
     build_dir (firmware_sim/build/models/<hash>/<target> when not given for a model)."""
     if target not in BUILD_TARGETS:
-        raise ValueError(f"build target must be one of {BUILD_TARGETS}, got {target!r}")
+        raise UsageError(f"build target must be one of {BUILD_TARGETS}, got {target!r}")
     if model is not None and model_header is not None:
-        raise ValueError("give a model or a model header, not both")
+        raise UsageError("give a model or a model header, not both")
     if build_dir is None:
         if model_header is not None or make_vars:
-            raise ValueError("a build with a model header or make variables needs its own build_dir")
+            raise UsageError("a build with a model header or make variables needs its own build_dir")
         build_dir = (FIRMWARE_BUILD_DIR / "models" / model.hash_hex / target if model is not None
                      else FIRMWARE_BUILD_DIR / ("stm32" if target == "stm32" else ""))
     build_dir = Path(build_dir).resolve()

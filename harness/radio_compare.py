@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.errors import UwbHilError, exit_code
+from harness.errors import report_failure
 from harness.flight.data import Flight
 from harness.flight.radio import radio_level
 from harness.flight.scenarios import scenario_flight
@@ -199,11 +199,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return compare(args)
-    except (UwbHilError, FileNotFoundError, ValueError) as exc:
-        # as uwb-hil: 3 for a device or link failure, 2 for an input the harness refuses (never a traceback
-        # and exit 1, which would read as "the levels differ by more than 5 %")
-        print(f"radio_compare: error: {exc}", file=sys.stderr)
-        return exit_code(exc)
+    except Exception as exc:  # noqa: BLE001
+        # as uwb-hil: 3 for a device or link failure, 2 for an input the harness refuses, 4 for a bug (never
+        # a traceback and exit 1, which would read as "the levels differ by more than 5 %")
+        return report_failure(exc, "radio_compare")
 
 
 def compare(args: argparse.Namespace) -> int:

@@ -17,7 +17,7 @@ import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
 from harness.device.registry import DeviceSpec, open_device
-from harness.errors import UwbHilError, exit_code
+from harness.errors import report_failure
 from harness.flight.scenarios import scenario_flight
 from harness.link.faulty import FaultRates, FaultyLink, unwrap_seqs
 from harness.flight.run_config import config_for
@@ -93,9 +93,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             fig = fault_accounting(args.seconds, args.seed, direction)
             print(json.dumps(fig))
             ok &= fig["agree"] and fig["estimate_finite"]
-    except (UwbHilError, FileNotFoundError, ValueError) as exc:   # exit 1 means "the accounting disagrees"
-        print(f"robustness: error: {exc}", file=sys.stderr)
-        return exit_code(exc)
+    except Exception as exc:  # noqa: BLE001 - exit 1 means "the accounting disagrees": never for an error
+        return report_failure(exc, "robustness")
     return 0 if ok else 1
 
 

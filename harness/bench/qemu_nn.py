@@ -12,14 +12,15 @@ from typing import Any
 
 import numpy as np
 
+from harness.errors import DeviceError
 from harness.paths import DEFAULT_STM32_ELF
 
 ELF_NNBENCH = DEFAULT_STM32_ELF.parent / "uwb-nnbench.elf"
 NN_TOLERANCE = 1e-5
 
 
-class BenchError(RuntimeError):
-    pass
+class BenchError(DeviceError, RuntimeError):
+    """The network-bench image answered wrongly or not in time (exit 3, as any device failure)."""
 
 
 @dataclass

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.biasnet.dataset import Samples
+from harness.errors import InputError
 
 HALF_WINDOW_S = 0.25
 
@@ -79,9 +80,9 @@ def window_counts(t_s: np.ndarray, half_window_s: float) -> np.ndarray:
 def fast_part(samples: Samples, half_window_s: float = HALF_WINDOW_S) -> FastPart:
     """The fast residual of every sample (per flight and anchor pair) with its window's sample count."""
     if samples.t_s is None:
-        raise ValueError("the samples carry no measurement times: the floor needs them")
+        raise InputError("the samples carry no measurement times: the floor needs them")
     if not half_window_s > 0.0:
-        raise ValueError(f"the moving-average half window must be > 0 s, got {half_window_s}")
+        raise InputError(f"the moving-average half window must be > 0 s, got {half_window_s}")
     keys = np.stack([samples.pair_keys(), samples.flight.astype(np.int64)], axis=1)
     _, group = np.unique(keys, axis=0, return_inverse=True)
     group = group.ravel()

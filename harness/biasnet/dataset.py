@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from harness.errors import InputError
 from harness.flight.data import KIND_TDOA, KIND_TWR, Flight, FlightError
 from harness.twin.features import (LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE,
                                    layout_inputs)
@@ -60,7 +61,7 @@ class Samples:
             raise ValueError("no samples to concatenate")
         layouts = {p.layout for p in parts}
         if len(layouts) != 1:
-            raise ValueError(f"cannot mix input layouts {sorted(layouts)}")
+            raise InputError(f"cannot mix input layouts {sorted(layouts)}")
         names: list[str] = []
         flights = []
         for p in parts:
@@ -118,10 +119,10 @@ def flight_samples(flight: Flight, layout: int | None = None, xi: float = XI_DEF
     layout = default_layout(flight) if layout is None else int(layout)
     n_in = layout_inputs(layout)
     if n_in == 0:
-        raise ValueError(f"unknown input layout {layout}")
+        raise InputError(f"unknown input layout {layout}")
     tdoa_layout = layout in (LAYOUT_TDOA_POSE, LAYOUT_TDOA_POS)
     if tdoa_layout != (u.kind == KIND_TDOA):
-        raise ValueError(f"{flight.name}: layout {layout} does not fit its {'TDoA' if u.kind == KIND_TDOA else 'TWR'} "
+        raise InputError(f"{flight.name}: layout {layout} does not fit its {'TDoA' if u.kind == KIND_TDOA else 'TWR'} "
                          "measurements")
     pos = flight.truth.position_at(u.t_us)
     rpy = None
@@ -154,10 +155,10 @@ def flight_samples(flight: Flight, layout: int | None = None, xi: float = XI_DEF
 def build_samples(flights: list[Flight], layout: int | None = None, xi: float = XI_DEFAULT) -> Samples:
     """Samples of several flights (one ``flight`` index per flight, for splitting by flight)."""
     if not flights:
-        raise ValueError("no flights given")
+        raise InputError("no flights given")
     kinds = {f.uwb.kind for f in flights}
     if len(kinds) != 1:
-        raise ValueError("all flights of one data set must have the same measurement kind")
+        raise InputError("all flights of one data set must have the same measurement kind")
     if layout is None:
         layouts = {default_layout(f) for f in flights}
         layout = min(layouts) if len(layouts) == 1 else (LAYOUT_TWR_POS if KIND_TWR in kinds else LAYOUT_TDOA_POS)
@@ -168,7 +169,7 @@ def split_by_flight(samples: Samples, val_fraction: float, seed: int) -> tuple[n
     """Boolean masks (train, validation); whole flights go to one side, never single samples."""
     n = len(samples.names)
     if n < 2:
-        raise ValueError("splitting by flight needs at least 2 flights (got 1): add a flight or give a "
+        raise InputError("splitting by flight needs at least 2 flights (got 1): add a flight or give a "
                          "separate validation set")
     rng = np.random.default_rng(seed)
     order = rng.permutation(n)

@@ -1,7 +1,7 @@
 """An ensemble of bias networks distilled into one 2x50 network (same layout, export and MCU cost).
 
 Why: on the small recorded sets the held-out figure of one network depends on the seed, i.e. on which
-whole flights early stopping watched (docs/bias-network.md, "Drone TWR"). Here K *teachers* are trained,
+whole flights early stopping watched (docs/decisions/2026-11-24-rcv-twr-one-network.md). Here K *teachers* are trained,
 teacher k validated on flight group k (leave-one-group-out: a group is a UTIL trial or an rcv_twr
 sequence, so early stopping never watches a flight recorded with its training flights) and seeded
 differently; their averaged prediction is the *teacher*. One *student* of the shipped layout is then
@@ -27,6 +27,7 @@ from harness.biasnet.dataset import Samples
 from harness.biasnet.network import BiasNetwork
 from harness.biasnet.train import ProgressFn, TrainConfig, TrainReport, train_network
 from harness.biasnet.uncertainty import fit_std_head
+from harness.errors import UsageError
 
 #: a recording's group: UTIL "constC-trialT-..." -> "trialT"; rcv_twr "rcv_twr-sequenceS" -> "sequenceS"
 GROUP_PATTERN = re.compile(r"(trial\d+|sequence\d+)")
@@ -43,9 +44,9 @@ class DistillConfig:
 
     def validate(self) -> None:
         if self.teachers < 2:
-            raise ValueError(f"an ensemble needs at least 2 teachers, got {self.teachers}")
+            raise UsageError(f"an ensemble needs at least 2 teachers, got {self.teachers}")
         if self.jitter < 0.0 or self.copies < 0 or self.val_samples < 10:
-            raise ValueError("jitter and copies must be >= 0 and val_samples >= 10")
+            raise UsageError("jitter and copies must be >= 0 and val_samples >= 10")
 
 
 @dataclass
@@ -93,7 +94,7 @@ def train_teachers(samples: Samples, cfg: TrainConfig, dcfg: DistillConfig,
     dcfg.validate()
     group_of_flight, labels = flight_groups(samples.names)
     if len(labels) < 2:
-        raise ValueError(f"leave-one-group-out needs at least 2 flight groups, got {labels}")
+        raise UsageError(f"leave-one-group-out needs at least 2 flight groups, got {labels}")
     group = group_of_flight[samples.flight]
     report = DistillReport()
     nets = []

@@ -24,6 +24,7 @@ import numpy as np
 
 from harness.twin.features import (LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE,
                                    layout_inputs)
+from harness.errors import InputError, InputFileNotFound
 
 HIDDEN = 50
 FORMAT_VERSION = 2          # 2: optional std head; version-1 files (no head) still load
@@ -34,7 +35,7 @@ _TWR_LAYOUTS = (LAYOUT_TWR_POSE, LAYOUT_TWR_POS)
 _TDOA_LAYOUTS = (LAYOUT_TDOA_POSE, LAYOUT_TDOA_POS)
 
 
-class ModelFormatError(ValueError):
+class ModelFormatError(InputError):
     """A model file or array set is not a valid bias network (names the file and the field)."""
 
 
@@ -267,7 +268,7 @@ class BiasModel:
     def load(cls, path: Path) -> "BiasModel":
         path = Path(path)
         if not path.is_file():
-            raise FileNotFoundError(f"bias model {path} does not exist")
+            raise InputFileNotFound(f"bias model {path} does not exist")
         try:
             with np.load(path, allow_pickle=False) as data:
                 arrays = {k: data[k] for k in data.files}

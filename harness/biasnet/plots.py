@@ -9,6 +9,7 @@ import numpy as np
 
 from harness.biasnet.dataset import XI_DEFAULT, flight_samples
 from harness.biasnet.network import BiasModel
+from harness.errors import InputError
 from harness.flight.data import KIND_TWR, Flight
 
 
@@ -26,10 +27,10 @@ def azimuth_series(model: BiasModel, flight: Flight) -> dict[str, np.ndarray | s
     kind = "twr" if flight.uwb.kind == KIND_TWR else "tdoa"
     net = model.network(kind)
     if net is None:
-        raise ValueError(f"the model has no {kind} network")
+        raise InputError(f"the model has no {kind} network")
     s = flight_samples(flight, net.layout, XI_DEFAULT)
     if s.anchor_pos is None or len(s) == 0:
-        raise ValueError(f"{flight.name}: no samples to plot")
+        raise InputError(f"{flight.name}: no samples to plot")
     keys, counts = np.unique(s.pair, axis=0, return_counts=True)
     a, b = (int(v) for v in keys[int(np.argmax(counts))])
     m = (s.pair[:, 0] == a) & (s.pair[:, 1] == b)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from harness.errors import UsageError
 from harness.flight.data import Flight
 from harness.flight.formats.cf_usd_flight import UsdOptions
 
@@ -33,7 +34,7 @@ class SimRecipe:
 
     def seeds(self) -> range:
         if self.seed0 + self.flights > FIRST_EVAL_SEED:
-            raise ValueError(f"training seeds must stay below {FIRST_EVAL_SEED} (evaluation seeds)")
+            raise UsageError(f"training seeds must stay below {FIRST_EVAL_SEED} (evaluation seeds)")
         return range(self.seed0, self.seed0 + self.flights)
 
     def flight(self, seed: int) -> Flight:

@@ -30,16 +30,16 @@ from harness.biasnet.dataset import XI_DEFAULT, build_samples
 from harness.biasnet.distill import DistillConfig
 from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
 from harness.biasnet.network import BiasModel, BiasNetwork
+from harness.biasnet.registry import RECORDED_MODELS, SUMMARY, kind_name
 from harness.biasnet.recipes import (FIRST_EVAL_SEED, STD_HEAD_RECIPE, SimRecipe, load_recordings, rcv_heldout_dirs,
                                      rcv_train_dirs, util_heldout_files, util_train_files)
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.uncertainty import StdHeadConfig, with_std_head
 from harness.biasnet.workflow import compare, distill_dict, distill_kind, train_kind
+from harness.errors import UsageError
 from harness.paths import REPO_ROOT
-from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TWR_POSE
 
 MODELS_DIR = DEFAULT_NPZ.parent
-SUMMARY = MODELS_DIR / "models.json"
 
 #: The networks trained on the recordings are distilled from this many, network k validated on trial /
 #: sequence k of the training data: on the held-out trial 5 and sequence 5 better and steadier over seeds
@@ -120,7 +120,7 @@ def _default_std_head(net: BiasNetwork, train: SimRecipe, quick: bool, xi: float
     recipe = replace(STD_HEAD_RECIPE, mode=train.mode, flights=1 if quick else STD_HEAD_RECIPE.flights,
                      duration_s=30.0 if quick else STD_HEAD_RECIPE.duration_s)
     if set(recipe.seeds()) & set(train.seeds()):
-        raise ValueError(f"std head seeds {recipe.seeds()} overlap the training seeds {train.seeds()}")
+        raise UsageError(f"std head seeds {recipe.seeds()} overlap the training seeds {train.seeds()}")
     samples = build_samples(recipe.build(), net.layout, xi)
     model = with_std_head(BiasModel(**{train.mode: net}), train.mode, samples,  # type: ignore[arg-type]
                           StdHeadConfig(constant=True))
@@ -187,12 +187,13 @@ def build_shipped_models(data: Path, quick: bool = False, only: str | None = Non
         summary["sim"] = build_sim(quick)
     if only in (None, "nlos"):
         summary["sim_nlos"] = build_sim(quick, profile="nlos")
+    util, rcv = RECORDED_MODELS["util"], RECORDED_MODELS["rcv_twr"]
     if only in (None, "util"):
-        summary["util_tdoa_pos"] = _build_recorded("util_tdoa_pos", data, util_train_files(data),
-                                                   util_heldout_files(data), LAYOUT_TDOA_POS, quick, "tdoa")
+        summary[util.name] = _build_recorded(util.name, data, util_train_files(data), util_heldout_files(data),
+                                             util.layout, quick, kind_name(util.kind))
     if only in (None, "rcv"):
-        summary["rcv_twr"] = _build_recorded("rcv_twr", data, rcv_train_dirs(data), rcv_heldout_dirs(data),
-                                             LAYOUT_TWR_POSE, quick, "twr")
+        summary[rcv.name] = _build_recorded(rcv.name, data, rcv_train_dirs(data), rcv_heldout_dirs(data),
+                                            rcv.layout, quick, kind_name(rcv.kind))
     if not quick and write_summary:  # merge: `--only X` refreshes X's entry and keeps the others
         old = json.loads(SUMMARY.read_text()) if SUMMARY.is_file() else {}
         SUMMARY.write_text(json.dumps(old | summary, indent=2, default=float) + "\n")

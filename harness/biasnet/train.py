@@ -17,6 +17,7 @@ import numpy as np
 from harness.biasnet.dataset import Samples, split_by_flight
 from harness.biasnet.network import HIDDEN, BiasNetwork
 from harness.biasnet.uncertainty import StdHeadConfig, fit_std_head
+from harness.errors import UsageError
 from harness.optional import require_torch
 
 
@@ -40,11 +41,11 @@ class TrainConfig:
 
     def validate(self) -> None:
         if self.optimizer not in ("sgd", "adam"):
-            raise ValueError(f"optimizer must be 'sgd' or 'adam', got {self.optimizer!r}")
+            raise UsageError(f"optimizer must be 'sgd' or 'adam', got {self.optimizer!r}")
         if not (self.lr > 0 and self.batch_size > 0 and self.max_epochs > 0 and self.patience > 0):
-            raise ValueError("lr, batch_size, max_epochs and patience must be positive")
+            raise UsageError("lr, batch_size, max_epochs and patience must be positive")
         if not 0.0 < self.val_fraction < 1.0:
-            raise ValueError("val_fraction must be in (0, 1)")
+            raise UsageError("val_fraction must be in (0, 1)")
 
 
 @dataclass
@@ -90,7 +91,7 @@ def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Sampl
     else:
         train = samples
     if len(train) == 0 or len(val) == 0:
-        raise ValueError(f"empty split: {len(train)} training and {len(val)} validation samples")
+        raise UsageError(f"empty split: {len(train)} training and {len(val)} validation samples")
 
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)

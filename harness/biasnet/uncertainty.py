@@ -21,6 +21,7 @@ import numpy as np
 
 from harness.biasnet.dataset import Samples
 from harness.biasnet.network import BiasNetwork
+from harness.errors import UsageError
 
 if TYPE_CHECKING:
     from harness.biasnet.network import BiasModel
@@ -40,11 +41,11 @@ class StdHeadConfig:
 
     def validate(self) -> None:
         if not 0.0 < self.std_min < self.std_max:
-            raise ValueError(f"need 0 < std_min < std_max, got {self.std_min}, {self.std_max}")
+            raise UsageError(f"need 0 < std_min < std_max, got {self.std_min}, {self.std_max}")
         if self.ridge < 0 or self.iterations < 1:
-            raise ValueError("ridge must be >= 0 and iterations >= 1")
+            raise UsageError("ridge must be >= 0 and iterations >= 1")
         if not (self.inflate > 0.0 and np.isfinite(self.inflate)):
-            raise ValueError(f"inflate must be a positive factor, got {self.inflate}")
+            raise UsageError(f"inflate must be a positive factor, got {self.inflate}")
 
 
 def _nll(phi: np.ndarray, r2: np.ndarray, theta: np.ndarray, ridge: float) -> float:
@@ -56,7 +57,7 @@ def fit_std_head(net: BiasNetwork, samples: Samples, cfg: StdHeadConfig = StdHea
     """``net`` with a std head fitted on ``samples`` (whose bias the network did not see in training)."""
     cfg.validate()
     if len(samples) < 10:
-        raise ValueError(f"fitting the std head needs at least 10 samples, got {len(samples)}")
+        raise UsageError(f"fitting the std head needs at least 10 samples, got {len(samples)}")
     h2 = net.hidden(samples.x)
     r2 = (samples.bias - net.predict_batch(samples.x)) ** 2
     r2 = np.maximum(r2, cfg.std_min ** 2 * 1e-2)  # an exact hit must not drive log std to -inf
@@ -115,9 +116,9 @@ def with_std_head(model: "BiasModel", kind: str, samples: Samples,
     from harness.biasnet.network import BiasModel
     net = model.network(kind)
     if net is None:
-        raise ValueError(f"the model has no {kind} network")
+        raise UsageError(f"the model has no {kind} network")
     if samples.layout != net.layout:
-        raise ValueError(f"samples of layout {samples.layout} for a network of layout {net.layout}")
+        raise UsageError(f"samples of layout {samples.layout} for a network of layout {net.layout}")
     fitted = fit_std_head(net, samples, cfg)
     meta = dict(model.meta)
     meta[f"{kind}_std_head"] = {"fitted_on": list(samples.names), "std_min": cfg.std_min, "std_max": cfg.std_max,

@@ -19,11 +19,11 @@ from harness.biasnet.network import BiasModel
 from harness.biasnet.train import TrainConfig, TrainReport, train_network
 from harness.biasnet.recipes import SimRecipe, load_recordings
 from harness.biasnet.uncertainty import StdHeadConfig, calibration, with_std_head
-from harness.errors import InputError
+from harness.errors import InputError, InputFileNotFound
 from harness.flight.data import KIND_TWR, Flight
 from harness.flight.formats.cf_usd_flight import UsdOptions
 from harness.paths import SHARED_DATA
-from harness.flight.run_config import position_only_hint
+from harness.biasnet.registry import position_only_hint
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
 
 
@@ -94,7 +94,7 @@ def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float
     kind = "twr" if test[0].uwb.kind == KIND_TWR else "tdoa"
     net = model.network(kind)
     if net is None:
-        raise ValueError(f"the model has no {kind} network")
+        raise InputError(f"the model has no {kind} network")
     ts = build_samples(test, net.layout, xi)
     fast = fast_part(ts, half_window_s)
     out: dict[str, Any] = {"kind": kind, "layout": net.layout, "model_hash": model.hash_hex,
@@ -128,7 +128,7 @@ def kind_of(flights: list[Flight], what: str) -> str:
     """"twr" or "tdoa": the one measurement kind of `flights` (ValueError naming `what` if they mix)."""
     kinds = {f.uwb.kind for f in flights}
     if len(kinds) != 1:
-        raise ValueError(f"all {what} must have the same measurement kind")
+        raise InputError(f"all {what} must have the same measurement kind")
     return "twr" if kinds.pop() == KIND_TWR else "tdoa"
 
 
@@ -190,7 +190,7 @@ def evaluate_model(model: BiasModel, model_name: str, recordings: list[Path], op
     """compare() on the held-out recordings, with the baselines fitted on the training recordings; the
     figure of bias vs azimuth when `opts.plot` is given."""
     if not opts.half_window_s > 0.0:
-        raise ValueError(f"--window must be a positive half width in seconds, got {opts.half_window_s}")
+        raise InputError(f"--window must be a positive half width in seconds, got {opts.half_window_s}")
     test = load_recordings(recordings, opts.anchors, check=opts.check, usd=opts.usd)
     kind = kind_of(test, "evaluated recordings")
     check_attitude(model, kind, test, model_name)
@@ -219,7 +219,7 @@ def resolve_training_paths(paths: list[str], data_dir: Path) -> list[Path]:
             q = data_dir / q
         (out.append(q) if q.exists() else missing.append(str(p)))
     if missing:
-        raise FileNotFoundError(f"baseline training recordings not found: {missing} (looked in {data_dir}, the "
+        raise InputFileNotFound(f"baseline training recordings not found: {missing} (looked in {data_dir}, the "
                                 "model names them relative to the data folder): pass --data-dir DIR, or --train "
                                 "FILE ... to fit the baselines on other recordings, or --train alone for none")
     return out
@@ -242,5 +242,5 @@ def fit_std_head(model: BiasModel, model_name: str, flights: list[Flight], kind:
     """The model with a (re)fitted std head on its `kind` network, fitted on `flights`."""
     net = model.network(kind)
     if net is None:
-        raise ValueError(f"{model_name} has no {kind} network")
+        raise InputError(f"{model_name} has no {kind} network")
     return with_std_head(model, kind, build_samples(flights, net.layout, xi), cfg)

@@ -15,6 +15,7 @@ from harness import options
 from harness.calibrate.compare import calibrate
 from harness.calibrate.plots import write_plots
 from harness.calibrate.stats import STATS_KEYS
+from harness.errors import UsageError
 from harness.report import jsonsafe
 from harness.paths import shared_data_dir
 
@@ -66,7 +67,7 @@ def add_parser(sub: Any) -> None:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     data = Path(args.data) if args.data else shared_data_dir()
     if args.trials < 1 or not args.duration > 20.0:
-        raise ValueError("--trials must be >= 1 and --duration > 20 s (take-off and landing take 10 s)")
+        raise UsageError("--trials must be >= 1 and --duration > 20 s (take-off and landing take 10 s)")
     res = calibrate(data, n_trials=args.trials, duration_s=args.duration, twr=not args.no_twr)
     links = res.pop("_links", None)
     if args.out:

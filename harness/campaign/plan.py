@@ -21,7 +21,9 @@ from pathlib import Path
 from typing import Any
 
 from harness.config import PAPER_PRESETS, PRESETS, STAGE_BIAS_NN, config_with
-from harness.paths import MODELS_DIR
+from harness.biasnet.registry import RECORDED_MODELS as SHIPPED_RECORDED
+from harness.biasnet.registry import SUMMARY as MODELS_SUMMARY
+from harness.errors import InputError
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
@@ -42,12 +44,11 @@ UTIL_HELD_OUT = (
 )
 UTIL_ANCHORS = "util/anchors.csv"
 RCV_TWR_HELD_OUT = ("rcv_twr/sequence5",)     # the rcv_twr network is trained on sequences 1-4
-#: Real-data networks per recorded family (key in models.json, file).
-RECORDED_MODELS = {"util": ("util_tdoa_pos", MODELS_DIR / "util_tdoa_pos.npz"),
-                   "rcv_twr": ("rcv_twr", MODELS_DIR / "rcv_twr.npz")}
+#: Real-data networks per recorded family (key in models.json, file): the model registry's
+RECORDED_MODELS = {family: (model.name, model.path) for family, model in SHIPPED_RECORDED.items()}
 
 
-class PlanError(ValueError):
+class PlanError(InputError):
     """A campaign option is invalid (names the option)."""
 
 
@@ -197,7 +198,7 @@ def held_out(family: str) -> tuple[tuple[str, ...], str]:
     evaluate on) is only compared, since it may list fewer flights than are unseen."""
     key, _ = RECORDED_MODELS[family]
     rels = UTIL_HELD_OUT if family == "util" else RCV_TWR_HELD_OUT
-    info = MODELS_DIR / "models.json"
+    info = MODELS_SUMMARY
     try:
         names = set((json.loads(info.read_text(encoding="utf-8")).get(key) or {}).get("heldout") or {})
     except (OSError, ValueError):
@@ -300,7 +301,7 @@ def _needs_attitude(model: str | None, mode: str) -> bool:
     if model is None:
         return False
     from harness.biasnet.network import BiasModel
-    from harness.flight.run_config import takes_attitude
+    from harness.biasnet.registry import takes_attitude
     net = getattr(BiasModel.load(Path(model)), mode)
     return net is not None and takes_attitude(net.layout)
 

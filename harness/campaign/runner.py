@@ -22,8 +22,8 @@ from typing import Any, Callable, Protocol
 
 from harness.biasnet.export import DEFAULT_NPZ
 from harness.campaign.models import snapshot_models
-from harness.campaign.plan import (MODELS_DIR, CampaignOptions, PlanError, RunSpec, attach_firmware, group_by_flight,
-                                   plan_campaign, plan_digest)
+from harness.campaign.plan import (MODELS_SUMMARY, CampaignOptions, PlanError, RunSpec, attach_firmware,
+                                   group_by_flight, plan_campaign, plan_digest)
 from harness.campaign.shards import costliest_first, shard_runs
 from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, read_json, write_json_atomic
 from harness.campaign.worker import WorkerJob
@@ -167,7 +167,7 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
                 "provenance": host_provenance(firmware)}
     write_json_atomic(cdir.manifest, manifest)
     snapshot_models(cdir, [r.model for r in plan], Path(options.sim_model) if options and options.sim_model
-                    else DEFAULT_NPZ, MODELS_DIR / "models.json", Path(options.data_dir) if options else None)
+                    else DEFAULT_NPZ, MODELS_SUMMARY, Path(options.data_dir) if options else None)
     for n in notes or []:
         log(f"note: {n}")
 

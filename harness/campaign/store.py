@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.errors import InputError
 from harness.flight.data import KIND_TDOA, Flight
 from harness.stream.results_file import COLUMNS, column_dtype, read_run
 
@@ -34,7 +35,7 @@ STATUS_FAILED = "failed"
 VERDICT_FILE = "verdict.json"
 
 
-class CampaignDataError(ValueError):
+class CampaignDataError(InputError):
     """A file of a campaign directory is missing or malformed (names the file, line and field)."""
 
 

@@ -17,6 +17,7 @@ from typing import Any, Iterable, Sequence
 
 from harness.campaign.plan import RunSpec
 from harness.campaign.store import STATUS_OK, CampaignDataError, CampaignDir, write_json_atomic
+from harness.errors import UsageError
 from harness.report.verdict import Criteria, evaluate
 
 #: The configuration a campaign's verdict leaves out unless `--judge` names it (see the module doc).
@@ -32,7 +33,7 @@ def check_judged(judge: Sequence[str], configs: Sequence[str]) -> tuple[str, ...
     """`judge` if every name is a configuration the campaign flies (ValueError naming the others)."""
     unknown = [c for c in judge if c not in configs]
     if unknown:
-        raise ValueError(f"--judge: {', '.join(unknown)} not among the configurations flown "
+        raise UsageError(f"--judge: {', '.join(unknown)} not among the configurations flown "
                          f"({', '.join(configs)}; --configs chooses them)")
     return tuple(dict.fromkeys(judge))
 

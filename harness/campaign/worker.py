@@ -22,11 +22,11 @@ from typing import Any
 from harness.campaign.plan import FIRST_EVAL_SEED, ROLE_RADIO, FlightSpec, RunSpec
 from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_array_atomic, save_flight,
                                     write_json_atomic)
-from harness.config import PRESETS, config_with
+from harness.errors import InputError
 from harness.flight.data import Flight
 from harness.report.summarize import summarize_run
 from harness.device.registry import DeviceSpec, open_device
-from harness.flight.run_config import config_for
+from harness.flight.run_config import run_estimator_config
 from harness.stream.streamer import Pacing, Streamer
 from protocol import messages as m
 
@@ -85,9 +85,9 @@ def _base_flight(spec: FlightSpec) -> Flight:
     if spec.source == "recorded":
         from harness.flight.loaders import load_recording
         if spec.path is None:
-            raise ValueError(f"{spec.flight_id}: a recorded flight needs a path")
+            raise InputError(f"{spec.flight_id}: a recorded flight needs a path")
         return load_recording(Path(spec.path), anchors=Path(spec.anchors) if spec.anchors else None)
-    raise ValueError(f"unknown flight source {spec.source!r}")
+    raise InputError(f"unknown flight source {spec.source!r}")
 
 
 def flight_meta(spec: FlightSpec, flight: Flight) -> dict[str, Any]:
@@ -146,7 +146,7 @@ def _run_one(job: WorkerJob, cdir: CampaignDir, run: RunSpec, flight: Flight, me
              started: float) -> None:
     """Stream one run, keep its rows, write its "ok" summary."""
     pacing = Pacing(mode=run.pacing, window=job.window)
-    cfg = config_for(flight, config_with(run.settings), stages=PRESETS[run.config], uwb_only=run.flight.uwb_only)
+    cfg = run_estimator_config(flight, run.config, run.settings, uwb_only=run.flight.uwb_only)
     streamer = Streamer(device, timeout_s=job.timeout_s)
     radio = run.role == ROLE_RADIO
     result = streamer.run(flight, cfg, pacing, results_path=cdir.results_path(run.run_id), radio=radio)

@@ -19,6 +19,7 @@ from harness.closedloop.sensors import NOISE_KINDS
 from harness.cli_verdict import criteria_from
 from harness.config import PAPER_PRESETS, PRESETS, config_with
 from harness.device_args import add_device_options, model_device_spec
+from harness.errors import UsageError
 from harness.flight.measurement_errors import PROFILES
 from harness.report import jsonsafe
 from harness.report.verdict import FLY_CRITERIA, fly_verdict
@@ -120,7 +121,7 @@ def add_fly_parser(sub: Any) -> None:
 
 def cmd_fly(args: argparse.Namespace) -> int:
     if args.seeds < 1:
-        raise ValueError("--seeds must be >= 1")
+        raise UsageError("--seeds must be >= 1")
     criteria = criteria_from(args, FLY_CRITERIA, "uwb-hil fly")    # refused (exit 2) before any flight
     loop = LoopConfig(pacing=args.pacing, speed=args.speed, timeout_s=args.timeout, imu_every=args.imu_every)
     spec = FlySpec(modes=args.mode, missions=args.mission, configs=args.config,

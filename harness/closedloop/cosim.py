@@ -31,7 +31,7 @@ from harness.closedloop.sensors import Sensors, SensorConfig
 from harness.closedloop.vehicle import Vehicle, VehicleParams
 from harness.config import MODE_IMU, EstimatorConfig
 from harness.device.channel import DeviceChannel, as_channel
-from harness.errors import DeviceError, DeviceTimeout
+from harness.errors import DeviceError, DeviceTimeout, UsageError
 from harness.flight.arena import Arena
 from harness.flight.measurement_errors import SimConfig
 from protocol import messages as m
@@ -52,18 +52,18 @@ class LoopConfig:
 
     def validate(self) -> None:
         if self.pacing not in PACINGS:
-            raise ValueError(f"pacing must be one of {PACINGS}, got {self.pacing!r}")
+            raise UsageError(f"pacing must be one of {PACINGS}, got {self.pacing!r}")
         if not (0 < self.physics_dt <= self.control_dt):
-            raise ValueError("need 0 < physics_dt <= control_dt")
+            raise UsageError("need 0 < physics_dt <= control_dt")
         ratio = self.control_dt / self.physics_dt
         if self.imu_every < 1 or round(ratio) % self.imu_every:
-            raise ValueError("imu_every must divide the physics steps per control step")
+            raise UsageError("imu_every must divide the physics steps per control step")
         if abs(ratio - round(ratio)) > 1e-9:
-            raise ValueError("control_dt must be a whole number of physics steps")
+            raise UsageError("control_dt must be a whole number of physics steps")
         if round(self.control_dt * 1e6) % round(self.physics_dt * 1e6):
-            raise ValueError("control_dt and physics_dt must be whole microseconds")
+            raise UsageError("control_dt and physics_dt must be whole microseconds")
         if not self.speed > 0 or not self.timeout_s > 0:
-            raise ValueError("speed and timeout_s must be > 0")
+            raise UsageError("speed and timeout_s must be > 0")
 
 
 @dataclass
@@ -174,7 +174,7 @@ class ClosedLoop:
         sens = Sensors(sensors_cfg, sim, arena, seed, lp.physics_dt * lp.imu_every)
         cfg = est_cfg.with_init(start[0], start[1], vehicle.ground_z)
         if cfg.mode != MODE_IMU:
-            raise ValueError("the closed loop needs the IMU estimator mode (the controller uses the attitude)")
+            raise UsageError("the closed loop needs the IMU estimator mode (the controller uses the attitude)")
         n = len(plan.t)
         log = _empty_log(n)
         statuses: dict[str, int] = {}

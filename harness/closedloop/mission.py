@@ -13,11 +13,12 @@ import numpy as np
 
 from harness.flight.arena import Arena
 from harness.flight.trajectory import Trajectory, circle_path, compose_flight, sample
+from harness.errors import InputError
 
 MISSIONS = ("hover", "circle", "circle-z")
 
 
-class MissionError(ValueError):
+class MissionError(InputError):
     """An impossible mission (unknown name, non-positive durations, leaves the arena)."""
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from harness.errors import UsageError
 from harness.flight.arena import Arena
 from harness.flight.measurement_errors import HardwareParams, ImuConfig, SimConfig, hardware_params
 from harness.flight.data import KIND_TDOA, KIND_TWR
@@ -56,7 +57,7 @@ class LinkModel:
     def __init__(self, cfg: SimConfig, arena: Arena) -> None:
         anchors = arena.anchors
         if anchors.orientations is None:
-            raise ValueError("the realistic error model needs anchor orientations (Anchors.orientations)")
+            raise UsageError("the realistic error model needs anchor orientations (Anchors.orientations)")
         self.cfg = cfg
         self.hw: HardwareParams = hardware_params(cfg.antenna, anchors.ids)
         self.pos = {int(i): tuple(float(v) for v in anchors.positions[k]) for k, i in enumerate(anchors.ids)}
@@ -112,14 +113,14 @@ class SensorConfig:
 
     def validate(self) -> None:
         if self.mode not in ("twr", "tdoa"):
-            raise ValueError(f"sensor mode must be 'twr' or 'tdoa', got {self.mode!r}")
+            raise UsageError(f"sensor mode must be 'twr' or 'tdoa', got {self.mode!r}")
         if self.noise not in NOISE_KINDS:
-            raise ValueError(f"noise must be one of {NOISE_KINDS}, got {self.noise!r}")
+            raise UsageError(f"noise must be one of {NOISE_KINDS}, got {self.noise!r}")
         rate = self.uwb_rate()
         if not 1.0 <= rate <= 5000.0:
-            raise ValueError(f"UWB rate must be in [1, 5000] Hz, got {rate}")
+            raise UsageError(f"UWB rate must be in [1, 5000] Hz, got {rate}")
         if not (self.noise_std >= 0.0 and math.isfinite(self.noise_std)):
-            raise ValueError(f"noise_std must be >= 0, got {self.noise_std}")
+            raise UsageError(f"noise_std must be >= 0, got {self.noise_std}")
 
     def uwb_rate(self) -> float:
         return float(self.rate_hz) if self.rate_hz is not None else (200.0 if self.mode == "twr" else 400.0)

@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from harness.errors import UsageError
+
 GRAVITY = 9.81
 
 
@@ -37,14 +39,14 @@ class VehicleParams:
 
     def validate(self) -> None:
         if not (0.01 <= self.mass <= 0.1):
-            raise ValueError(f"vehicle mass {self.mass} kg is outside 0.01..0.1")
+            raise UsageError(f"vehicle mass {self.mass} kg is outside 0.01..0.1")
         if 4 * self.f_max <= self.mass * GRAVITY:
-            raise ValueError(f"4 x f_max = {4 * self.f_max:.3f} N cannot lift {self.mass} kg")
+            raise UsageError(f"4 x f_max = {4 * self.f_max:.3f} N cannot lift {self.mass} kg")
         for name in ("arm", "f_max", "torque_ratio", "tau_motor"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"vehicle {name} must be > 0")
+                raise UsageError(f"vehicle {name} must be > 0")
         if min(self.inertia) <= 0 or min(self.k_rate) <= 0 or min(self.drag) < 0:
-            raise ValueError("vehicle inertia and k_rate must be > 0, drag >= 0")
+            raise UsageError("vehicle inertia and k_rate must be > 0, drag >= 0")
 
 
 @dataclass

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-from harness.errors import UsageError
+from harness.errors import InputFileNotFound, UsageError
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
 if TYPE_CHECKING:
@@ -120,7 +120,7 @@ def create_device(spec: DeviceSpec) -> Device:
         from harness.firmware_cache import cached_host_firmware
         firmware = cached_host_firmware()
     if kind.firmware is not None and not firmware.is_file():
-        raise FileNotFoundError(kind.missing_firmware.format(path=firmware))
+        raise InputFileNotFound(kind.missing_firmware.format(path=firmware))
     return kind.build(spec, firmware)
 
 

@@ -11,6 +11,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
+from harness.errors import InputError
 from protocol.messages import MeasKind
 
 KIND_TWR = int(MeasKind.TWR)     # protocol enum meas_kind, as plain ints
@@ -40,7 +41,7 @@ def merge_order(times: Mapping[Source, np.ndarray]) -> tuple[np.ndarray, np.ndar
     return t, source, np.lexsort((rank, t))
 
 
-class FlightError(ValueError):
+class FlightError(InputError):
     """A flight is inconsistent (shapes, ordering, unknown anchors)."""
 
 

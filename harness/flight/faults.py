@@ -9,6 +9,7 @@ from typing import Iterator
 
 import numpy as np
 
+from harness.errors import UsageError
 from harness.flight.chunked import IMU_RATE_HZ, SimPlan
 from harness.flight.data import KIND_TWR, Flight, FlightError
 
@@ -27,12 +28,12 @@ class FlightFaults:
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.nlos_fraction <= 1.0 or not 0.0 <= self.imu_glitch_rate <= 1.0:
-            raise ValueError("nlos_fraction and imu_glitch_rate must be within [0, 1]")
+            raise UsageError("nlos_fraction and imu_glitch_rate must be within [0, 1]")
         lo, hi = self.nlos_bias_m
         if not 0.0 <= lo <= hi:
-            raise ValueError(f"nlos_bias_m must be 0 <= lo <= hi, got {self.nlos_bias_m}")
+            raise UsageError(f"nlos_bias_m must be 0 <= lo <= hi, got {self.nlos_bias_m}")
         if self.outage_len_s < 0:
-            raise ValueError("outage_len_s must be >= 0")
+            raise UsageError("outage_len_s must be >= 0")
 
 
 @dataclass

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.errors import InputError, InputFileNotFound
 from harness.options import add_recording_read_options
 from harness.flight.formats.anchors import (load_anchor_yaml, load_anchors, load_anchors_csv, load_survey_npz,
                                             load_survey_txt)
@@ -63,7 +64,7 @@ def load_recording(path: Path | str, anchors: AnchorsArg = None, *, constellatio
 def _load(path: Path, anchors: AnchorsArg, constellation: int | None,
           anchor_offset: tuple[float, float, float] | str | None, usd: UsdOptions) -> Flight:
     if not path.exists():
-        raise FileNotFoundError(f"recording {path} not found")
+        raise InputFileNotFound(f"recording {path} not found")
     if path.is_file() and is_cf_usd(path):
         return load_cf_usd(path, _usd_anchors(anchors, path, constellation), usd)
     if path.is_dir():
@@ -102,13 +103,13 @@ def time_slice(flight: Flight, start_s: float, end_s: float) -> Flight:
     (short test replays, train/evaluation splits). Truth keeps one sample beyond each end so it still
     interpolates over the whole slice."""
     if not end_s > start_s:
-        raise ValueError(f"time_slice needs end_s > start_s, got {start_s}, {end_s}")
+        raise InputError(f"time_slice needs end_s > start_s, got {start_s}, {end_s}")
     t0 = int(flight.uwb.t_us[0]) if len(flight.uwb) else 0
     lo, hi = t0 + int(round(start_s * 1e6)), t0 + int(round(end_s * 1e6))
     u = flight.uwb
     m = (u.t_us >= lo) & (u.t_us < hi)
     if not m.any():
-        raise ValueError(f"{flight.name}: no UWB measurement between {start_s} s and {end_s} s")
+        raise InputError(f"{flight.name}: no UWB measurement between {start_s} s and {end_s} s")
     uwb = replace(u, t_us=u.t_us[m], anchor_a=u.anchor_a[m], anchor_b=u.anchor_b[m], value=u.value[m],
                   true_value=u.true_value[m] if u.true_value is not None else None)
     tr = flight.truth
@@ -204,7 +205,7 @@ def error_summary(flight: Flight, core_m: float = 1.0) -> dict[str, object]:
     `core` statistics use |error| < core_m (gross outliers are counted, not averaged)."""
     u = flight.uwb
     if u.true_value is None:
-        raise ValueError(f"{flight.name}: no true_value, no error statistics")
+        raise InputError(f"{flight.name}: no true_value, no error statistics")
     e = u.value - u.true_value
     keys = u.anchor_a if u.kind == KIND_TWR else u.anchor_a * 1000 + u.anchor_b
     groups = []

@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Callable, Union
 
 import numpy as np
 
+from harness.errors import InputError
 from harness.flight.data import KIND_TDOA, KIND_TWR
 from harness.flight.trajectory import quat_to_rot
 
@@ -139,7 +140,7 @@ def sim_config(profile: str = "los") -> SimConfig:
         return SimConfig(name="nlos", nlos=NlosConfig(p_base=0.005, p_ground=0.02, mean_m=0.3, p_block=1.0,
                                                       block_delay_m=0.15, block_mean_m=0.15),
                          tdoa_std=0.06, twr_std=0.045, obstacles=True)
-    raise ValueError(f"unknown simulator profile {profile!r}; choose one of {', '.join(PROFILES)}")
+    raise InputError(f"unknown simulator profile {profile!r}; choose one of {', '.join(PROFILES)}")
 
 
 # --------------------------------------------------------------------------------- bias model
@@ -234,7 +235,7 @@ def uwb_errors(cfg: SimConfig, kind: int, arena: Arena, tag_pos: np.ndarray, tag
     """Errors of each measurement (TWR: link to anchor a; TDoA: value d_B - d_A)."""
     anchors = arena.anchors
     if anchors.orientations is None:
-        raise ValueError("the realistic error model needs anchor orientations (Anchors.orientations)")
+        raise InputError("the realistic error model needs anchor orientations (Anchors.orientations)")
     hw = hardware_params(cfg.antenna, anchors.ids)
     idx = {int(i): k for k, i in enumerate(anchors.ids)}
     ka = np.array([idx[int(i)] for i in a_ids], dtype=np.int64)

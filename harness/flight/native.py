@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.errors import InputFileNotFound
 from harness.flight.formats.common import RecordingError
 from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
 
@@ -104,7 +105,7 @@ def load_flight(path: Path | str) -> Flight:
     """Read a native recording; every malformation is a RecordingError naming the file and the member."""
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"recording {path} not found")
+        raise InputFileNotFound(f"recording {path} not found")
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}

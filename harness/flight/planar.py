@@ -12,6 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from harness.errors import UsageError
 from harness.flight.data import Flight, HeightStream
 
 DEFAULT_HEIGHT_STD = 0.05
@@ -24,16 +25,16 @@ def parse_height(text: str) -> float | str:
     try:
         z = float(text)
     except ValueError:
-        raise ValueError(f"--height {text!r}: expected a height in metres or 'truth'") from None
+        raise UsageError(f"--height {text!r}: expected a height in metres or 'truth'") from None
     if not np.isfinite(z) or abs(z) > 1e4:
-        raise ValueError(f"--height {text!r}: expected a finite height in metres (|z| <= 10 km)")
+        raise UsageError(f"--height {text!r}: expected a finite height in metres (|z| <= 10 km)")
     return z
 
 
 def with_height(flight: Flight, height: float | str, std: float = DEFAULT_HEIGHT_STD) -> Flight:
     """The flight with one HEIGHT pseudo-measurement at each UWB measurement time."""
     if not (np.isfinite(std) and 0 < std <= 1000):
-        raise ValueError(f"--height-std must be in (0, 1000] m, got {std}")
+        raise UsageError(f"--height-std must be in (0, 1000] m, got {std}")
     t = flight.uwb.t_us.astype(np.int64)
     if height == "truth":
         z = flight.truth.position_at(t)[:, 2]

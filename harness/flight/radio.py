@@ -3,6 +3,7 @@ timestamp level), recorded TDoA flights through the packet synthesis of radio_re
 
 from __future__ import annotations
 
+from harness.errors import UsageError
 from harness.flight.measurement_errors import sim_config
 from harness.flight.data import Flight
 from harness.flight.radio_replay import RadioReplayError, radio_from_recording
@@ -13,11 +14,11 @@ def radio_level(flight: Flight, protocol: str, seed: int = 1, loss: float = 0.0)
     """The flight with its radio stream (`Flight.radio`) and, for a simulated flight, the matching
     measurement-level stream in `uwb` (same pairs, times and link errors)."""
     if protocol not in PROTOCOLS:
-        raise ValueError(f"--radio must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+        raise UsageError(f"--radio must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
     if flight.meta.get("source") == "simulator":
         noise = flight.meta.get("noise")
         if noise == "gaussian":
-            raise ValueError("radio level simulates the realistic error model (or none), not gaussian noise")
+            raise UsageError("radio level simulates the realistic error model (or none), not gaussian noise")
         sim = sim_config(str(flight.meta.get("profile", "los"))) if noise == "realistic" else None
         return simulate_radio(flight, RadioConfig(protocol=protocol, seed=seed, loss=loss), sim)
     if loss:

@@ -7,10 +7,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from harness.errors import InputError
+
 PROTOCOLS = ("tdoa2", "tdoa3")
 
 
-class RadioSimError(ValueError):
+class RadioSimError(InputError):
     """A radio simulation was asked for something it cannot produce (ids, options)."""
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from harness.flight.data import KIND_TDOA, Flight, RadioStream
 from harness.flight.radio_packets import ANCHOR_ADDR_BASE, PAYLOAD_MAX, RemoteInfo, tdoa2_payload, tdoa3_payload
 from harness.twin.tdoa_engine import METRES_PER_TICK, TS_FREQ
+from harness.errors import InputError
 
 MASK32 = 0xFFFFFFFF
 MASK40 = 0xFFFFFFFFFF
@@ -25,7 +26,7 @@ TOF_TICKS = 33000       # anchor-anchor ToF as reported (antenna delay included)
 RX_OFFSET = 40000       # tag RX stamp - TX stamp (virtual distance + antenna delay)
 
 
-class RadioReplayError(ValueError):
+class RadioReplayError(InputError):
     pass
 
 

@@ -23,11 +23,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from harness.flight.data import KIND_TWR, Flight
+from harness.errors import InputError
 
 FORMAT = "uwb-hil range offset 1"
 
 
-class RangeOffsetError(ValueError):
+class RangeOffsetError(InputError):
     """A calibration that cannot be fitted, read or applied."""
 
 

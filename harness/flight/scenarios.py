@@ -26,6 +26,7 @@ from harness.flight.chunked import IMU_RATE_HZ, SimPlan
 from harness.flight.measurement_errors import SimConfig, sim_config
 from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight
 from harness.flight.trajectory import Trajectory, circle_path, compose_flight, random_path
+from harness.errors import InputError
 
 SCENARIOS = ("circle", "circle-z", "random", "spin", "hover")
 NOISE_KINDS = ("none", "gaussian", "realistic")
@@ -33,7 +34,7 @@ MODES = ("twr", "tdoa", "tdoa2", "tdoa3")
 
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """Unknown scenario, mode, noise kind or option."""
 
 

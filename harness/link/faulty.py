@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.errors import UsageError
 from harness.link.base import DEFAULT_READ_SIZE, Link
 from protocol import messages as m
 from protocol.cobs import CobsError, cobs_decode
@@ -54,11 +55,11 @@ class FaultRates:
                      "stall"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
-                raise ValueError(f"fault rate {name} must be within [0, 1], got {value}")
+                raise UsageError(f"fault rate {name} must be within [0, 1], got {value}")
         if self.garbage_max < 1:
-            raise ValueError("garbage_max must be >= 1")
+            raise UsageError("garbage_max must be >= 1")
         if not 0.0 <= self.stall_s <= 10.0:
-            raise ValueError("stall_s must be within [0, 10] s")
+            raise UsageError("stall_s must be within [0, 10] s")
 
     @property
     def any(self) -> bool:

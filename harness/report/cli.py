@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from harness.errors import UsageError
 from harness.report import jsonsafe
 
 
@@ -66,7 +67,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         write_report(dirs[0], as_json=args.json)
         return 0
     if not args.out:
-        raise ValueError("several campaign directories are merged: give --out MERGED_DIR")
+        raise UsageError("several campaign directories are merged: give --out MERGED_DIR")
     from harness.campaign.merge import merge_shards
     root = merge_shards(dirs, Path(args.out))
     print(f"merged {len(dirs)} shard directories into {root}", file=sys.stderr)

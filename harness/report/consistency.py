@@ -15,6 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from harness.errors import InputError
 from harness.report.chi2 import chi2_quantile
 from harness.stream.results_file import OUTCOME_RESULT
 
@@ -61,14 +62,14 @@ def monte_carlo_nees(nees_runs: Sequence[np.ndarray], skip: int = 0) -> NeesSumm
     """Average NEES over runs epoch by epoch (runs truncated to the shortest; the first `skip` epochs
     (convergence) left out); epochs where any run has no RESULT are dropped."""
     if not nees_runs:
-        raise ValueError("no runs")
+        raise InputError("no runs")
     n = min(len(r) for r in nees_runs)
     if n <= skip:
-        raise ValueError(f"runs have {n} epochs, fewer than skip={skip}")
+        raise InputError(f"runs have {n} epochs, fewer than skip={skip}")
     mat = np.stack([np.asarray(r[:n], dtype=np.float64) for r in nees_runs])[:, skip:]
     mat = mat[:, np.all(np.isfinite(mat), axis=0)]
     if mat.shape[1] == 0:
-        raise ValueError("no epoch with a RESULT in every run")
+        raise InputError("no epoch with a RESULT in every run")
     runs = mat.shape[0]
     avg = mat.mean(axis=0)
     lo = chi2_quantile(0.025, DOF * runs) / runs

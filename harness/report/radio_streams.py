@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.config import STAGE_ROBUST_UPDATE
+from harness.errors import InputError
 from harness.flight.data import Flight
 from harness.stream.results_file import OUTCOME_RESULT
 from harness.stream.streamer import RunResult
@@ -66,7 +67,7 @@ def twin_stream(flight: Flight) -> TwinStream:
     """The engine twin over the flight's packets, as the firmware processes them."""
     r = flight.radio
     if r is None:
-        raise ValueError(f"flight {flight.name} has no radio stream")
+        raise InputError(f"flight {flight.name} has no radio stream")
     payloads = [bytes(r.payload[k, :int(r.length[k])]) for k in range(len(r))]
     _, out = replay([int(v) for v in r.t_us], [int(v) for v in r.rx_ts], [int(v) for v in r.src_addr], payloads)
     meas: list[Measurement] = [mm for _, mm in out if mm is not None]

@@ -22,11 +22,12 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+from harness.biasnet.registry import RECORDED_MODELS
 from harness.paths import REPO_ROOT
 from harness.paths import shared_data_dir
 
 MAX_RMSE = 2.0
-UTIL_MODEL = REPO_ROOT / "firmware_sim" / "models" / "util_tdoa_pos.npz"
+UTIL_MODEL = RECORDED_MODELS["util"].path
 
 
 @dataclass(frozen=True)

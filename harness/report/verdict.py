@@ -31,10 +31,12 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Collection, Mapping
 
+from harness.errors import InputError
+
 DEFAULT_VDOP_THRESHOLD = 5.0
 
 
-class CriteriaError(ValueError):
+class CriteriaError(InputError):
     """A criterion is malformed (bad value, unknown key, unreadable file)."""
 
 

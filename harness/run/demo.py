@@ -6,11 +6,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from harness.config import PRESETS, EstimatorConfig
 from harness.flight.data import Flight
 from harness.report.summarize import summarize_run
 from harness.device.registry import DeviceSpec, open_device
-from harness.flight.run_config import config_for
+from harness.flight.run_config import run_estimator_config
 from harness.stream.streamer import Pacing, Streamer
 
 #: (mode, configurations) of the measurement-level flights, and the configurations of the radio-level ones
@@ -40,7 +39,7 @@ def run_demo(spec: DeviceSpec, flights: DemoFlights, pacing: Pacing,
         streamer = Streamer(device, timeout_s=timeout_s)
 
         def fly(flight: Flight, preset: str, mode: str, radio: bool = False) -> dict[str, Any]:
-            cfg = config_for(flight, EstimatorConfig(), stages=PRESETS[preset])
+            cfg = run_estimator_config(flight, preset)
             run = streamer.run(flight, cfg, pacing, radio=radio)
             s = summarize_run(run, flight, ident, config=preset, radio_streamer=streamer if radio else None,
                               connection=connection)

@@ -11,9 +11,9 @@ from harness.config import EstimatorConfig
 from harness.errors import ResultsFileError
 from harness.flight.data import Flight
 from harness.report.summarize import summarize_run
-from harness.run.source import RunSource, long_simulation, make_flight, make_run_flight, run_config
+from harness.run.source import RunSource, long_simulation, make_flight, make_run_flight, source_config
 from harness.device.registry import DeviceSpec, open_device
-from harness.flight.run_config import check_network_inputs
+from harness.biasnet.registry import check_network_inputs
 from harness.stream.streamer import Pacing, Streamer
 
 Progress = Callable[[int, int], None]
@@ -68,7 +68,7 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
         layouts = ident.layouts
 
         def checked_config(first: Flight) -> EstimatorConfig:
-            cfg = run_config(src, first)
+            cfg = source_config(src, first)
             if not src.force:
                 check_network_inputs(first, cfg, layouts)
             return cfg
@@ -115,7 +115,7 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
         check_source(header_src, f"{rec.path}:1: header source")
         src = RunSource.from_mapping(header_src)
         flight = make_flight(src)
-        cfg = run_config(src, flight)
+        cfg = source_config(src, flight)
         spec, want_hash = device_spec(src)
         with open_device(spec, expected_model_hash=want_hash) as device:
             ident = device.identity

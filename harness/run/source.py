@@ -10,10 +10,10 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from harness.config import PRESETS, EstimatorConfig, config_with
+from harness.config import EstimatorConfig
 from harness.errors import UsageError
 from harness.flight.data import Flight
-from harness.flight.run_config import config_for
+from harness.flight.run_config import run_estimator_config
 
 
 @dataclass(frozen=True)
@@ -104,9 +104,9 @@ def long_simulation(src: RunSource) -> Any:
     return plan_scenario(src.scenario, mode=src.mode, duration_s=src.duration, seed=src.seed)
 
 
-def run_config(src: RunSource, flight: Flight) -> EstimatorConfig:
+def source_config(src: RunSource, flight: Flight) -> EstimatorConfig:
     """The estimator configuration of a run (a resume checks the recorded one against it: whatever changes
     it must be a RunSource field)."""
-    return config_for(flight, config_with(src.set), stages=PRESETS[src.stages], uwb_only=src.uwb_only)
+    return run_estimator_config(flight, src.stages, src.set, uwb_only=src.uwb_only)
 
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from harness.errors import InputError
 from harness.flight.data import KIND_TWR, Flight, Source, merge_order
 from protocol.batch import encode_rows
 from protocol import messages as m
@@ -29,7 +30,7 @@ def frame_count(flight: Flight, include_imu: bool = True, radio: bool = False) -
     be streamed so."""
     flight.validate()
     if radio and flight.radio is None:
-        raise ValueError(f"{flight.name}: no radio-level stream (simulate_radio / radio_from_recording)")
+        raise InputError(f"{flight.name}: no radio-level stream (simulate_radio / radio_from_recording)")
     n_imu = len(flight.imu) if (include_imu and flight.has_imu and flight.imu is not None) else 0
     n_uwb = len(flight.radio.t_us) if (radio and flight.radio is not None) else len(flight.uwb)
     return n_imu + n_uwb + (len(flight.height) if flight.height is not None else 0)

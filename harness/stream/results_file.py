@@ -30,7 +30,7 @@ from typing import IO, Any, Iterable
 
 import numpy as np
 
-from harness.errors import ResultsFileError
+from harness.errors import InputFileNotFound, ResultsFileError
 from protocol import messages as m
 from protocol.batch import RESULT_DTYPE
 
@@ -146,7 +146,7 @@ class RunRecords:
 
 def _open_text(path: Path, error: type[Exception]) -> IO[str]:
     if not path.is_file():
-        raise FileNotFoundError(f"results file {path} not found")
+        raise InputFileNotFound(f"results file {path} not found")
     try:
         return gzip.open(path, "rt", encoding="utf-8") if path.suffix == ".gz" else open(path, encoding="utf-8")
     except OSError as exc:
@@ -310,7 +310,7 @@ class LockedResults:
         self = cls.__new__(cls)
         self.path = Path(path)
         if not self.path.exists():
-            raise FileNotFoundError(f"results file {self.path} not found")
+            raise InputFileNotFound(f"results file {self.path} not found")
         self.fh = lock_file(self.path, "r+")
         return self
 

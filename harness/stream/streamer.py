@@ -21,7 +21,7 @@ import numpy as np
 
 from harness.config import EstimatorConfig
 from harness.device.channel import DeviceChannel, Replies, as_channel
-from harness.errors import DeviceTimeout
+from harness.errors import DeviceTimeout, UsageError
 from harness.flight.data import Flight
 from harness.stream.prepare import PreparedFlight, frame_count, prepare
 from harness.stream.results_file import (OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_NO_MEAS, OUTCOME_PENDING,
@@ -46,11 +46,11 @@ class Pacing:
 
     def __post_init__(self) -> None:
         if self.mode not in PACING_MODES:
-            raise ValueError(f"pacing mode must be one of {PACING_MODES}, got {self.mode!r}")
+            raise UsageError(f"pacing mode must be one of {PACING_MODES}, got {self.mode!r}")
         if self.window < 1:
-            raise ValueError("window must be >= 1")
+            raise UsageError("window must be >= 1")
         if not MIN_SPEED <= self.speed <= MAX_SPEED:   # also refuses nan; 1e-300 would wait for ever
-            raise ValueError(f"speed must be in [{MIN_SPEED:g}, {MAX_SPEED:g}], got {self.speed!r}")
+            raise UsageError(f"speed must be in [{MIN_SPEED:g}, {MAX_SPEED:g}], got {self.speed!r}")
 
     @property
     def in_flight(self) -> int:

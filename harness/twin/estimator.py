@@ -14,6 +14,7 @@ import numpy as np
 
 from harness.config import (MODE_IMU_THRUST, MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_BIAS_STATES, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE,
                             STAGE_NN_MONITOR, STAGE_NN_STD, STAGE_ROBUST_UPDATE, EstimatorConfig)
+from harness.errors import InputError
 from harness.flight.data import Source
 from harness.twin import gates, measurements, supervisor
 from harness.twin.bias_states import BiasStates
@@ -50,7 +51,7 @@ ERR_BAD_ANCHOR_ID = int(ErrorCode.BAD_ANCHOR_ID)
 ERR_BAD_VALUE = int(ErrorCode.BAD_VALUE)
 
 
-class TwinError(ValueError):
+class TwinError(InputError):
     """A call the firmware would refuse with ERROR ``code``; the twin's state is unchanged."""
 
     def __init__(self, code: int, message: str) -> None:

@@ -83,7 +83,7 @@ def test_campaign_runs_all_but_the_broken_run(campaign: dict[str, Any]) -> None:
     assert [f["run_id"] for f in out.failed] == [campaign["bogus"]]
     assert "not found" in out.failed[0]["error"] and BOGUS in out.failed[0]["error"]
     s = CampaignDir(campaign["root"]).read_summary(campaign["bogus"])
-    assert s is not None and s["status"] == "failed" and s["error_type"] == "FileNotFoundError"
+    assert s is not None and s["status"] == "failed" and s["error_type"] == "InputFileNotFound"
 
 
 def test_each_flight_and_firmware_group_has_its_own_worker_files(campaign: dict[str, Any]) -> None:

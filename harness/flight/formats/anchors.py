@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.errors import InputFileNotFound
 from harness.flight.formats.common import RecordingError, normalised_quats, read_csv_table
 from harness.flight.formats.yaml_lines import LineList, LineMap, YamlSyntaxError, load_yaml_lines
 from harness.flight.data import Anchors, FlightError
@@ -35,7 +36,7 @@ def load_anchors(path: Path | str, constellation: int | None = None) -> Anchors:
     constellation of a multi-constellation CSV."""
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"anchor file {path} not found")
+        raise InputFileNotFound(f"anchor file {path} not found")
     if path.is_file() and path.stat().st_size > MAX_ANCHOR_FILE_BYTES:
         raise RecordingError(f"{path.stat().st_size} bytes: too large for an anchor file (at most "
                              f"{MAX_ANCHOR_FILE_BYTES})", path=path)

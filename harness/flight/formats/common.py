@@ -15,6 +15,7 @@ from typing import IO, Iterator, Sequence
 
 import numpy as np
 
+from harness.errors import InputFileNotFound
 from harness.flight.data import Anchors, FlightError, ImuStream
 
 
@@ -153,7 +154,7 @@ def read_csv_table(path: Path, what: str) -> CsvTable:
     """Read a headed CSV file strictly. `what` names the expected content in error messages."""
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"{what} {path} not found")
+        raise InputFileNotFound(f"{what} {path} not found")
     if path.is_dir():
         raise RecordingError(f"expected a {what} file, got a directory", path=path)
     try:

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.errors import InputFileNotFound
 from harness.flight.formats.anchors import load_anchor_yaml
 from harness.flight.formats.common import (CsvTable, RecordingError, anchor_positions, check_not_backwards,
                                            distinct_poses, normalised_quats, read_csv_table, repeated_rows,
@@ -73,11 +74,11 @@ def load_rcv_twr(directory: Path, anchors: Anchors | None = None,
     `anchor_offset`: FROM_DATA_README (the data README's), a vector [m], or None (no offset)."""
     directory = Path(directory)
     if not directory.exists():
-        raise FileNotFoundError(f"recording {directory} not found")
+        raise InputFileNotFound(f"recording {directory} not found")
     if anchors is None:
         yaml = directory / "anchor.yaml"
         if not yaml.exists():
-            raise FileNotFoundError(f"anchor file {yaml} not found (an rcv_twr sequence needs anchor.yaml)")
+            raise InputFileNotFound(f"anchor file {yaml} not found (an rcv_twr sequence needs anchor.yaml)")
         anchors = load_anchor_yaml(yaml)
     if anchor_offset == FROM_DATA_README:
         offset = readme_anchor_offset(directory)

@@ -13,8 +13,10 @@ from typing import Any
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
+from harness.errors import InputError
 
-class YamlSyntaxError(ValueError):
+
+class YamlSyntaxError(InputError):
     """Not valid YAML; `line` is 1-based (None when PyYAML gives no position)."""
 
     def __init__(self, message: str, line: int | None) -> None:
