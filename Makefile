@@ -79,7 +79,7 @@ test-fuzz:
 longflight: $(STAMP) firmware
 	UWB_LONGFLIGHT_S=3600 $(PY) -m pytest -q -s tests/device/test_long_flight.py --timeout=7200
 
-test: test-c test-fuzz stm32 net-tools test-py test-board test-light-install
+test: test-c test-fuzz stm32 net-tools chromium test-py test-board test-light-install
 
 bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench
@@ -97,6 +97,12 @@ arm-tools:
 # cannot be installed (not root, no apt) those tests are skipped with the reason, `make test` goes on.
 net-tools:
 	-bash scripts/ensure_ser2net.sh
+
+# Chromium (Debian) opens the campaign report headless in tests/campaign/test_report_browser.py; when it
+# cannot be installed those tests are skipped with the reason, `make test` goes on.
+.PHONY: chromium
+chromium:
+	-bash scripts/ensure_chromium.sh
 
 stm32: arm-tools
 	$(MAKE) -C firmware_sim/stm32 fw selftest nnbench

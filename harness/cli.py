@@ -134,6 +134,11 @@ def check_header_source(src: Mapping[str, Any], where: str) -> None:
                 raise ResumeError(f"{where} {key} = {str(value)[:100]!r}: {flag} is a switch, expected true or false")
             continue
         many = isinstance(action, argparse._AppendAction)
+        if isinstance(value, tuple):                       # as RunSource.as_header gives it (JSON: a list)
+            value = list(value)
+        if not many and isinstance(value, list) and value and \
+                all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            value = ",".join(str(v) for v in value)          # a tuple option (--lever-arm x,y,z)
         if many != isinstance(value, list) or any(isinstance(v, (dict, list, bool)) for v in
                                                    (value if many else [value])):
             raise ResumeError(f"{where} {key} = {str(value)[:100]!r}: not a value {flag} takes")

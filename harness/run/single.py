@@ -114,14 +114,27 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
         # a header edited by hand passes the command line's schema and bounds before anything is built
         check_source(header_src, f"{rec.path}:1: header source")
         src = RunSource.from_mapping(header_src)
-        flight = make_flight(src)
-        cfg = source_config(src, flight)
+        plan = None if (src.radio or src.height) else long_simulation(src)
+        if plan is not None:     # a long simulated flight: resumed in slices, as it was streamed
+            from harness.stream.resume_sliced import check_plan
+            check_plan(rec, plan)
+            flight = None
+        else:
+            flight = make_flight(src)
+            cfg = source_config(src, flight)
         spec, want_hash = device_spec(src)
         with open_device(spec, expected_model_hash=want_hash) as device:
             ident = device.identity
-            check_resumable(rec, flight, cfg, ident.as_dict())
-            with _shown(progress, f"{flight.name} (resume at {rec.next_index})") as update:
-                run, info = resume_run(device, rec, flight, locked, timeout_s=timeout_s, progress=update)
+            with _shown(progress, f"{plan.name if plan else flight.name} (resume at {rec.next_index})") as update:
+                if plan is not None:
+                    from harness.stream.resume import check_device
+                    from harness.stream.resume_sliced import resume_plan
+                    check_device(rec, ident.as_dict())
+                    run, flight, info = resume_plan(device, rec, plan, lambda first: source_config(src, first), locked,
+                                                    timeout_s=timeout_s, progress=update)
+                else:
+                    check_resumable(rec, flight, cfg, ident.as_dict())
+                    run, info = resume_run(device, rec, flight, locked, timeout_s=timeout_s, progress=update)
             summary = summarize_run(run, flight, ident, config=header_src.get("stages"),
                                     connection=device.connection())
     finally:

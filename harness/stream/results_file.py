@@ -172,11 +172,15 @@ def read_run(path: Path, error: type[Exception] = ResultsFileError, columns: Ite
     path = Path(path)
     cols = tuple(dict.fromkeys(("index", *columns)))
     values: dict[str, list[Any]] = {c: [] for c in cols}
+    parts: dict[str, list[np.ndarray]] = {c: [] for c in cols}   # values moved into arrays every FLUSH_ROWS
+    count = 0
     header: dict[str, Any] | None = None
     run = RunRecords(path=path, header={}, columns={})
     with _open_text(path, error) as fh:
-        for lineno, line in enumerate(fh, start=1):
+        for lineno, line in enumerate(iter(lambda: fh.readline(MAX_HEADER_CHARS + 1), ""), start=1):
             where = f"{path}:{lineno}"
+            if len(line) > MAX_HEADER_CHARS:          # bounded: a file without newlines is not read whole
+                raise error(f"{where}: line longer than {MAX_HEADER_CHARS} characters (not a results file?)")
             if not line.strip():
                 continue
             try:
@@ -195,11 +199,14 @@ def read_run(path: Path, error: type[Exception] = ResultsFileError, columns: Ite
                 header = rec
             elif kind == REC_RESULT:
                 row = [_result_value(rec, c, where, error) for c in cols]
-                if row[0] != len(values["index"]):
-                    raise error(f"{where}: result index {row[0]}, expected {len(values['index'])} "
+                if row[0] != count:
+                    raise error(f"{where}: result index {row[0]}, expected {count} "
                                 "(results are written in measurement order)")
                 for c, v in zip(cols, row):
                     values[c].append(v)
+                count += 1
+                if len(values["index"]) >= FLUSH_ROWS:     # Python numbers cost ~4x an array's bytes
+                    _flush(values, parts)
             elif kind == REC_STATS:
                 run.stats = rec
             else:
@@ -211,8 +218,20 @@ def read_run(path: Path, error: type[Exception] = ResultsFileError, columns: Ite
         if key not in header:
             raise error(f"{path}:1: header field {key!r} missing")
     run.header = header
-    run.columns = {c: np.asarray(v, dtype=column_dtype(c)) for c, v in values.items()}
+    _flush(values, parts)
+    run.columns = {c: np.concatenate(p) if p else np.zeros(0, column_dtype(c)) for c, p in parts.items()}
     return run
+
+
+#: rows parsed before they move from Python lists into arrays (bounds the reader's memory)
+FLUSH_ROWS = 1 << 16
+
+
+def _flush(values: dict[str, list[Any]], parts: dict[str, list[np.ndarray]]) -> None:
+    if values and next(iter(values.values())):
+        for c, v in values.items():
+            parts[c].append(np.asarray(v, dtype=column_dtype(c)))
+            v.clear()
 
 
 def _count_results(fh: IO[str]) -> int:

@@ -187,6 +187,12 @@ def check_resumable(rec: RecordedRun, flight: Flight, config: EstimatorConfig,
                 if getattr(config, k) != v]
         raise ResumeError(f"{where}: the recorded configuration differs from the one its source gives: "
                           f"{', '.join(diff)}")
+    check_device(rec, device)
+
+
+def check_device(rec: RecordedRun, device: dict[str, Any] | None) -> None:
+    """Refuse to resume on another firmware (build, model, protocol) than the one that recorded the run."""
+    where = f"{rec.path}:1"
     want = rec.header.get("device")
     if isinstance(want, dict) and device is not None:
         diff = [f"{k} {want.get(k)!r} (this device: {device.get(k)!r})" for k in DEVICE_KEYS

@@ -266,3 +266,33 @@ def test_a_killed_harness_loses_at_most_the_line_being_written(tmp_path: Path, c
     rows, ref = _rows(path), _rows(complete)
     assert len(rows) == len(ref) and all(r[f] == q[f] for r, q in zip(rows, ref) for f in COMPARED)
     assert np.all(np.diff([r["index"] for r in rows]) == 1)
+
+
+def test_a_long_flight_resumes_in_slices_with_the_plain_runs_results(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """Above 120 s a simulated flight is streamed in 30 s slices; its resume rebuilds and replays it slice by
+    slice too (harness/stream/resume_sliced.py: the whole flight is never built) and ends with the results
+    of the uninterrupted run. The cut falls inside the third slice, which is split there."""
+    long = ["--scenario", "circle", "--mode", "twr", "--duration", "125", "--seed", "2", "--stages", "outlier"]
+    full = tmp_path / "full.jsonl"
+    assert cli.main(["run", *long, "--results", str(full), "--json"]) == 0
+    want = json.loads(capsys.readouterr().out)
+    n = want["measurements"]
+    keep = int(n * 0.55)
+    path = _cut(full, tmp_path / "p.jsonl", keep=keep)
+    rc, out, err = _resume(path, capsys)
+    assert rc == 0, err
+    got = json.loads(out)
+    k0 = got["resume"]["resumed_at"]            # the cut lines include a stats record per slice before it
+    assert keep - 5 <= k0 <= keep and got["resume"]["replayed"] == k0 and got["resume"]["appended"] == n - k0
+    assert got["accuracy"]["rmse"] == pytest.approx(want["accuracy"]["rmse"], rel=1e-6)
+    a, b = _rows(full), _rows(path)
+    assert len(a) == len(b) == n
+    for k in (0, k0 - 1, k0, n - 1):
+        assert b[k]["index"] == k and b[k]["px"] == pytest.approx(a[k]["px"], rel=1e-5, abs=1e-6)
+    # an edited recorded row inside a replayed slice is refused, the file unchanged
+    bad = _cut(full, tmp_path / "bad.jsonl", keep=keep, edit=_set(200, "px", 3.0))
+    before = bad.read_bytes()
+    rc, _, err = _resume(bad, capsys)
+    assert rc == 2 and "the replay of the recorded part differs from its records" in err, err
+    assert bad.read_bytes() == before

@@ -157,3 +157,18 @@ def test_results_target_without_newlines_is_judged_in_small_memory(tmp_path: Pat
     assert cli.main(["run", "--duration", "2", "--results", str(big)]) == 2
     assert "it is not a uwb-hil results file" in _one_error(capsys)
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000      # kB
+
+
+def test_a_results_header_source_is_checked_with_the_options_own_types() -> None:
+    """What `run --resume` applies to a header before building anything (a tuple option included)."""
+    from harness.cli import check_header_source
+    from harness.errors import ResultsFileError
+    from harness.run.source import RunSource
+    good = RunSource(recording="x.bin", lever_arm=(0.01, 0.0, 0.09), set=["std_twr=0.2"]).as_header()
+    check_header_source(good, "f:1: header source")
+    for key, value, phrase in (("lever_arm", [5.0, 0.0, 0.0], "--lever-arm must be >= -1 and <= 1 m"),
+                               ("lever_arm", {"x": 1}, "not a value --lever-arm takes"),
+                               ("seed", -1, "--seed must be >= 0"), ("radio", "tdoa9", "--radio must be one of"),
+                               ("uwb_only", 1, "--uwb-only is a switch")):
+        with pytest.raises(ResultsFileError, match=phrase):
+            check_header_source({**good, key: value}, "f:1: header source")
