@@ -19,12 +19,12 @@ help:
 	@echo "make campaign  the paper's experiments through the firmware + report (CAMPAIGN_DIR, CAMPAIGN_ARGS)"
 
 # Extras (pyproject.toml): [train] = PyTorch (uwb-hil train / models, the M4 bench's check), [test] = what
-# the test suite adds, [cluster] = Dask distributed (campaign --scheduler). constraints.txt pins torch to the
-# CPU build on disk.
+# the test suite adds, [cluster] = Dask distributed (campaign --scheduler), [farm] = labgrid (--labgrid-place).
+# constraints.txt pins torch to the CPU build on disk.
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -c constraints.txt -e '.[train,test,cluster]'
+	$(PY) -m pip install -q -c constraints.txt -e '.[train,test,cluster,farm]'
 	touch $@
 
 firmware:

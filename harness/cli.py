@@ -20,7 +20,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from harness import cli_verdict, options
 from harness.config import PRESETS
-from harness.device_args import add_device_options, device_spec, model_device_spec
+from harness.device_args import add_device_options, device_spec, labgrid_lease, model_device_spec
 from harness.errors import ResultsFileError as ResumeError, UsageError, UwbHilError, report_failure
 from harness.run.demo import DemoFlights, run_demo
 from harness.run.single import checked_results_path, resume_one, run_one
@@ -407,7 +407,8 @@ def _main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
     args.argv = argv          # what was typed: options are compared as given or not, never with their default
     try:
-        code = int(args.func(args))
+        with labgrid_lease(args):          # --labgrid-place: the place held while the command runs
+            code = int(args.func(args))
         sys.stdout.flush()       # a closed pipe shows here, inside the handlers below, not at exit
         return code
     except UwbHilError as exc:

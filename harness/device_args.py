@@ -9,6 +9,8 @@ import logging
 import sys
 from dataclasses import replace
 from pathlib import Path
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from harness import options
@@ -37,6 +39,33 @@ def add_device_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--flash-cmd", metavar="CMD",
                    help="shell command run before the device starts (e.g. flash the board: "
                         "\"st-flash write build/uwb-fw.bin 0x8000000\"); a failure stops the run")
+    add_labgrid_options(g)
+
+
+def add_labgrid_options(g: Any) -> None:
+    """--labgrid-place NAME (the board of a labgrid place, [farm] extra) and its coordinator."""
+    g.add_argument("--labgrid-place", "--uwb-labgrid-place", dest="labgrid_place", metavar="NAME", default=None,
+                   help="acquire this labgrid place and use its serial port (NetworkSerialPort, RFC 2217); "
+                        "released at the end, also on errors and Ctrl-C ([farm] extra)")
+    g.add_argument("--labgrid-coordinator", metavar="HOST:PORT", default=None,
+                   help="labgrid coordinator (default $LG_COORDINATOR, else 127.0.0.1:20408)")
+
+
+@contextmanager
+def labgrid_lease(args: argparse.Namespace) -> Iterator[None]:
+    """With --labgrid-place: the place acquired for the command's lifetime, its serial port as the command's
+    --port (a list of ports: one more board), the target serial; without it, nothing."""
+    name = getattr(args, "labgrid_place", None)
+    if not name:
+        yield
+        return
+    from harness.device.labgrid import PlaceOptions, place
+    with place(PlaceOptions(name=name, coordinator=getattr(args, "labgrid_coordinator", None))) as lease:
+        if isinstance(getattr(args, "port", None), list):
+            args.port = [*args.port, lease.url]
+        else:
+            args.port, args.target = lease.url, "serial"
+        yield
 
 
 def device_spec(args: argparse.Namespace) -> DeviceSpec:

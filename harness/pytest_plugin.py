@@ -31,17 +31,19 @@ does). Its fixtures work in any session for a test that requests them.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator, Optional, Set, Tuple
+from contextlib import ExitStack
+from typing import TYPE_CHECKING, Any, Iterator, List, Optional, Set, Tuple
 
 import pytest
 
 from harness.device.registry import (TARGET_CHOICES, TARGETS, DeviceSpec, canonical_target, create_device,
                                      default_firmware, started)
-from harness.errors import UsageError
+from harness.errors import UsageError, UwbHilError
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
 if TYPE_CHECKING:
     from harness.device.base import Device
+    from harness.device.board_list import BoardSpec
 
 SCOPES = ("session", "module", "function")
 DEFAULT_BAUD = 115200
@@ -50,6 +52,8 @@ DEFAULT_FLASH_TIMEOUT_S = 600.0
 _PORT_KEY = pytest.StashKey[Optional[str]]()
 _SUITE_PROPS_KEY = pytest.StashKey[Set[Tuple[str, str]]]()
 _ACTIVE_KEY = pytest.StashKey[bool]()
+_BOARDS_KEY = pytest.StashKey[List["BoardSpec"]]()
+_LEASE_KEY = pytest.StashKey[ExitStack]()
 
 
 # --------------------------------------------------------------------------------------- options
@@ -76,6 +80,14 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                          "(ini uwb_flash_cmd); its output goes to the log")
     group.addoption("--uwb-flash-timeout", type=float, default=None,
                     help=f"seconds the flash command may take (default {DEFAULT_FLASH_TIMEOUT_S:g})")
+    group.addoption("--uwb-hardware-map", default=None, metavar="FILE",
+                    help="board list (YAML: name, port or serial_number, target, baud per board): the device "
+                         "tests run once per board, the board's name in the test id and its identity in JUnit")
+    group.addoption("--uwb-labgrid-place", default=None, metavar="NAME",
+                    help="acquire this labgrid place for the session and test its serial port (RFC 2217); "
+                         "released at the end, also on errors and Ctrl-C ([farm] extra)")
+    group.addoption("--uwb-labgrid-coordinator", default=None, metavar="HOST:PORT",
+                    help="labgrid coordinator (default $LG_COORDINATOR, else 127.0.0.1:20408)")
     parser.addini("uwb_hil", "activate the uwb-hil plugin (report header, `hardware` marker) without a --uwb-* "
                   "option", type="bool", default=False)
     parser.addini("uwb_scope", "default of --uwb-scope", default="function")
@@ -100,6 +112,53 @@ def pytest_configure(config: pytest.Config) -> None:
         raise pytest.UsageError(f"uwb_scope must be one of {SCOPES}, got {scope!r}")
     config.stash[_PORT_KEY] = _configured_port(config)
     config.stash[_SUITE_PROPS_KEY] = set()
+    config.stash[_BOARDS_KEY] = _hardware_map(config)
+    place = config.getoption("uwb_labgrid_place")
+    if place:                     # held for the session: released in pytest_unconfigure (also after Ctrl-C)
+        from harness.device.labgrid import PlaceOptions
+        from harness.device.labgrid import place as labgrid_place
+        stack = ExitStack()
+        try:
+            lease = stack.enter_context(labgrid_place(PlaceOptions(place, config.getoption("uwb_labgrid_coordinator"))))
+        except UwbHilError as exc:
+            raise pytest.UsageError(str(exc)) from None
+        config.stash[_LEASE_KEY] = stack
+        config.stash[_PORT_KEY] = lease.url
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    stack = config.stash.get(_LEASE_KEY, None)
+    if stack is not None:
+        stack.close()
+
+
+def _hardware_map(config: pytest.Config) -> list[BoardSpec]:
+    path = config.getoption("uwb_hardware_map")
+    if not path:
+        return []
+    from harness.device.board_list import load_board_list
+    try:
+        return load_board_list(Path(path))
+    except UwbHilError as exc:
+        raise pytest.UsageError(f"--uwb-hardware-map: {exc}") from None
+
+
+def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
+    """--uwb-hardware-map: every test that uses a device runs once per board (its name in the test id)."""
+    boards = metafunc.config.stash.get(_BOARDS_KEY, [])
+    names = ("uwb_target", "uwb_port", "uwb_baud", "uwb_firmware")
+    if not boards or "uwb_device" not in metafunc.fixturenames:
+        return
+    taken = {n for m in metafunc.definition.iter_markers("parametrize") for n in _argnames(m)}
+    if taken & set(names):
+        return                        # the test chose its own device values
+    metafunc.parametrize(names, [b.fixture_values() for b in boards], ids=[b.name for b in boards], indirect=True,
+                         scope=_device_scope("uwb_device", metafunc.config))  # type: ignore[arg-type]
+
+
+def _argnames(mark: pytest.Mark) -> list[str]:
+    names = mark.args[0] if mark.args else mark.kwargs.get("argnames", "")
+    return [n.strip() for n in names.split(",")] if isinstance(names, str) else list(names)
 
 
 def _configured_port(config: pytest.Config) -> str | None:
@@ -124,7 +183,8 @@ def _device_scope(fixture_name: str, config: pytest.Config) -> str:  # noqa: ARG
 
 
 def _hardware_selected(config: pytest.Config) -> bool:
-    return bool(config.stash.get(_PORT_KEY, None)) or config.getoption("uwb_target") == "serial"
+    return (bool(config.stash.get(_PORT_KEY, None)) or config.getoption("uwb_target") == "serial"
+            or any(b.target == "serial" for b in config.stash.get(_BOARDS_KEY, [])))
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -139,6 +199,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 def pytest_report_header(config: pytest.Config) -> str | None:
     if not config.stash.get(_ACTIVE_KEY, False):
         return None
+    boards = config.stash.get(_BOARDS_KEY, [])
+    if boards:
+        return (f"uwb-hil: {len(boards)} boards (--uwb-hardware-map): "
+                + ", ".join(f"{b.name} {b.target}{' ' + b.port if b.port else ''}" for b in boards))
     port = config.stash.get(_PORT_KEY, None)
     target = canonical_target(config.getoption("uwb_target") or ("serial" if port else "host"))
     if target == "serial":
@@ -270,9 +334,22 @@ def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | 
         for key, value in device.connection().items():   # port, baud, usb_serial (when known)
             if value is not None:
                 suite_property(f"uwb_{key}", value)
+        board = _board_of(request)
+        if board is not None:        # --uwb-hardware-map: which board this test ran on, and what it is
+            suite_property(f"uwb_board_{board.name}", board.identity_text(device.identity.as_dict()))
         if uwb_flashed:
             suite_property("uwb_flash_cmd", uwb_flashed)
         yield device
+
+
+def _board_of(request: pytest.FixtureRequest) -> BoardSpec | None:
+    """The --uwb-hardware-map board this test item runs on (from its device parameters)."""
+    callspec = getattr(getattr(request, "node", None), "callspec", None)
+    values = getattr(callspec, "params", {})
+    key = tuple(str(values.get(n)) for n in ("uwb_target", "uwb_port", "uwb_baud", "uwb_firmware"))
+    same = [b for b in request.config.stash.get(_BOARDS_KEY, []) if tuple(map(str, b.fixture_values())) == key]
+    ids = f"-{getattr(callspec, 'id', '')}-"
+    return next((b for b in same if f"-{b.name}-" in ids), same[0] if same else None)
 
 
 # ------------------------------------------------------------------------------------- verdicts

@@ -15,6 +15,7 @@ from harness.campaign.runner import CampaignOutcome, ExecOptions, GroupExecutor,
 from harness.campaign.boards import BoardExecutor, note_boards_in_verdict
 from harness.device.board_list import boards_from_options, check_unique, load_board_list
 from harness.device.registry import TARGET_CHOICES
+from harness.device_args import add_labgrid_options
 from harness.errors import UsageError
 from harness.campaign.store import CampaignDir
 from harness.campaign.verdict import BASELINE_CONFIG, check_judged, default_judged, judge_campaign
@@ -97,6 +98,7 @@ def add_parser(sub: Any) -> None:
     boards.add_argument("--boards", metavar="FILE", default=None,
                         help="board list (YAML: name, port or serial_number, target, baud, firmware per board)")
     boards.add_argument("--baud", type=int, default=115200, help="baud rate of --port boards")
+    add_labgrid_options(boards)
     add_verdict_options(p)
     p.set_defaults(func=cmd_campaign)
 

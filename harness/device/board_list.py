@@ -50,6 +50,19 @@ class BoardSpec:
         return DeviceSpec(target=self.target, port=self.resolved_port(), baud=self.baud, firmware=self.firmware,
                           timeout_s=timeout_s, log_dir=log_dir)
 
+    def fixture_values(self) -> tuple[str, str | None, int, str]:
+        """(target, port, baud, firmware) for the pytest plugin's device fixtures."""
+        from harness.device.registry import default_firmware
+        fw = self.firmware if self.firmware is not None else default_firmware(self.target)
+        return self.target, self.resolved_port(), self.baud, str(fw)
+
+    def identity_text(self, hello: dict[str, Any]) -> str:
+        """One line: the board and what its HELLO said (a JUnit property, a log line)."""
+        where = self.resolved_port() or self.target
+        serial = self.serial_number or (usb_serial_number(where) if self.port else None)
+        return (f"{self.target} {where}" + (f" serial {serial}" if serial else "")
+                + f" build {hello.get('build_id')} model {hello.get('model_hash')} firmware {hello.get('firmware')}")
+
     def as_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"name": self.name, "target": self.target, "port": self.port, "baud": self.baud}
         if self.serial_number:

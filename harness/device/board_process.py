@@ -74,13 +74,7 @@ class PtyBoard:
     def stop(self) -> None:
         proc, self._proc = self._proc, None
         if proc is not None:
-            if proc.poll() is None:
-                proc.terminate()
-            try:
-                proc.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            stop_process(proc)
         if self._slave is not None:
             os.close(self._slave)
             self._slave = None
@@ -123,6 +117,17 @@ class QemuBoard:
 
     def stop(self) -> None:
         self._qemu.stop()
+
+
+def stop_process(proc: subprocess.Popen[bytes], timeout_s: float = 5.0) -> None:
+    """SIGTERM, then SIGKILL if the process has not ended within `timeout_s`; reaped either way."""
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
 
 
 def start_board(board: BoardSpec, log_dir: Path) -> BoardProcess | None:
