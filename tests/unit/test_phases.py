@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,8 +17,11 @@ from harness.config import MODE_IMU, MODE_UWB_ONLY, EstimatorConfig
 from harness.flight.data import KIND_TWR, Anchors, Flight, Truth, UwbStream
 from harness.flight.trajectory import quat_to_euler
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
+from harness.report.data import CampaignData, RunMetrics
 from harness.report.metrics import accuracy_summary
 from harness.report.phases import add_phases, attitude_summary, quat_angle_deg
+from harness.report.recorded_phases import phase_table
+from harness.report.summary import accuracy_section
 from harness.report.verdict import Criteria, evaluate
 from harness.run.source import RunSource
 from harness.stream.results_file import OUTCOME_RESULT, RESULTS_DTYPE
@@ -191,3 +195,37 @@ def test_shared_log_reports_phases_and_attitude(capsys: pytest.CaptureFixture[st
     text = capsys.readouterr().out
     assert "flight phase (truth above 0.40 m)" in text and "ground phase (truth below 0.40 m)" in text
     assert "attitude error (firmware vs truth)" in text
+
+
+# ------------------------------------------------------------------------------ campaign report
+def _metrics(flight_id: str, config: str, run: RunResult, flight: Flight) -> RunMetrics:
+    """A recorded run of the campaign as the report reads it, with the phases and attitude its stored summary
+    carries (summarize_run)."""
+    acc = accuracy_with_phases(run, flight)
+    empty = np.zeros(0, np.float32)
+    return RunMetrics(run_id=f"{flight_id}-{config}", flight_id=flight_id, source="recorded", mode="tdoa",
+                      trajectory="real", seed=None, config=config, measurements=acc["n"], results=acc["n"], lost=0,
+                      refused=0, rmse=acc["rmse"], rmse_xy=acc["rmse_xy"], rmse_z=acc["rmse_z"],
+                      max_error=acc["max_error"], status_counts={}, err_t_s=empty, err_mean=empty, compute_us=empty,
+                      rtt_us=empty, kind=KIND_TWR, device_stats=None, phases=acc.get("phases"),
+                      attitude=attitude_summary(run, flight))
+
+
+def test_campaign_report_shows_the_flight_phase_and_attitude() -> None:
+    run, flight = synthetic()
+    level_run, level_flight = synthetic(tag_low=False)
+    runs = [_metrics("0425-traj3", cfg, run, flight) for cfg in ("outlier", "outlier+nn")]
+    runs.append(_metrics("sim-like", "outlier", level_run, level_flight))
+    data = CampaignData(root=Path("."), manifest={}, runs=runs, failures=[], missing=[], devices=[])
+    rows = {f["flight_id"]: f for f in accuracy_section(data)["recorded"]["flights"]}
+    real = rows["0425-traj3"]
+    assert real["rmse_flight_phase"]["outlier+nn"] == pytest.approx(np.linalg.norm(FLIGHT_ERR), abs=1e-5)
+    assert real["rmse_ground_phase"]["outlier"] == pytest.approx(1.5, abs=1e-5)
+    assert real["attitude_flight_phase"]["outlier+nn"]["angle_p50_deg"] == pytest.approx(ROLL_OFFSET_DEG, abs=1e-3)
+    assert "rmse_flight_phase" not in rows["sim-like"]             # one phase: nothing to split
+    table = phase_table(list(rows.values()))
+    assert table is not None and table.headers[-1] == "attitude error p50 / p95 [deg] in flight (outlier+nn)"
+    by_flight = {r[0]: r for r in table.rows}
+    assert by_flight["0425-traj3"][1:] == ["0.224 / 1.500", "0.224 / 1.500", "3.0 / 3.0"]
+    assert by_flight["sim-like"][1:] == ["- / -", "- / -", "- / -"]    # only an attitude error (in another config)
+    assert phase_table([{"flight_id": "x", "rmse_outlier": 0.3}]) is None
