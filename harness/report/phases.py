@@ -91,18 +91,33 @@ def attitude_stats(angle: np.ndarray, euler: np.ndarray) -> dict[str, Any]:
     return out
 
 
+def attitude_errors(run: RunResult, flight: Flight,
+                    block: int = 1 << 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t_us, total angle [deg], (N, 3) roll/pitch/yaw errors [deg]) of every RESULT with a finite, non-zero
+    quaternion; in blocks of rows, so a 1-hour run's summary holds no (N, 4) temporaries."""
+    res = run.results
+    idx = np.flatnonzero(res["outcome"] == OUTCOME_RESULT)
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    for i in range(0, len(idx), block):
+        rows = idx[i:i + block]
+        q_est = np.stack([res[k][rows] for k in ("qw", "qx", "qy", "qz")], axis=1).astype(np.float64)
+        good = np.all(np.isfinite(q_est), axis=1) & (np.linalg.norm(q_est, axis=1) > 0)
+        t_us, q_est = res["t_us"][rows][good].astype(np.int64), q_est[good]
+        q_true = flight.truth.quat_at(t_us)
+        parts.append((t_us, quat_angle_deg(q_true, q_est), euler_errors_deg(q_true, q_est)))
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
+    return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+            np.concatenate([p[2] for p in parts]))
+
+
 def attitude_summary(run: RunResult, flight: Flight,
                      flight_above: float = DEFAULT_FLIGHT_ABOVE_M) -> dict[str, Any] | None:
     """The firmware's attitude (RESULT qw..qz) against the truth's, over the run and (with a ground phase)
     per phase; None when the truth has no attitude or the replay is UWB-only (no attitude estimated)."""
     if flight.truth.quat is None or run.config.mode == MODE_UWB_ONLY:
         return None
-    res = run.results[run.results["outcome"] == OUTCOME_RESULT]
-    q_est = np.stack([res[k] for k in ("qw", "qx", "qy", "qz")], axis=1).astype(np.float64)
-    finite = np.all(np.isfinite(q_est), axis=1) & (np.linalg.norm(q_est, axis=1) > 0)
-    t_us = res["t_us"][finite].astype(np.int64)
-    q_est, q_true = q_est[finite], flight.truth.quat_at(t_us)
-    angle, euler = quat_angle_deg(q_true, q_est), euler_errors_deg(q_true, q_est)
+    t_us, angle, euler = attitude_errors(run, flight)
     out = attitude_stats(angle, euler)
     ground = on_ground(flight, t_us, flight_above)
     if np.any(ground):

@@ -19,7 +19,7 @@ from harness.flight.trajectory import quat_to_euler
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.report.data import CampaignData, RunMetrics
 from harness.report.metrics import accuracy_summary
-from harness.report.phases import add_phases, attitude_summary, quat_angle_deg
+from harness.report.phases import add_phases, attitude_errors, attitude_summary, quat_angle_deg
 from harness.report.recorded_phases import phase_table
 from harness.report.summary import accuracy_section
 from harness.report.verdict import Criteria, evaluate
@@ -146,6 +146,8 @@ def test_attitude_error_of_a_known_rotation_offset() -> None:
     share = np.count_nonzero(GROUND) / len(T_US)
     assert att["yaw_mean_deg"] == pytest.approx(share * YAW_OFFSET_DEG, abs=1e-3)
     assert np.degrees(quat_to_euler(flight.truth.quat[-1:]))[0, 2] == pytest.approx(175.0)
+    for whole, blocked in zip(attitude_errors(run, flight), attitude_errors(run, flight, block=7)):
+        np.testing.assert_array_equal(whole, blocked)             # computed in blocks of rows: same values
 
 
 def test_attitude_angle_small_and_opposite_signs() -> None:
