@@ -230,10 +230,12 @@ def _phase_noted(checks: list[Check], summary: Mapping[str, Any]) -> list[Check]
     scope = f"flight phase, truth above {above} m: {fl.get('n', 0)} of {acc.get('n', 0)} measurements"
     out = [replace(c, detail=f"{scope}; {c.detail}" if c.detail else scope) if c.name in ("rmse", "rmse_xy") else c
            for c in checks]
+    m = {k: "n/a" if not isinstance(v, (int, float)) or not math.isfinite(v)
+         else format(v, "+.3f" if k == "z_mean_error" else ".3f") for k, v in gr.items()}
     out.append(Check("ground_phase", None, gr.get("rmse"), True,
-                     f"{gr.get('n', 0)} measurements with truth below {above} m: RMSE {_fmt(gr.get('rmse'))} m "
-                     f"(xy {_fmt(gr.get('rmse_xy'))}, z {_fmt(gr.get('rmse_z'))}, z mean error "
-                     f"{_fmt(gr.get('z_mean_error'))}): reported, not judged"))
+                     f"{gr.get('n', 0)} measurements with truth below {above} m: RMSE {m.get('rmse')} m (xy "
+                     f"{m.get('rmse_xy')}, z {m.get('rmse_z')}, z mean error {m.get('z_mean_error')}): reported, "
+                     "not judged"))
     return out
 
 
