@@ -22,6 +22,7 @@ from harness import cli_verdict, options
 from harness.config import PRESETS
 from harness.device_args import add_device_options, device_spec, labgrid_lease, model_device_spec
 from harness.errors import ResultsFileError as ResumeError, UsageError, UwbHilError, report_failure
+from harness.report.phases import DEFAULT_FLIGHT_ABOVE_M
 from harness.run.demo import DemoFlights, run_demo
 from harness.run.single import checked_results_path, resume_one, run_one
 from harness.run.source import RunSource
@@ -74,6 +75,7 @@ def print_run(summary: dict[str, Any]) -> None:
           f"p99 {_fmt(comp['p99'], 2)}  max {_fmt(comp['max'], 2)}  over budget {comp['deadline_misses']}")
     print(f"  round trip [us]: n {rtt['n']}  p50 {_fmt(rtt['p50'], 1)}  p90 {_fmt(rtt['p90'], 1)}  "
           f"p99 {_fmt(rtt['p99'], 1)}  max {_fmt(rtt['max'], 1)}  " + cli_verdict.rtt_misses_text(rtt))
+    cli_verdict.print_phases(summary)
     cli_verdict.print_health(summary)
     cal = summary.get("range_offset")
     if cal:
@@ -263,6 +265,11 @@ def _add_flight_options(p: argparse.ArgumentParser, recorded: bool = True) -> No
     g.add_argument("--force", action="store_true",
                    help="replay a recording that fails the plausibility checks (units, anchor geometry, gross "
                         "errors, time overlap), or with a network that needs an attitude the replay lacks")
+    g.add_argument("--flight-above", type=options.number(float, -1000.0, 1000.0, unit=" m"),
+                   default=DEFAULT_FLIGHT_ABOVE_M, metavar="Z",
+                   help="a measurement whose true tag height is below Z [m] (anchors' frame) is in the ground phase: "
+                        "reported apart, and --max-rmse / --max-rmse-xy judge the flight phase (default "
+                        f"{DEFAULT_FLIGHT_ABOVE_M:g}; a run that never goes below has one phase)")
 
 
 def _add_pacing_options(p: argparse.ArgumentParser) -> None:

@@ -9,6 +9,7 @@ Exit codes (README "Verdicts and exit codes"): 0 pass, 1 verdict failed, 2 usage
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Any, Callable, Collection
@@ -108,6 +109,36 @@ def print_health(summary: dict[str, Any]) -> None:
           + f", {h.get('non_finite', 0)} non-finite, {h.get('not_pd', 0)} not positive definite"
           + (f"; {h['gap_restarts']} restarts after measurement gaps (longest {_g(h.get('longest_gap_s'))} s, "
              "not divergences)" if h.get("gap_restarts") else ""))
+
+
+def print_phases(summary: dict[str, Any]) -> None:
+    """A line per phase (flight, ground) when the run has a ground phase, and the attitude error's lines
+    (the whole run, then per phase)."""
+    acc, att = summary.get("accuracy") or {}, summary.get("attitude") or {}
+    phases = acc.get("phases") or {}
+    above = _g(acc.get("flight_above"))
+    for name, where, judged in (("flight", "above", "judged by the verdict"), ("ground", "below", "not judged")):
+        if name in phases:
+            p = phases[name]
+            print(f"  {name} phase (truth {where} {above} m): n {p['n']} of {acc.get('n')}, RMSE {_m(p['rmse'])} m "
+                  f"(xy {_m(p['rmse_xy'])}, z {_m(p['rmse_z'])}, z mean error {_m(p['z_mean_error'], '+.3f')}, "
+                  f"max {_m(p['max_error'])}); {judged}")
+    if att:
+        print("  attitude error (firmware vs truth) " + _attitude_text(att))
+        for name, a in (att.get("phases") or {}).items():
+            print(f"    {name} phase: " + _attitude_text(a))
+
+
+def _attitude_text(a: dict[str, Any]) -> str:
+    axes = ", ".join(f"{k} {_m(a[f'{k}_mean_deg'], '+.2f')}/{_m(a[f'{k}_rms_deg'], '.2f')}"
+                     for k in ("roll", "pitch", "yaw"))
+    return (f"n {a['n']}: angle p50 {_m(a['angle_p50_deg'], '.2f')} deg, p95 {_m(a['angle_p95_deg'], '.2f')} deg; "
+            f"mean/RMS [deg] {axes}")
+
+
+def _m(x: Any, spec: str = ".3f") -> str:
+    """A figure for a text line: '-' when missing or not finite."""
+    return "-" if x is None or not math.isfinite(x) else format(x, spec)
 
 
 def rtt_misses_text(rtt: dict[str, Any]) -> str:

@@ -58,6 +58,10 @@ class RunMetrics:
     nees: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float64))
     nees_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float64))
     radio: dict[str, Any] | None = None   # the run summary's radio section (role "radio": packets, drops, skew)
+    # the run summary's accuracy per phase ({flight, ground}, report/phases.py; None: one phase) and the
+    # firmware's attitude error against the truth (None: no attitude truth, or a UWB-only replay)
+    phases: dict[str, Any] | None = None
+    attitude: dict[str, Any] | None = None
 
     @property
     def radio_level(self) -> bool:
@@ -130,6 +134,7 @@ def position_error(res: StoredResults, flight: StoredFlight) -> tuple[np.ndarray
 
 def run_metrics(summary: dict[str, Any], res: StoredResults, flight: StoredFlight) -> RunMetrics:
     spec = summary["spec"]
+    stored = summary.get("summary") or {}      # the run summary the worker wrote (summarize_run)
     f = spec["flight"]
     c = res.columns
     ok = c["outcome"] == OUTCOME_RESULT
@@ -171,7 +176,8 @@ def run_metrics(summary: dict[str, Any], res: StoredResults, flight: StoredFligh
         pacing=str(spec.get("pacing", "windowed")),
         role=str(spec.get("role", "accuracy")),
         nees=nees_of(err, var), nees_t_s=(t - t0) * 1e-6,
-        radio=(summary.get("summary") or {}).get("radio"))
+        radio=stored.get("radio"), phases=(stored.get("accuracy") or {}).get("phases"),
+        attitude=stored.get("attitude"))
 
 
 def load_campaign(root: Path) -> CampaignData:

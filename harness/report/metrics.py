@@ -58,6 +58,7 @@ class AccuracySummary:
     rejected_kinematic: int
     rejected_chi2: int
     rejected_geometry: int
+    z_mean_error: float = float("nan")   # mean of estimate - truth along z [m] (a height bias shows here)
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
@@ -86,12 +87,11 @@ def _rows(fn: Callable[[np.ndarray], np.ndarray], err: np.ndarray, block: int = 
     return out
 
 
-def accuracy_summary(run: RunResult, flight: Flight) -> AccuracySummary:
-    _, err = position_errors(run, flight)
-    status = run.results["status"][run.results["outcome"] == OUTCOME_RESULT]
+def accuracy_of(err: np.ndarray, status: np.ndarray) -> AccuracySummary:
+    """The accuracy of these answered measurements: error vectors (estimate - truth) and RESULT statuses."""
     if len(err) == 0:
         nan = float("nan")
-        return AccuracySummary(0, nan, nan, nan, nan, 0, 0, 0, 0)
+        return AccuracySummary(0, nan, nan, nan, nan, 0, 0, 0, 0, nan)
     norm = _rows(lambda e: np.linalg.norm(e, axis=1), err)
     return AccuracySummary(
         n=len(err),
@@ -103,7 +103,13 @@ def accuracy_summary(run: RunResult, flight: Flight) -> AccuracySummary:
         rejected_kinematic=int(np.count_nonzero(status == Status.REJECTED_KINEMATIC)),
         rejected_chi2=int(np.count_nonzero(status == Status.REJECTED_CHI2)),
         rejected_geometry=int(np.count_nonzero(status == Status.REJECTED_GEOMETRY)),
+        z_mean_error=float(np.mean(err[:, 2])),
     )
+
+
+def accuracy_summary(run: RunResult, flight: Flight) -> AccuracySummary:
+    _, err = position_errors(run, flight)
+    return accuracy_of(err, run.results["status"][run.results["outcome"] == OUTCOME_RESULT])
 
 
 def health_summary(run: RunResult) -> dict[str, object]:

@@ -13,6 +13,7 @@ from harness.report import plots
 from harness.report.context import ReportContext, SectionFn
 from harness.report.data import TIME_BIN_S
 from harness.report.html import FigureRef, Section, Table
+from harness.report.recorded_phases import phase_table
 from harness.report.summary import CONFIG_KEYS, DIVERGED_RMSE_M, PAPER
 
 
@@ -136,6 +137,9 @@ def recorded(ctx: ReportContext) -> Section | None:
         row += [_f((f.get("other_configs") or {}).get(c)) for c in extra]
     sec.tables.append(Table(["flight", "no rejection", "outlier rejection", "outlier rejection + NN",
                              "change", *extra], frows, "Per flight"))
+    phases = phase_table(rec.get("flights", []))
+    if phases is not None:
+        sec.tables.append(phases)
     _other_configs_table(sec, {m: v for m, v in rec.items() if m in ("twr", "tdoa")}, "recorded")
     sec.figures += ctx.figure(plots.recorded_bars(ctx.data), "recorded_rmse", "RMSE per recorded flight.")
     sec.data = rec

@@ -8,6 +8,7 @@ from typing import Any, Protocol
 
 from harness.flight.data import Flight
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
+from harness.report.phases import DEFAULT_FLIGHT_ABOVE_M, add_phases
 from harness.stream.streamer import RunResult, Streamer
 
 
@@ -22,11 +23,14 @@ class Identity(Protocol):
 
 def summarize_run(run: RunResult, flight: Flight, identity: Identity, config: str | None = None,
                   radio_streamer: Streamer | None = None,
-                  connection: dict[str, Any] | None = None) -> dict[str, Any]:
+                  connection: dict[str, Any] | None = None,
+                  flight_above: float = DEFAULT_FLIGHT_ABOVE_M) -> dict[str, Any]:
     """The summary of one run (without a verdict). `config`: the preset or stages label the run was asked
     with; `radio_streamer`: the streamer of a radio-level run, still connected (its clocks are queried);
-    `connection`: how the device was reached (Device.connection(): port, baud, USB serial number)."""
+    `connection`: how the device was reached (Device.connection(): port, baud, USB serial number);
+    `flight_above`: truth z [m] below which a measurement is in the ground phase (report/phases.py)."""
     summary: dict[str, Any] = run_summary(run, flight, DEFAULT_BUDGET_S, cost_unit=identity.cost_unit)
+    add_phases(summary, run, flight, flight_above)
     if config is not None:
         summary["config"] = config
     summary["device"] = {**identity.as_dict(), **(connection or {})}

@@ -13,6 +13,7 @@ from harness.campaign.store import CampaignDataError, CampaignDir, read_json
 from harness.report.data import CampaignData, RunMetrics
 from harness.report.metrics import DEFAULT_BUDGET_S, latency_summary
 from harness.report.radio_level import radio_level_summary
+from harness.report.recorded_phases import phase_figures
 from protocol.messages import CostUnit, MeasKind
 
 #: Configuration -> JSON key suffix (rmse_raw, rmse_outlier, rmse_outlier_nn).
@@ -100,6 +101,7 @@ def accuracy_section(data: CampaignData) -> dict[str, Any]:
             row: dict[str, Any] = {"flight_id": fid, "mode": rs[0].mode, "trajectory": rs[0].trajectory}
             row.update({f"rmse_{CONFIG_KEYS[r.config]}": r.rmse for r in rs if r.config in CONFIG_KEYS})
             row["other_configs"] = {r.config: r.rmse for r in rs if r.config not in CONFIG_KEYS}
+            row.update(phase_figures(rs))     # real logs: flight / ground phase, attitude error
             flights.append(row)
         recorded["flights"] = flights
         out["recorded"] = recorded

@@ -21,6 +21,11 @@ of CRC, framing, length, non-finite, time-backwards, ... errors over the run; th
 sends, so a refusal is a defect, unless the run injects link faults on purpose). A restart after a gap without measurements (RESULT.flags GAP_RESTART: the
 covariance outgrew its bound while nothing was measured) is reported as the check "measurement_gaps",
 which always passes: it says the data has holes, not that the filter diverged.
+
+A run with a ground phase (accuracy.phases: measurements whose true tag height is below `--flight-above`,
+0.4 m by default; report/phases.py) has its position criteria (max_rmse, max_rmse_xy) judged on the flight
+phase, the checks' detail saying so; the ground phase is the check "ground_phase", reported and always
+passed. The health checks cover the whole run.
 """
 
 from __future__ import annotations
@@ -208,10 +213,38 @@ def observability_check(geo: Mapping[str, Any], allow_unobservable: bool = False
     return None
 
 
+def judged_accuracy(summary: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The accuracy the position criteria judge: the flight phase's when the run has a ground phase
+    (accuracy.phases, report/phases.py), else the whole run's."""
+    acc = summary.get("accuracy") or {}
+    phases = acc.get("phases")
+    return phases["flight"] if isinstance(phases, Mapping) and "flight" in phases else acc
+
+
+def _phase_noted(checks: list[Check], summary: Mapping[str, Any]) -> list[Check]:
+    """With a ground phase: the position checks say they judge the flight phase, and the check
+    "ground_phase" (always passed) reports the ground phase's accuracy, not judged."""
+    acc = summary.get("accuracy") or {}
+    phases = acc.get("phases")
+    if not isinstance(phases, Mapping) or "ground" not in phases:
+        return checks
+    above, fl, gr = _fmt(acc.get("flight_above")), phases.get("flight") or {}, phases["ground"]
+    scope = f"flight phase, truth above {above} m: {fl.get('n', 0)} of {acc.get('n', 0)} measurements"
+    out = [replace(c, detail=f"{scope}; {c.detail}" if c.detail else scope) if c.name in ("rmse", "rmse_xy") else c
+           for c in checks]
+    m = {k: "n/a" if not isinstance(v, (int, float)) or not math.isfinite(v)
+         else format(v, "+.3f" if k == "z_mean_error" else ".3f") for k, v in gr.items()}
+    out.append(Check("ground_phase", None, gr.get("rmse"), True,
+                     f"{gr.get('n', 0)} measurements with truth below {above} m: RMSE {m.get('rmse')} m (xy "
+                     f"{m.get('rmse_xy')}, z {m.get('rmse_z')}, z mean error {m.get('z_mean_error')}): reported, "
+                     "not judged"))
+    return out
+
+
 def evaluate(summary: Mapping[str, Any], criteria: Criteria = Criteria()) -> Verdict:
     """The verdict of one run summary (harness.report.metrics.run_summary) under `criteria`."""
     checks = health_checks(summary)
-    acc = summary.get("accuracy") or {}
+    acc = judged_accuracy(summary)      # the flight phase when the run has a ground phase
     geo = summary.get("geometry") or {}
     comp = summary.get("compute") or {}
     rtt = summary.get("round_trip_us") or {}
@@ -229,6 +262,7 @@ def evaluate(summary: Mapping[str, Any], criteria: Criteria = Criteria()) -> Ver
                                    f"horizontal RMSE; z RMSE {_fmt(acc.get('rmse_z'))} reported, not judged"))
     if criteria.max_rmse_xy is not None:
         checks.append(_at_most("rmse_xy", acc.get("rmse_xy"), criteria.max_rmse_xy))
+    checks = _phase_noted(checks, summary)
     if criteria.max_p99_compute_us is not None:
         checks.append(_at_most("p99_compute", comp.get("p99"), criteria.max_p99_compute_us,
                                str(summary.get("compute_unit", ""))))

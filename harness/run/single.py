@@ -89,7 +89,7 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
                 run = streamer.run(flight, cfg, pacing, results_path=results, progress=update,
                                    header_extra=header, overwrite=overwrite, radio=bool(src.radio))
         return summarize_run(run, flight, ident, config=src.stages, radio_streamer=streamer if src.radio else None,
-                             connection=device.connection())
+                             connection=device.connection(), flight_above=src.flight_above)
 
 
 def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, int | None]], timeout_s: float,
@@ -136,7 +136,7 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
                     check_resumable(rec, flight, cfg, ident.as_dict())
                     run, info = resume_run(device, rec, flight, locked, timeout_s=timeout_s, progress=update)
             summary = summarize_run(run, flight, ident, config=header_src.get("stages"),
-                                    connection=device.connection())
+                                    connection=device.connection(), flight_above=src.flight_above)
     finally:
         locked.close()
     summary["resume"] = info

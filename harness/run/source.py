@@ -14,6 +14,7 @@ from harness.config import EstimatorConfig
 from harness.errors import UsageError
 from harness.flight.data import Flight
 from harness.flight.run_config import run_estimator_config
+from harness.report.phases import DEFAULT_FLIGHT_ABOVE_M
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,7 @@ class RunSource:
     range_offset: str | None = None     # a range-offset calibration file (harness/flight/range_offset.py)
     ignore_crc: bool = False            # Crazyflie uSD logs: load despite a CRC mismatch
     lever_arm: Sequence[float] | str | None = None   # uSD logs: the tag's lever arm or its calibration file
+    flight_above: float = DEFAULT_FLIGHT_ABOVE_M   # truth z [m] below which a measurement is in the ground phase
 
     @classmethod
     def keys(cls) -> tuple[str, ...]:
