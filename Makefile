@@ -119,11 +119,14 @@ FLY_ARGS      ?=
 # The networks trained on ../shared/data are not committed: built from it when missing (seeded: the hashes in
 # firmware_sim/models/models.json come out again on the machine that wrote it, other CPUs get other weights
 # with the same held-out figures; models.json itself is left as committed).
-RECORDED_MODELS := firmware_sim/models/util_tdoa_pos.npz firmware_sim/models/rcv_twr.npz
+RECORDED_MODELS := firmware_sim/models/util_tdoa_pos.npz firmware_sim/models/rcv_twr.npz \
+                   firmware_sim/models/cf_tdoa_pose.npz
 firmware_sim/models/util_tdoa_pos.npz: | $(STAMP)
 	$(VENV)/bin/uwb-hil models --only util --keep-summary
 firmware_sim/models/rcv_twr.npz: | $(STAMP)
 	$(VENV)/bin/uwb-hil models --only rcv --keep-summary
+firmware_sim/models/cf_tdoa_pose.npz: | $(STAMP)
+	$(VENV)/bin/uwb-hil models --only cfusd --keep-summary
 
 # Every shared recording (rcv_twr 1-5, UTIL const1-3) in every configuration through `uwb-hil run
 # --max-rmse 2`: each must pass or exit non-zero naming why (docs/verdicts.md; ~5 min on 2 cores).
@@ -141,7 +144,7 @@ clean:
 	$(MAKE) -C firmware_sim clean
 
 # The shipped bias networks (firmware_sim/models/): simulated TWR/TDoA (LOS, compiled in; obstacle arena,
-# bias_model_nlos.npz), UTIL and rcv_twr; reproducible
+# bias_model_nlos.npz), UTIL, rcv_twr and the Crazyflie uSD logs (cf_tdoa_pose.npz); reproducible
 # (seeded, single-threaded, ends by early stopping). Rebuild the firmware afterwards: `make firmware`.
 .PHONY: models
 models: $(STAMP)

@@ -265,9 +265,9 @@ def add_commands(sub: Any) -> None:
 
     mo = sub.add_parser("models", help="train the shipped default networks (what `make models` runs)")
     mo.add_argument("--data", default=str(SHARED_DATA),
-                    help="the shared recordings (util/, rcv_twr/) to train on (default ../shared/data)")
+                    help="the shared recordings (util/, rcv_twr/, cf_usd/) to train on (default ../shared/data)")
     mo.add_argument("--quick", action="store_true", help="small data sets (smoke test)")
-    mo.add_argument("--only", choices=("sim", "nlos", "util", "rcv"), help="build only one of the models")
+    mo.add_argument("--only", choices=("sim", "nlos", "util", "rcv", "cfusd"), help="build only one of the models")
     mo.add_argument("--keep-summary", action="store_true",
                     help="leave firmware_sim/models/models.json as it is (only (re)build the files)")
     mo.add_argument("--json", action="store_true", help="print the models summary as JSON")

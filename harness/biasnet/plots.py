@@ -1,9 +1,11 @@
 """The paper's Fig. 5: measured error and the network's predicted bias against the azimuth of the anchor
-seen from the tag (body frame), for one anchor (pair) of a flight: a spin in place sweeps it."""
+seen from the tag (body frame), for one anchor (pair) of a flight: a spin in place sweeps it. With the
+attitude truth of a real flight (Crazyflie uSD logs), also against the anchor's elevation in the body frame."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -41,26 +43,37 @@ def azimuth_series(model: BiasModel, flight: Flight) -> dict[str, np.ndarray | s
     else:
         d_body = dp  # no attitude (e.g. the UTIL reduction): level flight, yaw 0 assumed
     az = np.degrees(np.arctan2(d_body[:, 1], d_body[:, 0]))
-    label = f"anchor {a}" if b < 0 else f"anchors {a}-{b}"
-    return {"azimuth_deg": az, "error": s.bias[m], "predicted": net.predict_batch(s.x[m]), "label": label}
+    el = np.degrees(np.arctan2(d_body[:, 2], np.hypot(d_body[:, 0], d_body[:, 1])))
+    label = f"anchor {a}" if b < 0 else f"anchor {a} (pair {a}-{b})"
+    return {"azimuth_deg": az, "elevation_deg": el, "error": s.bias[m], "predicted": net.predict_batch(s.x[m]),
+            "label": label}
 
 
-def bias_vs_azimuth(model: BiasModel, flight: Flight, path: Path, note: str = "") -> Path:
+def _panel(ax: "Any", d: dict[str, np.ndarray | str], angle: str) -> None:
+    """Measured error and predicted bias against d[angle + "_deg"] on one axis."""
+    x = np.asarray(d[f"{angle}_deg"])
+    order = np.argsort(x)
+    ax.scatter(x, np.asarray(d["error"]), s=4, alpha=0.35, color="tab:blue", label="measured error (meas - true)")
+    ax.plot(x[order], np.asarray(d["predicted"])[order], ".", ms=2.5, color="tab:red", label="network bias")
+    ax.set_xlabel(f"{angle} of {d['label']} seen from the tag, body frame [deg]")
+    ax.set_ylabel("error / bias [m]")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", markerscale=4)
+
+
+def bias_vs_azimuth(model: BiasModel, flight: Flight, path: Path, note: str = "", elevation: bool = False) -> Path:
+    """The figure as a PNG at `path`; `elevation`: a second panel against the anchor's body-frame elevation."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     d = azimuth_series(model, flight)
-    az = np.asarray(d["azimuth_deg"])
-    order = np.argsort(az)
-    fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
-    ax.scatter(az, np.asarray(d["error"]), s=4, alpha=0.35, color="tab:blue", label="measured error (meas - true)")
-    ax.plot(az[order], np.asarray(d["predicted"])[order], ".", ms=2.5, color="tab:red", label="network bias")
-    ax.set_xlabel(f"azimuth of {d['label']} seen from the tag, body frame [deg]")
-    ax.set_ylabel("error / bias [m]")
-    ax.set_title(f"{flight.name}: measured error and predicted bias vs azimuth" + (f" ({note})" if note else ""))
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right", markerscale=4)
+    angles = ("azimuth", "elevation") if elevation else ("azimuth",)
+    fig, axes = plt.subplots(1, len(angles), figsize=(8 * len(angles), 4), dpi=110, squeeze=False)
+    for ax, angle in zip(axes[0], angles):
+        _panel(ax, d, angle)
+    what = " and elevation" if elevation else ""
+    fig.suptitle(f"{flight.name}: measured error and predicted bias vs azimuth{what}" + (f" ({note})" if note else ""))
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -6,6 +6,9 @@ UTIL: train on const1/const2 trials 1-4 (tdoa2 and tdoa3 files), hold out trial 
 anchor constellation (with obstacles): the features are anchor-relative positions of anchors the network
 never saw, so it is no test of the network (the paper leaves other constellations to future work).
 rcv_twr: train on sequences 1-4, hold out sequence 5.
+Crazyflie uSD logs (cf_usd/, IMU + TDoA + pose with attitude): the line-of-sight flights of 0425 (1-8 TDoA2,
+13-18 TDoA3) minus a fixed evaluation set, flights 3 and 8 (TDoA2) and 13 and 18 (TDoA3), never trained on;
+the shelf flights of 0426 (3: TDoA2, 5: TDoA3; non-line-of-sight) are never trained on by the shipped network.
 """
 
 from __future__ import annotations
@@ -89,6 +92,37 @@ def rcv_train_dirs(data: Path) -> list[Path]:
 
 def rcv_heldout_dirs(data: Path) -> list[Path]:
     return rcv_sequences(data, (5,))
+
+
+#: Crazyflie uSD flights, relative to the data folder: line of sight (0425: flights 1-8 TDoA2, 13-18 TDoA3),
+#: the evaluation flights among them, and the shelf flights (0426, non-line-of-sight)
+CF_USD_TDOA2 = (1, 2, 3, 4, 5, 6, 7, 8)
+CF_USD_TDOA3 = (13, 14, 15, 16, 17, 18)
+CF_USD_EVAL_FLIGHTS = (3, 8, 13, 18)
+CF_USD_LOS = tuple(f"cf_usd/0425/0425-traj{n}" for n in (*CF_USD_TDOA2, *CF_USD_TDOA3))
+CF_USD_EVAL = tuple(f"cf_usd/0425/0425-traj{n}" for n in CF_USD_EVAL_FLIGHTS)
+CF_USD_SHELF = ("cf_usd/0426/0426-traj3", "cf_usd/0426/0426-traj5")
+
+
+def cf_usd_files(data: Path, rels: tuple[str, ...]) -> list[Path]:
+    return [p for p in (data / r for r in rels) if p.is_file()]
+
+
+def cf_usd_train_files(data: Path) -> list[Path]:
+    """The LOS flights minus the evaluation ones, TDoA2 and TDoA3 alternating (1, 14, 2, 15, ...): the
+    distilled ensemble's teacher k is validated on training flight k (a uSD flight is its own group)."""
+    tdoa2 = [n for n in CF_USD_TDOA2 if n not in CF_USD_EVAL_FLIGHTS]
+    tdoa3 = [n for n in CF_USD_TDOA3 if n not in CF_USD_EVAL_FLIGHTS]
+    mixed = [n for pair in zip(tdoa2, tdoa3) for n in pair] + tdoa2[len(tdoa3):] + tdoa3[len(tdoa2):]
+    return cf_usd_files(data, tuple(f"cf_usd/0425/0425-traj{n}" for n in mixed))
+
+
+def cf_usd_heldout_files(data: Path) -> list[Path]:
+    return cf_usd_files(data, CF_USD_EVAL)
+
+
+def cf_usd_shelf_files(data: Path) -> list[Path]:
+    return cf_usd_files(data, CF_USD_SHELF)
 
 
 def load_recordings(paths: list[Path], anchors: Path | None = None, check: bool = True,

@@ -38,6 +38,7 @@ class ShippedModel:
 RECORDED_MODELS: dict[str, ShippedModel] = {
     "util": ShippedModel("util_tdoa_pos", "util", KIND_TDOA, LAYOUT_TDOA_POS),
     "rcv_twr": ShippedModel("rcv_twr", "rcv_twr", KIND_TWR, LAYOUT_TWR_POSE),
+    "cf_usd": ShippedModel("cf_tdoa_pose", "cf_usd", KIND_TDOA, LAYOUT_TDOA_POSE),
 }
 
 

@@ -7,6 +7,10 @@
   trials 1-4 (the reduced data has no attitude); evaluated on trial 5.
 * ``rcv``  -> firmware_sim/models/rcv_twr.npz: TWR pose network on rcv_twr sequences 1-4, evaluated on 5.
   Both recorded networks are distilled from RECORDED_TEACHERS networks (distill.py; --quick: one network).
+* ``cfusd`` -> firmware_sim/models/cf_tdoa_pose.npz: TDoA pose network (dp_A, dp_B, roll, pitch, yaw) on the
+  Crazyflie uSD logs' line-of-sight flights minus the evaluation flights 0425-traj3, 8, 13, 18 (recipes.py);
+  distilled from one teacher per training flight (leave-one-flight-out folds); evaluated on those four
+  (each, and pooled) and on the two shelf flights of 0426 (non-line-of-sight, never trained on).
 * ``nlos`` -> firmware_sim/models/bias_model_nlos.npz: TWR and TDoA pose networks trained on simulated
   flights in the obstacle arena (profile "nlos", seeds < 1000), for flying there (`uwb-hil fly --profile
   nlos --model ...`): the network learns the space it flies in, as the paper's was. Not compiled in.
@@ -31,7 +35,8 @@ from harness.biasnet.distill import DistillConfig
 from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
 from harness.biasnet.network import BiasModel, BiasNetwork
 from harness.biasnet.registry import RECORDED_MODELS, SUMMARY, kind_name
-from harness.biasnet.recipes import (FIRST_EVAL_SEED, STD_HEAD_RECIPE, SimRecipe, load_recordings, rcv_heldout_dirs,
+from harness.biasnet.recipes import (FIRST_EVAL_SEED, STD_HEAD_RECIPE, SimRecipe, cf_usd_heldout_files,
+                                     cf_usd_shelf_files, cf_usd_train_files, load_recordings, rcv_heldout_dirs,
                                      rcv_train_dirs, util_heldout_files, util_train_files)
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.uncertainty import StdHeadConfig, with_std_head
@@ -142,8 +147,15 @@ def _short(m: dict[str, Any]) -> dict[str, Any]:
                               "share_of_ceiling", "floor_unbiased", "share_of_ceiling_unbiased")}
 
 
+#: key of the pooled held-out figure of the Crazyflie network (its four evaluation flights together)
+CF_POOLED = "0425-traj3+8+13+18"
+
+
 def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: list[Path], layout: int,
-                    quick: bool, kind: str) -> dict[str, Any]:
+                    quick: bool, kind: str, teachers: int = RECORDED_TEACHERS,
+                    pooled: tuple[str, list[Path]] | None = None) -> dict[str, Any]:
+    """Train (distilled from `teachers` networks) and evaluate on each of `test_paths`, and on `pooled`'s
+    recordings together (label, paths) when given."""
     if not train_paths or not test_paths:
         return {"skipped": "the shared recordings are not there"}
     train = load_recordings(train_paths[:2] if quick else train_paths)
@@ -152,7 +164,7 @@ def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: 
     if quick:  # a smoke test: two recordings may be one flight group, too few folds
         net, report, _ = train_kind(train, layout, cfg, name)
     else:
-        dcfg = DistillConfig(teachers=RECORDED_TEACHERS)
+        dcfg = DistillConfig(teachers=teachers)
         net, dreport, _ = distill_kind(train, layout, cfg, dcfg, name)
         assert dreport.student is not None
         report, extra = dreport.student, {"distilled": distill_dict(dreport, dcfg)}
@@ -164,11 +176,11 @@ def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: 
                                                  "epochs": report.epochs, "seconds": round(report.seconds, 1)}
                             | extra})
     results = {}
-    for p in test_paths:
-        res = compare(model, load_recordings([p]), train)
-        results[p.name if p.is_file() else p.parent.name + "/" + p.name] = \
-            {k: _short(v) for k, v in res["methods"].items()}
-        _log(f"{name} on {p.name}: " + ", ".join(f"{k} {100 * v['reduction']:.1f} %" for k, v in res["methods"].items()))
+    groups = [(p.name if p.is_file() else p.parent.name + "/" + p.name, [p]) for p in test_paths]
+    for label, paths in groups + ([pooled] if pooled and pooled[1] else []):
+        res = compare(model, load_recordings(paths), train)
+        results[label] = {k: _short(v) for k, v in res["methods"].items()}
+        _log(f"{name} on {label}: " + ", ".join(f"{k} {100 * v['reduction']:.1f} %" for k, v in res["methods"].items()))
     model.meta[f"{kind}_heldout"] = results
     path = model.save((MODELS_DIR / "quick" if quick else MODELS_DIR) / f"{name}.npz")
     return {"file": _repo_path(path), "hash": model.hash_hex, "training": model.meta[f"{kind}_training"],
@@ -178,7 +190,7 @@ def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: 
 def build_shipped_models(data: Path, quick: bool = False, only: str | None = None,
                          write_summary: bool = True) -> dict[str, Any]:
     """Train (and evaluate) the networks into firmware_sim/models/. The networks trained on ../shared/data
-    (util_tdoa_pos.npz, rcv_twr.npz) are build products, not committed; write_summary=False builds them
+    (util_tdoa_pos.npz, rcv_twr.npz, cf_tdoa_pose.npz) are build products, not committed; write_summary=False builds them
     without touching the committed models.json (`make campaign` does that when they are missing)."""
     summary: dict[str, Any] = {"command": "make models" if not quick else "uwb-hil models --quick",
                                "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
@@ -194,6 +206,11 @@ def build_shipped_models(data: Path, quick: bool = False, only: str | None = Non
     if only in (None, "rcv"):
         summary[rcv.name] = _build_recorded(rcv.name, data, rcv_train_dirs(data), rcv_heldout_dirs(data),
                                             rcv.layout, quick, kind_name(rcv.kind))
+    if only in (None, "cfusd"):
+        cf, train = RECORDED_MODELS["cf_usd"], cf_usd_train_files(data)
+        summary[cf.name] = _build_recorded(cf.name, data, train, cf_usd_heldout_files(data) + cf_usd_shelf_files(data),
+                                           cf.layout, quick, kind_name(cf.kind), teachers=max(2, len(train)),
+                                           pooled=(CF_POOLED, cf_usd_heldout_files(data)))
     if not quick and write_summary:  # merge: `--only X` refreshes X's entry and keeps the others
         old = json.loads(SUMMARY.read_text()) if SUMMARY.is_file() else {}
         SUMMARY.write_text(json.dumps(old | summary, indent=2, default=float) + "\n")

@@ -203,7 +203,8 @@ def evaluate_model(model: BiasModel, model_name: str, recordings: list[Path], op
     if opts.plot:
         from harness.biasnet.plots import bias_vs_azimuth
         seen = recordings[0].resolve() in {p.resolve() for p in train_paths}
-        bias_vs_azimuth(model, test[0], opts.plot, note="in the training set" if seen else "held out")
+        bias_vs_azimuth(model, test[0], opts.plot, note="in the training set" if seen else "held out",
+                        elevation=test[0].truth.quat is not None and test[0].imu is not None)
         res["plot"] = str(opts.plot)
     return res
 

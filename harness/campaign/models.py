@@ -4,6 +4,7 @@
     DIR/models/index.json        {"default": hash, "families": {"sim"|"util_tdoa_pos"|"rcv_twr": hash},
                                   "files": {hash: {"file", "source"}}, "summary": {models.json entries}}
     DIR/models/fig5_rcv.npz      the real heading sweep for the report's Fig. 5 (native flight), if present
+    DIR/models/fig5_cf.npz       a held-out Crazyflie uSD flight (real attitude) for the Crazyflie Fig. 5
 
 "summary" holds only the models.json entries whose network was copied and has the recorded hash: a figure
 of a network the campaign did not have is never shown. Written once per campaign (and identical in every
@@ -22,6 +23,8 @@ from harness.campaign.store import CampaignDir, read_json, write_json_atomic
 INDEX = "index.json"
 FIG5_RCV_FLIGHT = "fig5_rcv.npz"
 FIG5_RCV_SEQUENCE = "rcv_twr/sequence3"        # the real heading sweep (relative to the data folder)
+FIG5_CF_FLIGHT = "fig5_cf.npz"
+FIG5_CF_LOG = "cf_usd/0425/0425-traj3"         # an evaluation flight of the real-flight network
 
 
 def models_dir(cdir: CampaignDir) -> Path:
@@ -71,26 +74,29 @@ def snapshot_models(cdir: CampaignDir, run_models: Iterable[str | None], default
             notes.append(f"models.json entry {key} ({entry['hash']}): its network is not here, its figures left out")
     index["files"] = files
     index["summary"] = summary
-    index["fig5_rcv_flight"] = None
-    if "rcv_twr" in index["families"]:
-        try:
-            index["fig5_rcv_flight"] = _snapshot_fig5_flight(out, data_dir)
-        except (ValueError, OSError) as exc:      # RecordingError is a ValueError: the figure is left out
-            notes.append(f"Fig. 5 heading sweep not stored: {exc}")
+    for family, key, rel, fname in (("rcv_twr", "fig5_rcv_flight", FIG5_RCV_SEQUENCE, FIG5_RCV_FLIGHT),
+                                    ("cf_tdoa_pose", "fig5_cf_flight", FIG5_CF_LOG, FIG5_CF_FLIGHT)):
+        index[key] = None
+        if family in index["families"]:
+            try:
+                index[key] = _snapshot_fig5_flight(out, data_dir, rel, fname)
+            except (ValueError, OSError) as exc:  # RecordingError is a ValueError: the figure is left out
+                notes.append(f"Fig. 5 flight {rel} not stored: {exc}")
     index["notes"] = notes
     write_json_atomic(out / INDEX, index)
     return index
 
 
-def _snapshot_fig5_flight(out: Path, data_dir: Path | None) -> str | None:
-    if data_dir is None or not (Path(data_dir) / FIG5_RCV_SEQUENCE).is_dir():
+def _snapshot_fig5_flight(out: Path, data_dir: Path | None, rel: str, fname: str) -> str | None:
+    """The recording `rel` (under data_dir) as a native flight DIR/models/`fname`; None if it is not there."""
+    if data_dir is None or not (Path(data_dir) / rel).exists():
         return None
     from harness.flight.loaders import load_recording
     from harness.flight.native import save_flight
-    target = out / FIG5_RCV_FLIGHT
+    target = out / fname
     if not target.exists():
-        save_flight(load_recording(Path(data_dir) / FIG5_RCV_SEQUENCE), target)
-    return FIG5_RCV_FLIGHT
+        save_flight(load_recording(Path(data_dir) / rel), target)
+    return fname
 
 
 def read_index(root: Path) -> dict[str, Any] | None:

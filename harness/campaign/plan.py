@@ -8,7 +8,9 @@ trained on (training uses seeds < 1000; recorded in every run's summary as ``see
 Recorded flights: the held-out UTIL TDoA trials (trial 5 of const1/const2 and all of const3: the real-data
 network is trained on const1/const2 trials 1-4) and the held-out rcv_twr sequence(s), replayed in UWB-only
 mode, through a firmware carrying the network trained on that data (firmware_sim/models/util_tdoa_pos.npz,
-rcv_twr.npz; the held-out lists are checked against firmware_sim/models/models.json).
+rcv_twr.npz; the held-out lists are checked against firmware_sim/models/models.json). The Crazyflie uSD
+flights (IMU + TDoA + attitude) are replayed with the IMU and UWB-only: harness/campaign/recorded_usd.py.
+A recorded flight its network was trained on runs no network configuration.
 Simulated flights run on the firmware's compiled-in default model (trained on simulated flights).
 """
 
@@ -243,6 +245,11 @@ def recorded_flights(data_dir: Path, modes: tuple[str, ...], with_models: bool =
                                uwb_only=True)
             flights.append(f)
             models[f.flight_id] = model
+    if "tdoa" in modes:
+        from harness.campaign.recorded_usd import usd_flights
+        usd, usd_notes, usd_models = usd_flights(data_dir, with_models)
+        flights, notes = flights + usd, notes + usd_notes
+        models.update(usd_models)
     return flights, notes, models
 
 
@@ -282,6 +289,13 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
             notes.append(f"{f.trajectory}: replayed UWB-only and its network ({models[f.flight_id]}) takes roll, "
                          "pitch and yaw: its network configurations are left out (a level attitude would make "
                          "the correction up; `uwb-hil run` refuses the same)")
+    from harness.campaign.recorded_usd import trained_on
+    seen = {f.flight_id for f in flights if f.source == "recorded" and trained_on(models[f.flight_id], f)} - blind
+    for f in flights:
+        if f.flight_id in seen:
+            notes.append(f"{f.trajectory}: its network ({models[f.flight_id]}) was trained on it: its network "
+                         "configurations are left out")
+    blind |= seen
     runs = [RunSpec(flight=f, config=c, firmware=str(opts.firmware), pacing=opts.pacing, model=models[f.flight_id])
             for f in flights for c in opts.configs
             if not (f.flight_id in blind and PRESETS[c] & STAGE_BIAS_NN)]
@@ -313,7 +327,8 @@ def radio_runs(opts: CampaignOptions, flights: list[FlightSpec], models: dict[st
     runs = []
     for protocol in opts.radio:
         for f in flights:
-            if f.mode != "tdoa" or (f.source == "recorded" and _util_protocol(f) != protocol):
+            if f.mode != "tdoa" or (f.source == "recorded" and (not f.trajectory.startswith("util-")
+                                                                or _util_protocol(f) != protocol)):
                 continue
             rf = replace(f, radio=protocol)
             for role in (ROLE_RADIO_MEAS, ROLE_RADIO):

@@ -263,7 +263,8 @@ def latency_histograms(data: CampaignData, budget_us: float) -> Figure | None:
 def recorded_bars(data: CampaignData, diverged_m: float = 10.0) -> Figure | None:
     """RMSE per recorded (held-out) flight and configuration, one panel per mode. Bars of diverged runs
     (RMSE above diverged_m) are clipped and labelled with their value, so they do not flatten the rest."""
-    rec = [r for r in data.accuracy_runs if r.source == "recorded"]
+    from harness.campaign.recorded_usd import is_usd   # the Crazyflie logs: harness/report/usd_section.py
+    rec = [r for r in data.accuracy_runs if r.source == "recorded" and not is_usd(r.trajectory)]
     if not rec:
         return None
     modes = [m for m in MODES if any(r.mode == m for r in rec)]

@@ -116,7 +116,8 @@ def recorded(ctx: ReportContext) -> Section | None:
         return None
     sec = Section("recorded", "Recorded flights (held out from training)")
     sec.paragraphs.append(
-        "Real flights replayed through the firmware in UWB-only mode (constant-velocity model), on a firmware "
+        "Real UTIL and rcv_twr flights (the Crazyflie uSD logs have their own section) replayed through the "
+        "firmware in UWB-only mode (constant-velocity model), on a firmware "
         "carrying the network trained on that kind of data: UTIL TDoA trials not used for training (trial 5 "
         "of constellations 1 and 2, constellation 3 with obstacles) and the held-out rcv_twr sequence. RMSE "
         f"against motion capture [m]. A run above {DIVERGED_RMSE_M:.0f} m has left the arena (diverged): the "
@@ -327,8 +328,14 @@ def closed_loop(ctx: ReportContext) -> Section | None:
     return closed_loop_section(ctx)
 
 
+def crazyflie(ctx: ReportContext) -> Section | None:
+    """The Crazyflie uSD flights: IMU vs UWB-only, the real-flight network (harness/report/usd_section.py)."""
+    from harness.report.usd_section import usd_section
+    return usd_section(ctx)
+
+
 DEFAULT_SECTIONS: tuple[SectionFn, ...] = (headline, rmse_boxes, error_time, paths, measurement_streams, bias_network, recorded,
-                                           radio_level, consistency, closed_loop, latency, failures, boards,
-                                           provenance)
+                                           crazyflie, radio_level, consistency, closed_loop, latency, failures,
+                                           boards, provenance)
 
 __all__ = ["CONFIG_KEYS", "DEFAULT_SECTIONS", "ReportContext", "SectionFn"]

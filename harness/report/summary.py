@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.campaign.recorded_usd import is_usd
 from harness.campaign.store import CampaignDataError, CampaignDir, read_json
 from harness.report.data import CampaignData, RunMetrics
 from harness.report.metrics import DEFAULT_BUDGET_S, latency_summary
@@ -88,7 +89,7 @@ def accuracy_section(data: CampaignData) -> dict[str, Any]:
         entry["divergences"] = {cfg: int(sum(r.divergences for r in runs if r.config == cfg))
                                 for cfg in [*CONFIG_KEYS, *entry["other_configs"]]}
         out[mode] = entry
-    rec = [r for r in data.accuracy_runs if r.source == "recorded"]
+    rec = [r for r in data.accuracy_runs if r.source == "recorded" and not is_usd(r.trajectory)]  # usd_section.py
     if rec:
         recorded: dict[str, Any] = {}
         for mode in ("twr", "tdoa"):

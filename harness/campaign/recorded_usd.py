@@ -1,0 +1,79 @@
+"""The Crazyflie uSD flights of a campaign's recorded section (issue 28): real flights logged on board with
+IMU, TDoA and the motion-capture pose with attitude (../shared/data/cf_usd, harness/flight/formats/cf_usd*.py).
+
+Every shared flight is replayed twice: with the IMU (the firmware's full EKF, the way the Crazyflie runs it)
+and UWB-only (constant-velocity model, `--uwb-only`), in each configuration. The network is the real-flight
+one (firmware_sim/models/cf_tdoa_pose.npz, `make models`: pose layout, trained on the line-of-sight flights
+of 0425 other than 3, 8, 13, 18). Its configurations run only where they mean something: with the IMU (the
+network takes the firmware's own roll, pitch and yaw; UWB-only has none) and on flights it was not trained
+on (the evaluation flights and the two shelf flights); the training flights give the IMU vs UWB-only
+comparison without it. The report's section is harness/report/usd_section.py.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from harness.biasnet.recipes import CF_USD_EVAL, CF_USD_LOS, CF_USD_SHELF
+from harness.campaign.plan import FlightSpec
+from harness.paths import MODELS_DIR
+
+#: models.json key and file of the real-flight network
+CF_MODEL_KEY = "cf_tdoa_pose"
+CF_MODEL = MODELS_DIR / "cf_tdoa_pose.npz"
+#: the trajectory label of a uSD flight: "cf-<log name>", with UWB_ONLY_SUFFIX when replayed UWB-only
+LABEL_PREFIX = "cf-"
+UWB_ONLY_SUFFIX = "-uwb"
+
+
+def is_usd(trajectory: str) -> bool:
+    """Whether a recorded run's trajectory label is a Crazyflie uSD flight."""
+    return trajectory.startswith(LABEL_PREFIX)
+
+
+def usd_role(trajectory: str) -> str:
+    """"held-out" (an evaluation flight), "shelf" (0426, obstacle) or "training" (the network saw it)."""
+    name = trajectory.removeprefix(LABEL_PREFIX).removesuffix(UWB_ONLY_SUFFIX)
+    if any(Path(r).name == name for r in CF_USD_SHELF):
+        return "shelf"
+    return "held-out" if any(Path(r).name == name for r in CF_USD_EVAL) else "training"
+
+
+def usd_flights(data_dir: Path, with_models: bool = True
+                ) -> tuple[list[FlightSpec], list[str], dict[str, str | None]]:
+    """The shared uSD flights present under data_dir (each with the IMU and UWB-only), notes, and the model
+    file per flight id (the real-flight network when it is built, else None: the firmware's default)."""
+    flights: list[FlightSpec] = []
+    notes: list[str] = []
+    models: dict[str, str | None] = {}
+    rels = [*CF_USD_LOS, *CF_USD_SHELF]
+    if not any((data_dir / r).is_file() for r in rels):
+        return flights, notes, models            # no uSD data here at all: not a campaign about it
+    model = str(CF_MODEL) if with_models and CF_MODEL.is_file() else None
+    if with_models and model is None:
+        notes.append(f"{CF_MODEL} not found (`make models` builds it): Crazyflie flights run on the firmware's "
+                     "default network")
+    for rel in rels:
+        path = data_dir / rel
+        if not path.is_file():
+            notes.append(f"recorded flight {path} not found: skipped")
+            continue
+        for uwb_only in (False, True):
+            label = LABEL_PREFIX + path.name + (UWB_ONLY_SUFFIX if uwb_only else "")
+            f = FlightSpec(source="recorded", mode="tdoa", trajectory=label, path=str(path), uwb_only=uwb_only)
+            flights.append(f)
+            models[f.flight_id] = model
+    notes.append(f"Crazyflie uSD flights: {len(flights) // 2} logs, each with the IMU and UWB-only; the network's "
+                 f"configurations only on flights it was not trained on ({', '.join(Path(r).name for r in CF_USD_EVAL)}"
+                 f", {', '.join(Path(r).name for r in CF_USD_SHELF)})")
+    return flights, notes, models
+
+
+def trained_on(model: str | None, spec: FlightSpec) -> bool:
+    """Whether `model`'s network for the flight's kind names this recording among its training data."""
+    if model is None or spec.path is None:
+        return False
+    from harness.biasnet.network import BiasModel
+    names = BiasModel.load(Path(model)).meta.get(f"{spec.mode}_trained_on") or []
+    path = Path(spec.path).as_posix()
+    return any(not str(n).startswith("sim:") and path.endswith("/" + str(n).lstrip("/")) for n in names)

@@ -1,0 +1,138 @@
+"""The campaign report's section on the Crazyflie uSD flights (harness/campaign/recorded_usd.py): every shared
+flight with the IMU and UWB-only, per configuration; the real-flight network's configurations on the flights
+it never saw; the paper's Fig. 5 from real attitude (measured error and the network's bias against the
+anchor's azimuth and elevation in the body frame) and the position error over time of the unseen flights.
+
+Everything comes from the campaign directory (runs, DIR/models), never from the checkout."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from harness.campaign.recorded_usd import LABEL_PREFIX, UWB_ONLY_SUFFIX, is_usd, usd_role
+from harness.report.data import CampaignData, RunMetrics
+
+if TYPE_CHECKING:
+    from harness.report.context import ReportContext
+    from harness.report.html import Section
+
+#: table columns: (replay, configuration) -> header
+COLUMNS = {("uwb", "none"): "UWB-only", ("uwb", "outlier"): "UWB-only + outlier", ("imu", "none"): "IMU",
+           ("imu", "outlier"): "IMU + outlier", ("imu", "outlier+nn"): "IMU + outlier + NN"}
+ROLES = ("held-out", "shelf", "training")
+
+
+def usd_runs(data: CampaignData) -> list[RunMetrics]:
+    return [r for r in data.accuracy_runs if r.source == "recorded" and is_usd(r.trajectory)]
+
+
+def _log_name(trajectory: str) -> str:
+    return trajectory.removeprefix(LABEL_PREFIX).removesuffix(UWB_ONLY_SUFFIX)
+
+
+def _replay(r: RunMetrics) -> str:
+    return "uwb" if r.trajectory.endswith(UWB_ONLY_SUFFIX) else "imu"
+
+
+def usd_summary(data: CampaignData) -> dict[str, Any]:
+    """Per log: role and whole-flight RMSE [m] per (replay, configuration); per role: the means."""
+    runs = usd_runs(data)
+    flights: dict[str, dict[str, Any]] = {}
+    for r in runs:
+        row = flights.setdefault(_log_name(r.trajectory), {"role": usd_role(r.trajectory), "rmse": {}})
+        row["rmse"][f"{_replay(r)} {r.config}"] = r.rmse
+    means: dict[str, dict[str, float]] = {}
+    for role in ROLES:
+        rows = [f["rmse"] for f in flights.values() if f["role"] == role]
+        keys = sorted({k for row in rows for k in row})
+        means[role] = {k: float(np.mean([row[k] for row in rows if k in row and math.isfinite(row[k])]))
+                       for k in keys if any(k in row and math.isfinite(row[k]) for row in rows)}
+    return {"flights": dict(sorted(flights.items())), "means": means}
+
+
+def _cell(rmse: dict[str, float], replay: str, cfg: str) -> str:
+    v = rmse.get(f"{replay} {cfg}")
+    return f"{v:.3f}" if isinstance(v, float) and math.isfinite(v) else "-"
+
+
+def _change(rmse: dict[str, float]) -> str:
+    a, b = rmse.get("imu outlier"), rmse.get("imu outlier+nn")
+    return f"{100.0 * (b - a) / a:+.1f} %" if a and b is not None and math.isfinite(a * b) else "-"
+
+
+def error_time_figure(data: CampaignData) -> Figure | None:
+    """Position error over time of the flights the network never saw: IMU + outlier, IMU + outlier + NN and
+    UWB-only + outlier, one panel per log."""
+    runs = [r for r in usd_runs(data) if usd_role(r.trajectory) != "training" and r.err_t_s.size]
+    logs = sorted({_log_name(r.trajectory) for r in runs})
+    if not logs:
+        return None
+    fig = Figure(figsize=(11, 2.4 * len(logs)), layout="constrained")
+    axes = fig.subplots(len(logs), 1, squeeze=False)[:, 0]
+    style = {("imu", "outlier"): ("#ff7f0e", "IMU + outlier rejection"),
+             ("imu", "outlier+nn"): ("#1f77b4", "IMU + outlier rejection + NN"),
+             ("uwb", "outlier"): ("#8c8c8c", "UWB-only + outlier rejection")}
+    for ax, log in zip(axes, logs):
+        for (replay, cfg), (color, label) in style.items():
+            r = next((r for r in runs if _log_name(r.trajectory) == log and _replay(r) == replay
+                      and r.config == cfg), None)
+            if r is not None:
+                ax.plot(r.err_t_s, r.err_mean, color=color, lw=1.0, label=f"{label} (RMSE {r.rmse:.3f} m)")
+        ax.set_title(f"{log} ({usd_role(LABEL_PREFIX + log)})", fontsize=9)
+        ax.set_ylabel("|error| [m]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
+    axes[-1].set_xlabel("time since the first measurement [s] (ground phases included)")
+    return fig
+
+
+def usd_section(ctx: "ReportContext") -> "Section | None":
+    from harness.report.html import Section, Table
+    summary = usd_summary(ctx.data)
+    if not summary["flights"]:
+        return None
+    sec = Section("crazyflie", "Real Crazyflie flights (uSD logs): IMU vs UWB-only, and the real-flight network")
+    sec.paragraphs.append(
+        "Crazyflie flights logged on board (IMU, TDoA, motion-capture pose with attitude), replayed through the "
+        "firmware with the IMU and UWB-only. Whole-flight position RMSE [m] against motion capture, ground phases "
+        "included. The network (real-flight, pose layout) runs only with the IMU (it takes the firmware's own "
+        "attitude) and only on flights it was not trained on: held-out = 0425 flights 3, 8, 13, 18 (line of "
+        "sight), shelf = 0426 flights 3 and 5 (a wooden shelf in the arena, never trained on).")
+    rows = [[log, f["role"], *[_cell(f["rmse"], *k) for k in COLUMNS], _change(f["rmse"])]
+            for log, f in summary["flights"].items()]
+    headers = ["log", "role", *COLUMNS.values(), "NN vs outlier"]
+    sec.tables.append(Table(headers, rows, "Per flight"))
+    mrows = [[role, str(sum(f["role"] == role for f in summary["flights"].values())),
+              *[_cell(summary["means"][role], *k) for k in COLUMNS], _change(summary["means"][role])]
+             for role in ROLES if summary["means"].get(role)]
+    sec.tables.append(Table(["flights", "n", *COLUMNS.values(), "NN vs outlier"], mrows, "Means"))
+    sec.figures += _fig5(ctx)
+    sec.figures += ctx.figure(error_time_figure(ctx.data), "crazyflie_error_time",
+                              "Position error over time of the flights the network never saw (mean |error| in "
+                              "0.5 s bins; take-off and landing included).")
+    sec.data = summary
+    return sec
+
+
+def _fig5(ctx: "ReportContext") -> list[Any]:
+    """Fig. 5 from real attitude: the campaign's real-flight network on its stored held-out flight."""
+    from harness.biasnet.network import BiasModel
+    from harness.biasnet.plots import bias_vs_azimuth
+    from harness.campaign.models import model_path, read_index
+    from harness.flight.native import load_flight
+    from harness.report.html import FigureRef
+    root = ctx.data.root
+    index = read_index(root)
+    path = model_path(root, index, (index.get("families") or {}).get("cf_tdoa_pose")) if index else None
+    if index is None or path is None or not index.get("fig5_cf_flight"):
+        return []
+    model = BiasModel.load(path)
+    flight = load_flight(root / "models" / index["fig5_cf_flight"])
+    png = bias_vs_azimuth(model, flight, ctx.fig_dir / "fig5_crazyflie.png", note="held out", elevation=True)
+    return [FigureRef(png, f"{flight.name}, never trained on: measured TDoA error and the real-flight network's "
+                           f"bias (model {model.hash_hex}) against the anchor's azimuth and elevation in the body "
+                           "frame, from the logged attitude (paper Fig. 5).")]
