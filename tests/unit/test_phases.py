@@ -200,13 +200,13 @@ def test_shared_log_reports_phases_and_attitude(capsys: pytest.CaptureFixture[st
 
 
 # ------------------------------------------------------------------------------ campaign report
-def _metrics(flight_id: str, config: str, run: RunResult, flight: Flight) -> RunMetrics:
+def _metrics(flight_id: str, config: str, run: RunResult, flight: Flight, trajectory: str = "real") -> RunMetrics:
     """A recorded run of the campaign as the report reads it, with the phases and attitude its stored summary
     carries (summarize_run)."""
     acc = accuracy_with_phases(run, flight)
     empty = np.zeros(0, np.float32)
     return RunMetrics(run_id=f"{flight_id}-{config}", flight_id=flight_id, source="recorded", mode="tdoa",
-                      trajectory="real", seed=None, config=config, measurements=acc["n"], results=acc["n"], lost=0,
+                      trajectory=trajectory, seed=None, config=config, measurements=acc["n"], results=acc["n"], lost=0,
                       refused=0, rmse=acc["rmse"], rmse_xy=acc["rmse_xy"], rmse_z=acc["rmse_z"],
                       max_error=acc["max_error"], status_counts={}, err_t_s=empty, err_mean=empty, compute_us=empty,
                       rtt_us=empty, kind=KIND_TWR, device_stats=None, phases=acc.get("phases"),
@@ -231,3 +231,23 @@ def test_campaign_report_shows_the_flight_phase_and_attitude() -> None:
     assert by_flight["0425-traj3"][1:] == ["0.224 / 1.500", "0.224 / 1.500", "3.0 / 3.0"]
     assert by_flight["sim-like"][1:] == ["- / -", "- / -", "- / -"]    # only an attitude error (in another config)
     assert phase_table([{"flight_id": "x", "rmse_outlier": 0.3}]) is None
+
+
+def test_crazyflie_section_shows_the_flight_phase() -> None:
+    """The campaign's Crazyflie section (report/usd_section.py): whole-flight and flight-phase RMSE per log,
+    per (replay, configuration), and their means per role."""
+    from harness.campaign.recorded_usd import LABEL_PREFIX, UWB_ONLY_SUFFIX
+    from harness.report.usd_section import _rmse_tables, usd_summary
+    run, flight = synthetic()
+    label = LABEL_PREFIX + "0425-traj3"
+    runs = [_metrics("a", "outlier", run, flight, label), _metrics("b", "outlier", run, flight, label + UWB_ONLY_SUFFIX)]
+    data = CampaignData(root=Path("."), manifest={}, runs=runs, failures=[], missing=[], devices=[])
+    summary = usd_summary(data)
+    row = summary["flights"]["0425-traj3"]
+    assert row["role"] == "held-out" and row["rmse"]["imu outlier"] == pytest.approx(runs[0].rmse)
+    assert row["rmse_flight"] == pytest.approx({"imu outlier": np.linalg.norm(FLIGHT_ERR),
+                                                "uwb outlier": np.linalg.norm(FLIGHT_ERR)}, abs=1e-5)
+    assert summary["means_flight"]["held-out"]["imu outlier"] == pytest.approx(np.linalg.norm(FLIGHT_ERR), abs=1e-5)
+    per_flight, means = _rmse_tables(summary, "rmse_flight", "means_flight", ", flight phase (truth above 0.4 m)")
+    assert per_flight.caption == "Per flight, flight phase (truth above 0.4 m)"
+    assert per_flight.rows[0][:4] == ["0425-traj3", "held-out", "-", "0.224"] and means.rows[0][:2] == ["held-out", "1"]
