@@ -23,6 +23,7 @@ static void reset_filter(estimator_t *est)
     const float pos[3] = {est->cfg.init_x, est->cfg.init_y, est->cfg.init_z};
     nn_monitor_reset(&est->nnmon); /* a new flight: every pair trusted again */
     bias_states_reset(&est->bstates);
+    takeoff_reset(&est->takeoff);
     ekf_init(&est->ekf, pos, est->cfg.init_std_xy, est->cfg.init_std_z);
     memcpy(est->last_good_pos, pos, sizeof pos);
     est->has_imu_time = 0;
@@ -97,6 +98,7 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
     a[1] = acc[1];
     a[2] = acc[2];
     if (est->cfg.mode == EST_MODE_IMU_THRUST) {
+        takeoff_on_imu(&est->takeoff, t_us, acc[2], est->ekf.R[2][2]);
         /* A quadrotor's rotors push along body z only: its horizontal specific force is drag, small, while
          * what the accelerometer reads there in flight is mostly vibration (a Crazyflie's: -2 m/s^2 mean,
          * 2 m/s^2 std, docs/real-flights.md). The Crazyflie's estimator uses the same model in flight. */
@@ -250,6 +252,13 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     /* d_max is reported whatever happens next (plots), so compute it first. The velocity norm is
      * frame independent and the CV prediction does not change the velocity. */
     dt = gate_kinematic_window(&est->kin, t_us, id_a, id_b, t_ref, have_ref, cfg->gate_dt_min);
+    if (cfg->mode == EST_MODE_IMU_THRUST && !est->takeoff.airborne) {
+        /* On the floor before take-off the links to low anchors read metres long for seconds: the gates do
+         * not re-open (no widening, no lock-out guard); the vehicle cannot have moved (takeoff.h). */
+        dt = gate_kinematic_dt(t_us >= t_ref ? (int64_t)(t_us - t_ref) : -(int64_t)(t_ref - t_us), have_ref,
+                               cfg->gate_dt_min);
+        est->kin.rejected_us = 0;
+    }
     out->d_max = gate_kinematic_dmax(&ekf->x[EKF_PX], dt, tdoa ? cfg->a_max_tdoa : cfg->a_max_twr);
 
     /* 1. measurement model */

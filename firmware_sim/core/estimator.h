@@ -12,6 +12,7 @@
 #include "estimator_config.h" /* estimator_config_t, its defaults and checks: generated from messages.toml */
 #include "gate_kinematic.h"
 #include "nn_monitor.h"
+#include "takeoff.h"
 
 #define ESTIMATOR_MAX_ANCHORS 16
 
@@ -89,6 +90,7 @@ typedef struct {
     uint8_t flags;                    /* EST_FLAG_* since the last result */
     nn_monitor_t nnmon;               /* per-pair monitor of the network's corrections (reset with the filter) */
     bias_states_t bstates;            /* per-anchor bias states (BIAS_STATES; reset with the filter) */
+    takeoff_t takeoff;                /* IMU_THRUST: on the ground until the climb is seen (reset with the filter) */
     float last_good_pos[3];           /* re-initialisation point of the supervisor */
     uint32_t cost_predict;            /* cost of the predictions since the last measurement */
     uint32_t predictions;             /* IMU or CV predictions since power-up */

@@ -21,6 +21,7 @@ from harness.twin.bias_states import BiasStates
 from harness.twin.ekf import POS, ErrorStateEkf
 from harness.twin.features import features, ood_fade
 from harness.twin.nn_monitor import NnMonitor
+from harness.twin.takeoff import TakeoffDetector
 from harness.twin.supervisor import (FLAG_COVARIANCE, FLAG_GAP_RESTART, FLAG_NON_FINITE,  # noqa: F401 (all flags here)
                                      FLAG_OUT_OF_BOX, FLAG_SPEED)
 from protocol.messages import MAX_ANCHORS as PROTOCOL_MAX_ANCHORS
@@ -154,6 +155,7 @@ class TwinEstimator:
         c = self.config
         self.nnmon.reset()  # a new flight: every pair trusted again
         self.bstates.reset()
+        self.takeoff = TakeoffDetector()
         self.last_good_pos = np.array([c.init_x, c.init_y, c.init_z], dtype=np.float64)
         self.ekf = ErrorStateEkf.initial(self.last_good_pos, c.init_std_xy, c.init_std_z)
         self.t_imu_us: int | None = None
@@ -188,6 +190,7 @@ class TwinEstimator:
         c = self.config
         a = np.array(acc, dtype=np.float64)
         if c.mode == MODE_IMU_THRUST:   # quadrotor: the horizontal specific force taken as zero (estimator.c)
+            self.takeoff.on_imu(t_us, float(a[2]), float(self.ekf.R[2, 2]))
             a[:2] = 0.0
         if self.ekf.imu_sample(t_us, a, np.asarray(gyro, dtype=np.float64), c.proc_acc_xy, c.proc_acc_z):
             self.predictions += 1
@@ -304,6 +307,9 @@ class TwinEstimator:
         self.t_uwb_us = t_us
         ekf = self.ekf
         dt = self.kin.window(t_us, ids, t_ref, c.gate_dt_min)
+        if c.mode == MODE_IMU_THRUST and not self.takeoff.airborne:   # on the floor: the gates do not re-open
+            dt = gates.kinematic_dt(None if t_ref is None else t_us - t_ref, c.gate_dt_min)
+            self.kin.rejected_us = 0
         d_max = gates.kinematic_dmax(ekf.x[3:6], dt, c.a_max_tdoa if tdoa else c.a_max_twr)
 
         model = (measurements.tdoa(ekf.x[POS], anchor_a, anchor_b) if anchor_b is not None

@@ -1,0 +1,28 @@
+/* Take-off detector (takeoff.h). */
+#include "takeoff.h"
+
+#include <string.h>
+
+#include "ekf_core.h"
+
+void takeoff_reset(takeoff_t *d)
+{
+    memset(d, 0, sizeof *d);
+}
+
+int takeoff_on_imu(takeoff_t *d, uint64_t t_us, float acc_z, float r22)
+{
+    float dt;
+    if (d->has_time && t_us > d->t_us) {
+        dt = (float)(t_us - d->t_us) * 1e-6f;
+        if (dt <= TAKEOFF_MAX_DT_S) {
+            d->climb_v += dt * (r22 * acc_z - EKF_GRAVITY) - d->climb_v * (dt / TAKEOFF_TAU_S);
+        }
+    }
+    d->t_us = t_us;
+    d->has_time = 1;
+    if (d->climb_v > TAKEOFF_CLIMB_V) {
+        d->airborne = 1;
+    }
+    return d->airborne;
+}

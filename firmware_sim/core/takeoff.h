@@ -1,0 +1,28 @@
+/* Take-off detector of the quadrotor IMU model (EST_MODE_IMU_THRUST): a Crazyflie log starts on the floor,
+ * where the TDoA to low anchors reads metres long (NLOS along the floor), so until the vehicle climbs the
+ * estimator gates without re-opening (estimator.c). The climb shows in the thrust-axis accelerometer alone:
+ * a leaky integral of the vertical specific force minus g (before take-off the logs read 9.7-9.9 m/s^2,
+ * during the climb 10.2-10.9 for about a second). harness/twin/takeoff.py is the twin. */
+#ifndef UWB_TAKEOFF_H
+#define UWB_TAKEOFF_H
+
+#include <stdint.h>
+
+#define TAKEOFF_TAU_S 1.0f     /* leak of the integral: a bias of the accelerometer stays below the threshold */
+#define TAKEOFF_CLIMB_V 0.3f   /* m/s of climb, from the accelerometer alone, that counts as take-off */
+#define TAKEOFF_MAX_DT_S 0.1f  /* a longer gap between IMU samples integrates nothing */
+
+typedef struct {
+    float climb_v;     /* leaky integral of the vertical specific force minus g [m/s] */
+    uint64_t t_us;     /* previous IMU sample */
+    uint8_t has_time;
+    uint8_t airborne;  /* set once the climb was seen; cleared only with the filter (a new flight) */
+} takeoff_t;
+
+void takeoff_reset(takeoff_t *d);
+
+/* One IMU sample at t_us: acc_z the thrust-axis specific force [m/s^2], r22 = R[2][2] of the attitude
+ * (how much of the body z axis points up). Returns d->airborne. */
+int takeoff_on_imu(takeoff_t *d, uint64_t t_us, float acc_z, float r22);
+
+#endif
