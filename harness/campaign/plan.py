@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from harness.config import PAPER_PRESETS, PRESETS, STAGE_BIAS_NN, config_with
 from harness.biasnet.registry import RECORDED_MODELS as SHIPPED_RECORDED
 from harness.biasnet.registry import SUMMARY as MODELS_SUMMARY
+from harness.campaign.flight_spec import FlightSpec
 from harness.errors import InputError
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
@@ -52,36 +53,6 @@ RECORDED_MODELS = {family: (model.name, model.path) for family, model in SHIPPED
 
 class PlanError(InputError):
     """A campaign option is invalid (names the option)."""
-
-
-@dataclass(frozen=True)
-class FlightSpec:
-    """How to obtain one flight. ``source`` is "sim" (scenario_flight) or "recorded" (load_recording)."""
-
-    source: str
-    mode: str                      # "twr" | "tdoa"
-    trajectory: str                # scenario name, or a label of the recording
-    seed: int | None = None
-    duration_s: float | None = None
-    path: str | None = None        # recording (file or sequence directory)
-    anchors: str | None = None     # anchor file of the recording, if separate
-    uwb_only: bool = False
-    takeoff: bool = True           # simulated: ground wait, take-off and landing inside duration_s
-    profile: str = "los"           # simulated: error-model profile of harness/flight/scenarios.py
-    radio: str | None = None       # "tdoa2" | "tdoa3": the flight at LPS radio level (harness/flight/radio.py)
-
-    @property
-    def flight_id(self) -> str:
-        radio = f"-radio-{self.radio}" if self.radio else ""
-        if self.source == "sim":
-            return f"sim-{self.mode}-{self.trajectory}-s{self.seed}{radio}"
-        return f"rec-{self.mode}-{self.trajectory}{radio}"
-
-    def as_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        if d["radio"] is None:
-            del d["radio"]       # fingerprints of measurement-level runs stay what they were before radio level
-        return d
 
 
 ROLE_ACCURACY = "accuracy"

@@ -15,7 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from harness.biasnet.recipes import CF_USD_EVAL, CF_USD_LOS, CF_USD_SHELF
-from harness.campaign.plan import FlightSpec
+from harness.campaign.flight_spec import FlightSpec
 from harness.paths import MODELS_DIR
 
 #: models.json key and file of the real-flight network
