@@ -1,7 +1,11 @@
-"""Report section "Boards": a campaign run on several boards (`campaign --target/--port/--boards`) compared
-board by board: identity (HELLO at the start), runs, RMSE per configuration over the board's accuracy runs
-(recomputed from the raw results, as every figure of the report), device compute time, and the boards
-taken out (stopped answering: their runs moved to the others)."""
+"""Report sections on where the campaign ran (campaign.json "executor"):
+
+* "Boards" (`campaign --target/--port/--boards`): the boards compared one by one: identity (HELLO at the
+  start), runs, RMSE per configuration over the board's accuracy runs (recomputed from the raw results, as
+  every figure of the report), device compute time, and the boards taken out (their runs moved to the others);
+* "Dask cluster" (`campaign --scheduler`): the scheduler, flights per worker and the retries (flights run
+  again after their worker was lost).
+"""
 
 from __future__ import annotations
 
@@ -64,6 +68,22 @@ def boards(ctx: ReportContext) -> Section | None:
     sec.tables.append(Table(["board", "target, port", "build / model", "serial number", "runs",
                              *[f"RMSE {c}" for c in configs], "compute p50 / p99", "status"], table))
     sec.data = {"boards": rows, "taken_out": list(out.values())}
+    return sec
+
+
+def cluster(ctx: ReportContext) -> Section | None:
+    executor = ctx.data.manifest.get("executor") or {}
+    if executor.get("kind") != "dask":
+        return None
+    sec = Section("cluster", "Dask cluster")
+    per_worker = executor.get("flights_per_worker") or {}
+    retried = executor.get("retried_flights") or []
+    sec.paragraphs.append(f"Scheduler {executor.get('scheduler')}, {executor.get('workers_at_start', '?')} workers at "
+                          f"the start; {executor.get('retries', 0)} retries (flights run again after their worker was "
+                          "lost)" + (": " + ", ".join(retried) if retried else "") + ".")
+    sec.tables.append(Table(["worker", "flights"], [[w, str(n)] for w, n in sorted(per_worker.items())]))
+    sec.data = {k: executor.get(k) for k in ("scheduler", "workers_at_start", "retries", "retried_flights",
+                                             "flights_per_worker")}
     return sec
 
 

@@ -316,10 +316,10 @@ def consistency(ctx: ReportContext) -> Section | None:
     return sec
 
 
-def boards(ctx: ReportContext) -> Section | None:
-    """A campaign on several boards, board by board (harness/report/boards_section.py)."""
-    from harness.report.boards_section import boards as boards_section
-    return boards_section(ctx)
+def where_it_ran(ctx: ReportContext) -> Section | None:
+    """Boards compared, or the Dask cluster and its retries (harness/report/boards_section.py)."""
+    from harness.report.boards_section import boards, cluster
+    return boards(ctx) or cluster(ctx)
 
 
 def closed_loop(ctx: ReportContext) -> Section | None:
@@ -336,6 +336,6 @@ def crazyflie(ctx: ReportContext) -> Section | None:
 
 DEFAULT_SECTIONS: tuple[SectionFn, ...] = (headline, rmse_boxes, error_time, paths, measurement_streams, bias_network, recorded,
                                            crazyflie, radio_level, consistency, closed_loop, latency, failures,
-                                           boards, provenance)
+                                           where_it_ran, provenance)
 
 __all__ = ["CONFIG_KEYS", "DEFAULT_SECTIONS", "ReportContext", "SectionFn"]

@@ -105,6 +105,10 @@ def test_killing_a_worker_mid_campaign_loses_no_run(cluster: Any, tmp_path: Path
     assert outcome.retries >= 1, lines
     manifest = json.loads((tmp_path / "c" / "campaign.json").read_text())
     assert manifest["executor"]["retries"] == outcome.retries and manifest["executor"]["retried_flights"]
+    from harness.report.cli import write_report
+    write_report(tmp_path / "c", as_json=False)            # the report counts them too
+    section = json.loads((tmp_path / "c" / "report.json").read_text())["sections"]["cluster"]
+    assert section["retries"] == outcome.retries and sum(section["flights_per_worker"].values()) >= 4
     retried = [json.loads(p.read_text()) for p in (tmp_path / "c" / "runs").glob("*.json")]
     assert sum(1 for s in retried if s.get("executor", {}).get("retries", 0) >= 1) >= 2   # both runs of the flight
 
