@@ -147,14 +147,14 @@ def print_rows(rows: list[dict[str, Any]]) -> None:
     print(f"== peak host memory (RSS of the harness process) of a simulated flight through the host build; goal for "
           f"1 hour: < {GOAL_MB:.0f} MB")
     print(f"{'flight':>8} {'mode':5} {'measurements':>12} {'sliced MB':>10} {'whole MB':>9} {'ratio':>7} "
-          f"{'sliced s':>9} {'whole s':>8} {'same RMSE':>9} {'resume MB':>10} {'resume/sliced':>13}")
+          f"{'sliced s':>9} {'whole s':>8} {'same RMSE':>9} {'resume MB':>10} {'resume/sliced':>13} {'same':>5}")
     for r in rows:
         base = r.get("baseline_peak_rss_mb")
         print(f"{r['duration_s']:7.0f}s {r['mode']:5} {r['measurements']:12d} {r['peak_rss_mb']:10.0f} "
               f"{base if base is not None else float('nan'):9.0f} "
               f"{(str(round(r['ratio'], 1)) + 'x') if base is not None else '-':>7} {r['wall_s']:9.1f} "
               f"{r.get('baseline_wall_s', float('nan')):8.1f} {str(r.get('same_rmse', '-')):>9} "
-              f"{r['resume_peak_rss_mb']:10.0f} {r['resume_ratio']:12.2f}x")
+              f"{r['resume_peak_rss_mb']:10.0f} {r['resume_ratio']:12.2f}x {str(r['resume_same_rmse']):>5}")
     print(f"(resume: the second half of the same flight resumed from a results file cut half-way, "
           f"`uwb-hil run --resume`; goal: at most {RESUME_GOAL:g}x the sliced run)")
     print(f"(interpreter + imports alone: {rows[0]['imports_mb']:.0f} MB)" if rows else "")
