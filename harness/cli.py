@@ -19,9 +19,11 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 from harness import cli_verdict, options
+from harness.cli_run import (HelpFormatter, VersionAction, check_header_source, given_dests, show_warning,
+                             subparser)
 from harness.config import PRESETS
 from harness.device_args import add_device_options, device_spec, labgrid_lease, model_device_spec
-from harness.errors import ResultsFileError as ResumeError, UsageError, UwbHilError, report_failure
+from harness.errors import UsageError, UwbHilError, report_failure
 from harness.report.phases import DEFAULT_FLIGHT_ABOVE_M
 from harness.run.demo import DemoFlights, run_demo
 from harness.run.single import checked_results_path, resume_one, run_one
@@ -94,74 +96,14 @@ def print_run(summary: dict[str, Any]) -> None:
 _RESUME_FIXED = (*RunSource.keys(), "pacing", "window", "speed", "results", "overwrite")
 
 
-def given_dests(parser: argparse.ArgumentParser, argv: Sequence[str]) -> set[str]:
-    """The destinations of the options typed in `argv` (a value equal to the default counts as given; an
-    abbreviation, as argparse accepts it, too)."""
-    flags = {s: a.dest for a in parser._actions for s in a.option_strings}
-    out: set[str] = set()
-    for token in argv:
-        if token == "--":
-            break
-        if not token.startswith("--"):
-            continue
-        name = token.split("=", 1)[0]
-        hits = {dest for flag, dest in flags.items() if flag == name} or \
-            {dest for flag, dest in flags.items() if flag.startswith(name)}
-        if len(hits) == 1:
-            out |= hits
-    return out
-
-
 def _refuse_resume_conflicts(args: argparse.Namespace) -> None:
-    run_parser = _subparser(build_parser(), "run")
+    run_parser = subparser(build_parser(), "run")
     typed = given_dests(run_parser, getattr(args, "argv", ()))
     given = [k for k in _RESUME_FIXED if k in typed]
     if given:
         flags = ", ".join("--" + k.replace("_", "-") for k in given)
         raise UsageError(f"--resume {args.resume} takes the flight, configuration and pacing from the file's header; "
                          f"drop {flags} (or start a new run without --resume)")
-
-
-def check_header_source(src: Mapping[str, Any], where: str) -> None:
-    """A results header's source through the `run` options' own types, choices and bounds (a header edited
-    by hand: `duration 20000` is refused as `--duration 20000` is, before any flight is built)."""
-    actions = {a.dest: a for a in _subparser(build_parser(), "run")._actions if a.option_strings}
-    for key in RunSource.keys():
-        value, action = src.get(key), actions.get(key)
-        if value is None or action is None:
-            continue
-        flag = action.option_strings[-1]
-        if action.nargs == 0:                    # a switch: true or false
-            if not isinstance(value, bool):
-                raise ResumeError(f"{where} {key} = {str(value)[:100]!r}: {flag} is a switch, expected true or false")
-            continue
-        many = isinstance(action, argparse._AppendAction)
-        if isinstance(value, tuple):                       # as RunSource.as_header gives it (JSON: a list)
-            value = list(value)
-        if not many and isinstance(value, list) and value and \
-                all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-            value = ",".join(str(v) for v in value)          # a tuple option (--lever-arm x,y,z)
-        if many != isinstance(value, list) or any(isinstance(v, (dict, list, bool)) for v in
-                                                   (value if many else [value])):
-            raise ResumeError(f"{where} {key} = {str(value)[:100]!r}: not a value {flag} takes")
-        for v in (value if many else [value]):
-            _check_option_value(action, flag, v, f"{where} {key}")
-
-
-#: longest option value a results header may hold (paths, --set items)
-MAX_HEADER_VALUE = 4096
-
-
-def _check_option_value(action: argparse.Action, flag: str, value: Any, where: str) -> None:
-    text = str(value)
-    if len(text) > MAX_HEADER_VALUE:
-        raise ResumeError(f"{where} = {text[:100]!r}...: too long ({len(text)} characters, at most {MAX_HEADER_VALUE})")
-    try:
-        parsed = action.type(text) if callable(action.type) else text
-    except (argparse.ArgumentTypeError, ValueError) as exc:
-        raise ResumeError(f"{where} = {text[:100]!r}: {flag} {exc}") from None
-    if action.choices is not None and parsed not in action.choices:
-        raise ResumeError(f"{where} = {text[:100]!r}: {flag} must be one of {', '.join(map(str, action.choices))}")
 
 
 def cmd_resume(args: argparse.Namespace) -> int:
@@ -172,7 +114,10 @@ def cmd_resume(args: argparse.Namespace) -> int:
     def spec_for(src: RunSource) -> tuple[DeviceSpec, int | None]:
         return model_device_spec(argparse.Namespace(**{**vars(args), "model": src.model}))
 
-    summary = resume_one(path, spec_for, args.timeout, progress=_progress_bar, check_source=check_header_source)
+    def check_source(src: Mapping[str, Any], where: str) -> None:
+        check_header_source(subparser(build_parser(), "run"), RunSource.keys(), src, where)
+
+    summary = resume_one(path, spec_for, args.timeout, progress=_progress_bar, check_source=check_source)
     info = summary["resume"]
     if info.get("partial_line_bytes_dropped"):
         print(f"uwb-hil: {path}: cut a partial last line ({info['partial_line_bytes_dropped']} bytes, written "
@@ -315,47 +260,13 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--json", action="store_true", help="print the summary (with its verdict) as JSON")
 
 
-class _HelpFormatter(argparse.HelpFormatter):
-    """Every option's default in its help, unless the text already names it."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        default = action.default
-        if "default" in text or default in (None, False, [], argparse.SUPPRESS) or not action.option_strings:
-            return text
-        return text + " (default: %(default)s)"
-
-
-def version_text() -> str:
-    """`uwb-hil --version`: the package, the protocol and the firmware sources it carries."""
-    from importlib.metadata import PackageNotFoundError, version
-    from harness.firmware_cache import firmware_source_version
-    from protocol import PROTOCOL_VERSION
-    try:
-        package = version("uwb-hil")
-    except PackageNotFoundError:
-        package = "not installed"
-    return f"uwb-hil {package}, protocol {PROTOCOL_VERSION}, firmware {firmware_source_version()}"
-
-
-class _VersionAction(argparse.Action):
-    """--version, computed only when asked (the metadata and firmware header are read then)."""
-
-    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kw: Any) -> None:
-        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kw)
-
-    def __call__(self, parser: argparse.ArgumentParser, *args: Any) -> None:
-        print(version_text())
-        parser.exit()
-
-
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="uwb-hil", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--version", action=_VersionAction,
+    ap.add_argument("--version", action=VersionAction,
                     help="print the package, protocol and firmware versions and exit")
     sub = ap.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="stream one flight through a device", formatter_class=_HelpFormatter)
+    run = sub.add_parser("run", help="stream one flight through a device", formatter_class=HelpFormatter)
     _add_flight_options(run)
     _add_pacing_options(run)
     add_device_options(run)
@@ -365,7 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_verdict.add_verdict_options(run)
     run.set_defaults(func=cmd_run)
     demo = sub.add_parser("demo", help="TWR and TDoA flights in three configurations, one table",
-                          formatter_class=_HelpFormatter)
+                          formatter_class=HelpFormatter)
     _add_flight_options(demo, recorded=False)
     _add_pacing_options(demo)
     add_device_options(demo)
@@ -392,21 +303,10 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _subparser(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    return sub.choices[name]
-
-
-def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                  file: Any = None, line: str | None = None) -> None:
-    """Warnings for the user (a recording's dropped last line, ...): one line, no source location."""
-    print(f"uwb-hil: warning: {message}", file=sys.stderr)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     import warnings
     with warnings.catch_warnings():      # restored afterwards: main() may be called in-process
-        warnings.showwarning = _show_warning
+        warnings.showwarning = show_warning
         return _main(list(sys.argv[1:] if argv is None else argv))
 
 

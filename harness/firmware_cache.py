@@ -3,8 +3,8 @@ per-user cache keyed by the sources' hash.
 
 A checkout has `make firmware` (firmware_sim/build/uwb-fw, used when it exists). A package installed with
 `pip install uwb-hil` (or a wheel) carries the sources as package data (uwb_hil_firmware/: core, proto, app,
-host, models); the first run that needs the host build compiles them with the C compiler of the machine
-($CC, else cc, gcc or clang; nothing else: no make, no git) into
+host, models, and the Makefile, whose CFLAGS it uses); the first run that needs the host build compiles them
+with the C compiler of the machine ($CC, else cc, gcc or clang; nothing else: no make, no git) into
 
     $UWB_HIL_CACHE | $XDG_CACHE_HOME/uwb-hil | ~/.cache/uwb-hil  /firmware/<sha256 of the sources, 16 hex>/uwb-fw
 
@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
+import shlex
 import shutil
 import subprocess
 import tempfile
@@ -26,8 +28,6 @@ from harness.paths import FIRMWARE_DIR
 
 #: the folders of the host build's sources (firmware_sim/Makefile's CORE_SRC, HOST_SRC and headers)
 SOURCE_DIRS = ("core", "proto", "app", "host", "models")
-#: the Makefile's flags, without -Werror (another compiler's new warning must not stop a user's first run)
-CFLAGS = ("-std=c99", "-O3", "-D_POSIX_C_SOURCE=200809L", "-Icore", "-Iproto", "-Iapp", "-Imodels")
 COMPILERS = ("cc", "gcc", "clang")
 BUILD_TIMEOUT_S = 600.0
 
@@ -61,6 +61,31 @@ def source_hash(src: Path = FIRMWARE_DIR) -> str:
     return h.hexdigest()[:16]
 
 
+def makefile_cflags(src: Path = FIRMWARE_DIR) -> list[str]:
+    """CFLAGS of the host build as firmware_sim/Makefile (shipped with the sources) defines them: its simple
+    assignments read and $(VAR) expanded (the flags live in the Makefile only; make itself is not needed)."""
+    try:
+        text = (src / "Makefile").read_text(encoding="utf-8")
+    except OSError as exc:
+        raise FirmwareBuildError(f"cannot read {src / 'Makefile'} ({exc.strerror}): reinstall uwb-hil") from None
+    values: dict[str, str] = {}
+    for line in text.splitlines():
+        m = re.match(r"^([A-Z_]+)\s*(:=|\?=|\+=|=)\s*(.*)$", line)
+        if m:
+            name, op, value = m.group(1), m.group(2), m.group(3).split("#")[0].strip()
+            values[name] = f"{values.get(name, '')} {value}".strip() if op == "+=" else value
+
+    def expand(value: str, depth: int = 0) -> str:
+        if depth > 10:
+            return value
+        return re.sub(r"\$\((\w+)\)", lambda v: expand(values.get(v.group(1), ""), depth + 1), value)
+
+    cflags = values.get("CFLAGS")        # the default model's build: no model header (firmware_build.py's)
+    if cflags is None:
+        raise FirmwareBuildError(f"{src / 'Makefile'} defines no CFLAGS: reinstall uwb-hil")
+    return shlex.split(expand(cflags))
+
+
 def compiler() -> str:
     """$CC, else the first of cc, gcc, clang on PATH; FirmwareBuildError saying so when there is none."""
     cc = os.environ.get("CC") or next((c for c in COMPILERS if shutil.which(c)), None)
@@ -82,7 +107,7 @@ def cached_host_firmware(src: Path = FIRMWARE_DIR) -> Path:
     sources = [str(p.relative_to(src)) for p in source_files(src) if p.suffix == ".c" and p.parent.name != "models"]
     fd, tmp = tempfile.mkstemp(prefix=".uwb-fw.", dir=out.parent)
     os.close(fd)
-    cmd = [*cc.split(), *CFLAGS, f'-DUWB_BUILD_ID="src-{digest[:7]}"', "-o", tmp, *sources, "-lm"]
+    cmd = [*cc.split(), *makefile_cflags(src), f'-DUWB_BUILD_ID="src-{digest[:7]}"', "-o", tmp, *sources, "-lm"]
     try:
         proc = subprocess.run(cmd, cwd=src, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
     except (OSError, subprocess.TimeoutExpired) as exc:

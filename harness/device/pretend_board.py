@@ -16,7 +16,6 @@ not put in $UWB_HIL_PORT: the tests that run the CLI in a subprocess keep their 
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import subprocess
 import sys
@@ -24,70 +23,34 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO
 
+from harness.device.board_process import PtyBoard
 from harness.errors import DeviceError
-from harness.link.pty_link import make_raw
 from harness.paths import DEFAULT_FIRMWARE
 
 STARTUP_CHECK_S = 0.2
-STOP_TIMEOUT_S = 5.0
-
-
-class PretendBoard:
-    """The firmware process and the port it serves (the pty slave's path)."""
-
-    def __init__(self, proc: subprocess.Popen[bytes], port: str, log: Path | None) -> None:
-        self.proc, self.port, self.log = proc, port, log
-
-    def alive(self) -> bool:
-        return self.proc.poll() is None
-
-
-def _stop(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-    try:
-        proc.wait(timeout=STOP_TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
 
 
 @contextmanager
-def pretend_board(firmware: Path = DEFAULT_FIRMWARE, log: Path | None = None) -> Iterator[PretendBoard]:
-    """One firmware process on a raw pty for the whole block; always stopped at the end."""
-    if not Path(firmware).is_file():
-        raise FileNotFoundError(f"firmware binary {firmware} not found: run `make firmware`")
-    master, slave = os.openpty()
-    make_raw(slave)
-    out: IO[bytes] | int = open(log, "wb") if log is not None else subprocess.DEVNULL
-    try:
-        proc = subprocess.Popen([str(firmware), "--stdio"], stdin=master, stdout=master, stderr=out,
-                                start_new_session=True)
-    finally:
-        os.close(master)
-        if not isinstance(out, int):
-            out.close()
-    try:
+def pretend_board(firmware: Path = DEFAULT_FIRMWARE, log: Path | None = None) -> Iterator[PtyBoard]:
+    """One firmware process on a raw pty for the whole block (device/board_process.py's PtyBoard, the board a
+    campaign starts too); always stopped at the end. `.port` is the path clients open, `.alive()`, `.pid`."""
+    with PtyBoard(firmware, log) as board:
         time.sleep(STARTUP_CHECK_S)
-        if proc.poll() is not None:
-            raise DeviceError(f"the pretend board exited at start (code {proc.returncode})")
-        yield PretendBoard(proc, os.ttyname(slave), log)
-    finally:
-        _stop(proc)
-        os.close(slave)
+        if not board.alive():
+            raise DeviceError("the pretend board exited at start (its log: "
+                              f"{log if log is not None else 'not kept; pass --log FILE'})")
+        yield board
 
 
 def run_with_board(command: Sequence[str], firmware: Path, log: Path | None) -> int:
     """Run `command` ({port} -> the board's path) against one pretend board; its exit code, 3 if the board died."""
     with pretend_board(firmware, log) as board:
         argv = [a.replace("{port}", board.port) for a in command]
-        print(f"pretend board: {firmware} on {board.port} (pid {board.proc.pid})", file=sys.stderr, flush=True)
+        print(f"pretend board: {firmware} on {board.port} (pid {board.pid})", file=sys.stderr, flush=True)
         code = subprocess.run(argv, check=False).returncode
         if not board.alive():
-            print(f"pretend board: the firmware exited during the command (code {board.proc.returncode})",
-                  file=sys.stderr)
+            print("pretend board: the firmware exited during the command", file=sys.stderr)
             return code or 3
         return code
 

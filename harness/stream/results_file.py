@@ -135,12 +135,13 @@ class RunRecords:
     def __len__(self) -> int:
         return int(len(self.columns["index"]))
 
-    def results_array(self, n: int) -> np.ndarray:
-        """The rows as RESULTS_DTYPE for a flight of n measurements (the rest OUTCOME_PENDING)."""
+    def results_array(self, n: int, take: bool = False) -> np.ndarray:
+        """The rows as RESULTS_DTYPE for a flight of n measurements (the rest OUTCOME_PENDING). `take`: the
+        columns are moved out (freed one by one as they are copied, so a long run is not held twice)."""
         out = np.zeros(n, RESULTS_DTYPE)
-        k = len(self)
+        k = min(len(self), n)
         for name in RESULTS_DTYPE.names or ():
-            out[name][:k] = self.columns[name]
+            out[name][:k] = self.columns.pop(name)[:k] if take and name != "index" else self.columns[name][:k]
         return out
 
 
@@ -219,12 +220,23 @@ def read_run(path: Path, error: type[Exception] = ResultsFileError, columns: Ite
             raise error(f"{path}:1: header field {key!r} missing")
     run.header = header
     _flush(values, parts)
-    run.columns = {c: np.concatenate(p) if p else np.zeros(0, column_dtype(c)) for c, p in parts.items()}
+    run.columns = {c: _joined(p, c) for c, p in parts.items()}
     return run
 
 
+def _joined(parts: list[np.ndarray], column: str) -> np.ndarray:
+    """One column from its pieces, freed as they are copied."""
+    out = np.empty(sum(len(p) for p in parts), column_dtype(column))
+    k = 0
+    while parts:
+        p = parts.pop(0)
+        out[k:k + len(p)] = p
+        k += len(p)
+    return out
+
+
 #: rows parsed before they move from Python lists into arrays (bounds the reader's memory)
-FLUSH_ROWS = 1 << 16
+FLUSH_ROWS = 1 << 13
 
 
 def _flush(values: dict[str, list[Any]], parts: dict[str, list[np.ndarray]]) -> None:

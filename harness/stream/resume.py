@@ -240,7 +240,8 @@ def resume_run(device: Any, rec: RecordedRun, flight: Flight, locked: LockedResu
 def run_from_file(path: Path, flight: Flight) -> RunResult:
     """A RunResult for the whole flight from a (possibly resumed) results file, for run_summary()."""
     rec = read_results(path)
-    results = rec.results_array()
+    next_index = rec.next_index
+    results = rec.records.results_array(rec.n_measurements, take=True)     # the columns are freed as copied
     stats, decoder = None, DecoderErrors()
     if rec.records.stats is not None:
         obj = rec.records.stats
@@ -250,7 +251,7 @@ def run_from_file(path: Path, flight: Flight) -> RunResult:
     n = len(results)
     sim = (int(flight.uwb.t_us[-1]) - int(flight.uwb.t_us[0])) * 1e-6 if n else 0.0
     pending = int(np.count_nonzero(results["outcome"] == OUTCOME_PENDING))
-    if pending and pending != n - rec.next_index:
+    if pending and pending != n - next_index:
         raise ResumeError(f"{path}: inconsistent outcomes")
     return RunResult(flight=str(rec.header["flight"]), config=rec.config(), pacing=rec.pacing(), results=results,
                      stats=stats, decoder_errors=decoder, wall_s=0.0, sim_s=sim)

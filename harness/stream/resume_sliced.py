@@ -54,7 +54,8 @@ class _Resumer:
         self.rec, self.locked, self.progress = rec, locked, progress
         self.streamer = Streamer(device, timeout_s=timeout_s)
         self.k0 = rec.next_index
-        self.recorded = rec.results_array()[:self.k0]
+        # the recorded rows, k0 of them (the columns they come from are freed as copied); dropped once replayed
+        self.recorded: Any = rec.records.results_array(self.k0, take=True)
         pacing = rec.pacing()
         self.pacing = pacing
         self.replay_pacing = Pacing("windowed", pacing.window if pacing.mode != "lockstep" else 64)
@@ -71,6 +72,8 @@ class _Resumer:
                               f"{first}, counted within the slice): the file was edited or another firmware wrote "
                               "it; file left unchanged")
         self.info["replayed"] += n
+        if first_index + n >= self.k0:
+            self.recorded = None          # every recorded row is checked: the memory goes back
 
     def append(self, piece: Flight, cfg: EstimatorConfig, first_index: int, reset: bool) -> None:
         if self.writer is None:

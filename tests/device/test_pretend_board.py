@@ -15,7 +15,8 @@ from dataclasses import asdict
 import pytest
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.device.pretend_board import PretendBoard, main as pretend_main, pretend_board
+from harness.device.board_process import PtyBoard
+from harness.device.pretend_board import main as pretend_main, pretend_board
 from harness.flight.run_config import config_for
 from harness.flight.scenarios import scenario_flight
 from harness.link.ports import PortInfo, serial_number_of
@@ -28,7 +29,7 @@ DEVICE_LINE = re.compile(r"^device: target host, port (/dev/\S+), build \S+, mod
 
 
 @pytest.fixture
-def board() -> Iterator[PretendBoard]:
+def board() -> Iterator[PtyBoard]:
     with pretend_board() as b:
         yield b
 
@@ -38,7 +39,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
 
 
 @needs_fw
-def test_two_runs_on_one_board_name_the_device_and_pass(board: PretendBoard) -> None:
+def test_two_runs_on_one_board_name_the_device_and_pass(board: PtyBoard) -> None:
     for _ in range(2):      # the board is not restarted between runs
         r = _cli("run", "--port", board.port, "--duration", "4", "--stages", "outlier")
         assert r.returncode == 0, r.stderr
@@ -49,7 +50,7 @@ def test_two_runs_on_one_board_name_the_device_and_pass(board: PretendBoard) -> 
 
 
 @needs_fw
-def test_junit_names_port_baud_and_hash_without_0x(board: PretendBoard, pytester: pytest.Pytester) -> None:
+def test_junit_names_port_baud_and_hash_without_0x(board: PtyBoard, pytester: pytest.Pytester) -> None:
     pytester.makepyfile("def test_dev(uwb_device):\n    assert uwb_device.alive()\n")
     xml = pytester.path / "junit.xml"
     result = pytester.runpytest("-p", "no:cacheprovider", "--uwb-port", board.port, f"--junitxml={xml}")

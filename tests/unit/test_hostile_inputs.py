@@ -161,9 +161,14 @@ def test_results_target_without_newlines_is_judged_in_small_memory(tmp_path: Pat
 
 def test_a_results_header_source_is_checked_with_the_options_own_types() -> None:
     """What `run --resume` applies to a header before building anything (a tuple option included)."""
-    from harness.cli import check_header_source
+    from harness.cli import build_parser
+    from harness.cli_run import check_header_source as check, subparser
     from harness.errors import ResultsFileError
     from harness.run.source import RunSource
+
+    def check_header_source(src: dict, where: str) -> None:  # type: ignore[type-arg]
+        check(subparser(build_parser(), "run"), RunSource.keys(), src, where)
+
     good = RunSource(recording="x.bin", lever_arm=(0.01, 0.0, 0.09), set=["std_twr=0.2"]).as_header()
     check_header_source(good, "f:1: header source")
     for key, value, phrase in (("lever_arm", [5.0, 0.0, 0.0], "--lever-arm must be >= -1 and <= 1 m"),
