@@ -15,12 +15,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from harness.biasnet.recipes import CF_USD_EVAL, CF_USD_LOS, CF_USD_SHELF
+from harness.biasnet.registry import RECORDED_MODELS
 from harness.campaign.flight_spec import FlightSpec
-from harness.paths import MODELS_DIR
 
 #: models.json key and file of the real-flight network
-CF_MODEL_KEY = "cf_tdoa_pose"
-CF_MODEL = MODELS_DIR / "cf_tdoa_pose.npz"
+CF_MODEL_KEY = RECORDED_MODELS["cf_usd"].name
+CF_MODEL = RECORDED_MODELS["cf_usd"].path
 #: the trajectory label of a uSD flight: "cf-<log name>", with UWB_ONLY_SUFFIX when replayed UWB-only
 LABEL_PREFIX = "cf-"
 UWB_ONLY_SUFFIX = "-uwb"

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from harness.campaign.recorded_usd import LABEL_PREFIX, UWB_ONLY_SUFFIX, is_usd, usd_role
+from harness.campaign.recorded_usd import CF_MODEL_KEY, LABEL_PREFIX, UWB_ONLY_SUFFIX, is_usd, usd_role
 from harness.report.data import CampaignData, RunMetrics
 
 if TYPE_CHECKING:
@@ -24,6 +24,9 @@ if TYPE_CHECKING:
 COLUMNS = {("uwb", "none"): "UWB-only", ("uwb", "outlier"): "UWB-only + outlier", ("imu", "none"): "IMU",
            ("imu", "outlier"): "IMU + outlier", ("imu", "outlier+nn"): "IMU + outlier + NN"}
 ROLES = ("held-out", "shelf", "training")
+ATT_COLUMNS = ("imu none", "imu outlier", "imu outlier+nn")
+#: the error-over-time axis is cut here: the ground phases leave it until the estimator's ground phase holds
+ERROR_AXIS_M = 2.0
 
 
 def usd_runs(data: CampaignData) -> list[RunMetrics]:
@@ -38,19 +41,28 @@ def _replay(r: RunMetrics) -> str:
     return "uwb" if r.trajectory.endswith(UWB_ONLY_SUFFIX) else "imu"
 
 
+def _phase_rmse(r: RunMetrics, phase: str) -> float:
+    """The run's RMSE in `phase` ("flight": truth above 0.4 m, "ground"; report/phases.py), NaN without it."""
+    v = ((r.phases or {}).get(phase) or {}).get("rmse")
+    return float(v) if isinstance(v, (int, float)) else math.nan
+
+
 def usd_summary(data: CampaignData) -> dict[str, Any]:
     """Per log: role, whole-flight RMSE [m] per (replay, configuration) (`rmse`) and the flight phase's
     (`rmse_flight`: truth above 0.4 m, report/phases.py; runs with a ground phase); per role: the means of
-    each (`means`, `means_flight`)."""
+    each (`means`, `means_flight`); `attitude`: the firmware's attitude error in flight (median total angle
+    [deg]) per (replay, configuration), where the runs carry it."""
     flights: dict[str, dict[str, Any]] = {}
     for r in usd_runs(data):
         row = flights.setdefault(_log_name(r.trajectory), {"role": usd_role(r.trajectory), "rmse": {},
                                                            "rmse_flight": {}})
         key = f"{_replay(r)} {r.config}"
         row["rmse"][key] = r.rmse
-        fl = (r.phases or {}).get("flight") or {}
-        if isinstance(fl.get("rmse"), (int, float)):
-            row["rmse_flight"][key] = float(fl["rmse"])
+        if math.isfinite(_phase_rmse(r, "flight")):
+            row["rmse_flight"][key] = _phase_rmse(r, "flight")
+        att = ((r.attitude or {}).get("phases") or {}).get("flight", r.attitude or {})
+        if isinstance(att.get("angle_p50_deg"), (int, float)):
+            row.setdefault("attitude", {})[key] = float(att["angle_p50_deg"])
     return {"flights": dict(sorted(flights.items())), "means": _role_means(flights, "rmse"),
             "means_flight": _role_means(flights, "rmse_flight")}
 
@@ -71,8 +83,8 @@ def _cell(rmse: dict[str, float], replay: str, cfg: str) -> str:
     return f"{v:.3f}" if isinstance(v, float) and math.isfinite(v) else "-"
 
 
-def _change(rmse: dict[str, float]) -> str:
-    a, b = rmse.get("imu outlier"), rmse.get("imu outlier+nn")
+def _change(rmse: dict[str, float], base: str = "imu outlier", new: str = "imu outlier+nn") -> str:
+    a, b = rmse.get(base), rmse.get(new)
     return f"{100.0 * (b - a) / a:+.1f} %" if a and b is not None and math.isfinite(a * b) else "-"
 
 
@@ -93,8 +105,10 @@ def error_time_figure(data: CampaignData) -> Figure | None:
             r = next((r for r in runs if _log_name(r.trajectory) == log and _replay(r) == replay
                       and r.config == cfg), None)
             if r is not None:
-                ax.plot(r.err_t_s, r.err_mean, color=color, lw=1.0, label=f"{label} (RMSE {r.rmse:.3f} m)")
+                ax.plot(r.err_t_s, r.err_mean, color=color, lw=1.0,
+                        label=f"{label} (RMSE {r.rmse:.3f} m, in flight {_phase_rmse(r, 'flight'):.3f} m)")
         ax.set_title(f"{log} ({usd_role(LABEL_PREFIX + log)})", fontsize=9)
+        ax.set_ylim(0.0, ERROR_AXIS_M)
         ax.set_ylabel("|error| [m]")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper right")
@@ -117,10 +131,11 @@ def usd_section(ctx: "ReportContext") -> "Section | None":
     sec.tables += _rmse_tables(summary, "rmse", "means", "")
     if any(f["rmse_flight"] for f in summary["flights"].values()):
         sec.tables += _rmse_tables(summary, "rmse_flight", "means_flight", ", flight phase (truth above 0.4 m)")
+    sec.tables += _attitude_table(summary)
     sec.figures += _fig5(ctx)
     sec.figures += ctx.figure(error_time_figure(ctx.data), "crazyflie_error_time",
-                              "Position error over time of the flights the network never saw (mean |error| in "
-                              "0.5 s bins; take-off and landing included).")
+                              f"Position error over time of the flights the network never saw (mean |error| in "
+                              f"0.5 s bins, axis cut at {ERROR_AXIS_M:g} m; take-off and landing included).")
     sec.data = summary
     return sec
 
@@ -128,14 +143,26 @@ def usd_section(ctx: "ReportContext") -> "Section | None":
 def _rmse_tables(summary: dict[str, Any], what: str, means: str, title: str) -> list["Table"]:
     """The per-flight and per-role tables of one RMSE (`what` per flight, `means` per role)."""
     from harness.report.html import Table
-    rows = [[log, f["role"], *[_cell(f[what], *k) for k in COLUMNS], _change(f[what])]
+
+    def changes(rmse: dict[str, float]) -> list[str]:
+        return [_change(rmse), _change(rmse, "uwb outlier", "imu outlier")]
+    rows = [[log, f["role"], *[_cell(f[what], *k) for k in COLUMNS], *changes(f[what])]
             for log, f in summary["flights"].items()]
-    headers = ["log", "role", *COLUMNS.values(), "NN vs outlier"]
+    headers = [*COLUMNS.values(), "NN vs outlier", "IMU vs UWB-only (outlier)"]
     mrows = [[role, str(sum(f["role"] == role and bool(f[what]) for f in summary["flights"].values())),
-              *[_cell(summary[means][role], *k) for k in COLUMNS], _change(summary[means][role])]
+              *[_cell(summary[means][role], *k) for k in COLUMNS], *changes(summary[means][role])]
              for role in ROLES if summary[means].get(role)]
-    return [Table(headers, rows, "Per flight" + title),
-            Table(["flights", "n", *COLUMNS.values(), "NN vs outlier"], mrows, "Means" + title)]
+    return [Table(["log", "role", *headers], rows, "Per flight" + title),
+            Table(["flights", "n", *headers], mrows, "Means" + title)]
+
+
+def _attitude_table(summary: dict[str, Any]) -> list["Table"]:
+    """The firmware's attitude error in flight per log (IMU replays), if the runs carry it."""
+    from harness.report.html import Table
+    rows = [[log, f["role"], *[f"{f['attitude'][k]:.2f}" if k in f["attitude"] else "-" for k in ATT_COLUMNS]]
+            for log, f in summary["flights"].items() if f.get("attitude")]
+    return [Table(["log", "role", *[f"IMU {k.split(' ', 1)[1]}" for k in ATT_COLUMNS]], rows,
+                  "The firmware's attitude against the logged attitude in flight: median total angle [deg]")] if rows else []
 
 
 def _fig5(ctx: "ReportContext") -> list[Any]:
@@ -147,7 +174,7 @@ def _fig5(ctx: "ReportContext") -> list[Any]:
     from harness.report.html import FigureRef
     root = ctx.data.root
     index = read_index(root)
-    path = model_path(root, index, (index.get("families") or {}).get("cf_tdoa_pose")) if index else None
+    path = model_path(root, index, (index.get("families") or {}).get(CF_MODEL_KEY)) if index else None
     if index is None or path is None or not index.get("fig5_cf_flight"):
         return []
     model = BiasModel.load(path)

@@ -8,13 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from harness.report.data import RunMetrics
+
 from harness.biasnet.recipes import (CF_USD_EVAL, CF_USD_LOS, CF_USD_SHELF, cf_usd_heldout_files, cf_usd_shelf_files,
                                      cf_usd_train_files)
-from harness.campaign.plan import CampaignOptions, plan_campaign
+from harness.campaign.plan import UTIL_ANCHORS, UTIL_HELD_OUT, CampaignOptions, plan_campaign
 
 
 def _fake_data(root: Path) -> Path:
-    for rel in (*CF_USD_LOS, *CF_USD_SHELF):
+    """Stand-ins for the logs (and the UTIL TDoA files a TDoA campaign also asks for): the plan only looks."""
+    for rel in (*CF_USD_LOS, *CF_USD_SHELF, *UTIL_HELD_OUT, UTIL_ANCHORS):
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         (root / rel).write_bytes(b"\xbc")
     return root
@@ -57,3 +60,43 @@ def test_campaign_replays_every_log_with_imu_and_uwb_only_and_the_network_only_w
     assert recorded_usd.usd_role("cf-0425-traj13-uwb") == "held-out"
     assert recorded_usd.usd_role("cf-0426-traj5") == "shelf" and recorded_usd.usd_role("cf-0425-traj1") == "training"
     assert len({r.run_id for r in runs}) == len(runs)
+
+
+def _run(trajectory: str, config: str, flight_rmse: float, ground_rmse: float) -> RunMetrics:
+    t = np.arange(4, dtype=np.float64)
+    empty = np.zeros(0, np.float32)
+    return RunMetrics(run_id=f"rec-tdoa-{trajectory}-{config}", flight_id=f"rec-tdoa-{trajectory}", source="recorded",
+                      mode="tdoa", trajectory=trajectory, seed=None, config=config, measurements=10, results=10,
+                      lost=0, refused=0, rmse=flight_rmse + ground_rmse, rmse_xy=0.0, rmse_z=0.0, max_error=1.0,
+                      status_counts={}, err_t_s=t, err_mean=np.full(4, flight_rmse), compute_us=empty, rtt_us=empty,
+                      kind=1, device_stats=None,
+                      phases={"flight": {"rmse": flight_rmse}, "ground": {"rmse": ground_rmse}},
+                      attitude={"angle_p50_deg": 1.5} if not trajectory.endswith("-uwb") else None)
+
+
+def test_report_section_splits_the_crazyflie_logs_by_role_replay_and_phase() -> None:
+    from harness.report.data import CampaignData
+    from harness.report.summary import accuracy_section
+    from harness.report.usd_section import _attitude_table, _rmse_tables, error_time_figure, usd_summary
+    runs = [_run("cf-0425-traj3", "outlier", 0.20, 2.0), _run("cf-0425-traj3", "outlier+nn", 0.15, 2.5),
+            _run("cf-0425-traj3-uwb", "outlier", 0.25, 3.0), _run("cf-0425-traj1", "outlier", 0.30, 1.0),
+            _run("cf-0425-traj1-uwb", "outlier", 0.40, 1.0), _run("util-const1-trial5-tdoa2", "outlier", 0.1, 0.0)]
+    data = CampaignData(root=Path("."), manifest={}, runs=runs, failures=[], missing=[], devices=[])
+    s = usd_summary(data)
+    assert set(s["flights"]) == {"0425-traj3", "0425-traj1"}
+    t3 = s["flights"]["0425-traj3"]
+    assert t3["role"] == "held-out" and s["flights"]["0425-traj1"]["role"] == "training"
+    assert t3["rmse_flight"] == {"imu outlier": 0.20, "imu outlier+nn": 0.15, "uwb outlier": 0.25}
+    assert t3["rmse"]["imu outlier+nn"] == pytest.approx(2.65)
+    assert t3["attitude"] == {"imu outlier": 1.5, "imu outlier+nn": 1.5}
+    assert s["means_flight"]["training"] == {"imu outlier": 0.30, "uwb outlier": 0.40}
+    per_flight, means = _rmse_tables(s, "rmse_flight", "means_flight", "")
+    row = {r[0]: r for r in per_flight.rows}["0425-traj3"]
+    assert row[-2:] == ["-25.0 %", "-20.0 %"]            # network vs outlier rejection, IMU vs UWB-only
+    assert {r[0]: r for r in per_flight.rows}["0425-traj1"][-2:] == ["-", "-25.0 %"]
+    assert [r[:2] for r in means.rows] == [["held-out", "1"], ["training", "1"]]
+    assert _attitude_table(s)[0].rows[0] == ["0425-traj1", "training", "-", "1.50", "-"]
+    fig = error_time_figure(data)
+    assert fig is not None and len(fig.axes) == 1        # only the flight the network never saw
+    # the UTIL/rcv recorded summary keeps its own flights
+    assert [f["flight_id"] for f in accuracy_section(data)["recorded"]["flights"]] == ["rec-tdoa-util-const1-trial5-tdoa2"]
