@@ -5,22 +5,23 @@ reached through a serial port that clients open and close (a campaign's workers,
   qemu   the STM32 ELF in QEMU with its USART on a pty; the port is that pty
   serial a real board: nothing to start, the port is the board's
 
-The slave of each pty stays open here for the board's life (a pty whose slave every client has closed gives
-the firmware EIO); nothing here reads it, so a client gets every byte. `start_board` returns None for a real board.
+The slave of each pty stays open here for the board's life: a pty whose slave every client has closed gives
+the firmware EIO (the host build would exit between clients). Nothing here reads it, so a client gets
+every byte. `start_board` returns None for a real board.
 """
 
 from __future__ import annotations
 
+import os
 import subprocess
-from contextlib import ExitStack
 from pathlib import Path
 from types import TracebackType
-from typing import Protocol
+from typing import IO, Protocol
 
 from harness.device.board_list import BoardSpec
 from harness.device.registry import default_firmware
-from harness.device.pretend_board import PretendBoard, pretend_board
 from harness.errors import DeviceError
+from harness.link.pty_link import make_raw
 
 
 class BoardProcess(Protocol):
@@ -35,32 +36,52 @@ class BoardProcess(Protocol):
 
 
 class PtyBoard:
-    """The host firmware serving a pty for the board's life (device/pretend_board.py); `port` is the slave path."""
+    """The host firmware serving a pty (`uwb-fw --stdio` on the master); `port` is the slave path. The one
+    implementation of a host board: a campaign's boards and device/pretend_board.py (pytest sessions) use it."""
 
     def __init__(self, firmware: Path, log_path: Path | None = None) -> None:
         self.firmware = Path(firmware)
         self.log_path = log_path
         self.port = ""
-        self._stack = ExitStack()
-        self._board: PretendBoard | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._slave: int | None = None
+        self._log: IO[bytes] | None = None
 
     def start(self) -> PtyBoard:
+        if not self.firmware.is_file():
+            raise FileNotFoundError(f"firmware binary {self.firmware} not found: run `make firmware`")
+        master, slave = os.openpty()
+        make_raw(slave)
+        self.port = os.ttyname(slave)
+        self._slave = slave
         if self.log_path is not None:
             self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        self._board = self._stack.enter_context(pretend_board(self.firmware, self.log_path))
-        self.port = self._board.port
+            self._log = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
+        try:
+            self._proc = subprocess.Popen([str(self.firmware), "--stdio"], stdin=master, stdout=master,
+                                          stderr=self._log if self._log else subprocess.DEVNULL,
+                                          start_new_session=True)
+        finally:
+            os.close(master)
         return self
 
     @property
     def pid(self) -> int | None:
-        return self._board.proc.pid if self._board is not None else None
+        return self._proc.pid if self._proc is not None else None
 
     def alive(self) -> bool:
-        return self._board is not None and self._board.alive()
+        return self._proc is not None and self._proc.poll() is None
 
     def stop(self) -> None:
-        self._board = None
-        self._stack.close()
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            stop_process(proc)
+        if self._slave is not None:
+            os.close(self._slave)
+            self._slave = None
+        if self._log is not None:
+            self._log.close()
+            self._log = None
 
     def __enter__(self) -> PtyBoard:
         return self.start()
