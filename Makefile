@@ -48,11 +48,14 @@ test-py: $(STAMP) firmware
 # The device tests against ONE host-firmware process kept up for the whole session and reached as a board is
 # (its pty path as --uwb-port, target serial): a board on the bench is not restarted between tests, so every
 # test compares STATS deltas or resets what it needs through CONFIG (harness/device/pretend_board.py).
-# `hardware`-marked tests run here. The whole tests/device folder: about 3.5 min on 2 shared cores
-# (BOARD_TESTS=FILE... for fewer).
+# Selected: the tests that use the board (the plugin marks every test requesting uwb_device) and the
+# `hardware` ones; the others in tests/device run their own devices, as in test-py (`make test-board
+# BOARD_MARK=` runs all of tests/device on the board: about 7 min on 2 shared cores).
 BOARD_TESTS ?= tests/device
+BOARD_MARK  ?= uwb_device or hardware
 test-board: $(STAMP) firmware
-	$(PY) -m harness.device.pretend_board -- $(PY) -m pytest -q -p no:cacheprovider --uwb-port {port} $(BOARD_TESTS)
+	$(PY) -m harness.device.pretend_board -- $(PY) -m pytest -q -p no:cacheprovider --uwb-port {port} \
+	    $(if $(BOARD_MARK),-m "$(BOARD_MARK)") $(BOARD_TESTS)
 
 # `pip install -e .` without extras in a fresh virtualenv (no PyTorch): demo and run work, train says how to
 # get torch. LIGHT_VENV is rebuilt each time (local wheels: about a minute).

@@ -107,6 +107,8 @@ def pytest_configure(config: pytest.Config) -> None:
     config.stash[_ACTIVE_KEY] = plugin_active(config)
     if config.stash[_ACTIVE_KEY]:
         config.addinivalue_line("markers", "hardware: needs a real board (--uwb-port or --uwb-target serial)")
+        config.addinivalue_line("markers", "uwb_device: uses the device under test (set on every test that "
+                                           "requests the uwb_device fixture; `-m uwb_device` selects them)")
     scope = config.getoption("uwb_scope") or config.getini("uwb_scope")
     if scope not in SCOPES:
         raise pytest.UsageError(f"uwb_scope must be one of {SCOPES}, got {scope!r}")
@@ -188,7 +190,12 @@ def _hardware_selected(config: pytest.Config) -> bool:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    if not config.stash.get(_ACTIVE_KEY, False) or _hardware_selected(config):
+    if not config.stash.get(_ACTIVE_KEY, False):
+        return
+    for item in items:
+        if "uwb_device" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.uwb_device)
+    if _hardware_selected(config):
         return
     skip = pytest.mark.skip(reason="needs a real board: give --uwb-port (or --uwb-target serial)")
     for item in items:
