@@ -86,25 +86,33 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def add_range_offset_parser(sub: Any) -> None:
     p = sub.add_parser("range-offset", help="fit a TWR range-offset calibration (antenna delay) on recordings "
                                             "with ground truth, for `run --range-offset`")
-    p.add_argument("--recording", action="append", required=True, metavar="REC",
-                   help="a TWR recording with ground truth (repeatable: every range of every recording is used); "
-                        "to evaluate, leave the flight you replay out")
-    p.add_argument("--anchors", help="anchor file for the recordings (default: each recording's own)")
-    options.add_recording_read_options(p)
+    _add_calibration_io(p, "a TWR recording with ground truth (repeatable: every range of every recording is "
+                           "used); to evaluate, leave the flight you replay out")
     p.add_argument("--per-anchor", action="store_true",
                    help="also an offset per anchor id (on rcv_twr it does not carry over between sequences)")
-    p.add_argument("--out", required=True, help="calibration file to write (JSON)")
-    p.add_argument("--force", action="store_true", help="use recordings that fail the plausibility checks")
-    p.add_argument("--json", action="store_true", help="print the calibration as JSON")
     p.set_defaults(func=cmd_range_offset)
 
 
-def cmd_range_offset(args: argparse.Namespace) -> int:
+def _add_calibration_io(p: argparse.ArgumentParser, recording_help: str) -> None:
+    """The inputs and outputs of a calibration command: recordings, anchors, reader options, --out, --json."""
+    p.add_argument("--recording", action="append", required=True, metavar="REC", help=recording_help)
+    p.add_argument("--anchors", help="anchor file for the recordings (default: each recording's own)")
+    options.add_recording_read_options(p)
+    p.add_argument("--out", required=True, help="calibration file to write (JSON)")
+    p.add_argument("--force", action="store_true", help="use recordings that fail the plausibility checks")
+    p.add_argument("--json", action="store_true", help="print the calibration as JSON")
+
+
+def _calibration_flights(args: argparse.Namespace) -> list[Any]:
     from harness.flight.loaders import UsdOptions, load_recording
-    from harness.flight.range_offset import fit_range_offset, save_range_offset
     usd = UsdOptions.make(args.ignore_crc, args.lever_arm)
-    flights = [load_recording(Path(r), anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
-                              usd=usd) for r in args.recording]
+    return [load_recording(Path(r), anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
+                           usd=usd) for r in args.recording]
+
+
+def cmd_range_offset(args: argparse.Namespace) -> int:
+    from harness.flight.range_offset import fit_range_offset, save_range_offset
+    flights = _calibration_flights(args)
     cal = fit_range_offset(flights, per_anchor=args.per_anchor)
     save_range_offset(cal, Path(args.out))
     if args.json:
@@ -122,25 +130,16 @@ def cmd_range_offset(args: argparse.Namespace) -> int:
 def add_lever_arm_parser(sub: Any) -> None:
     p = sub.add_parser("lever-arm", help="fit the UWB tag's lever arm (antenna phase centre in the body frame) on "
                                          "recordings with attitude, for `--lever-arm FILE`")
-    p.add_argument("--recording", action="append", required=True, metavar="REC",
-                   help="a recording with ground-truth attitude (repeatable); to evaluate, leave the flight you "
-                        "replay out")
-    p.add_argument("--anchors", help="anchor file for the recordings (default: each recording's own)")
-    options.add_recording_read_options(p)
+    _add_calibration_io(p, "a recording with ground-truth attitude (repeatable); to evaluate, leave the flight "
+                           "you replay out")
     p.add_argument("--flight-above", type=float, default=0.4, metavar="Z",
                    help="use measurements with the truth above this height [m] (the ground phase is NLOS)")
-    p.add_argument("--out", required=True, help="calibration file to write (JSON)")
-    p.add_argument("--force", action="store_true", help="use recordings that fail the plausibility checks")
-    p.add_argument("--json", action="store_true", help="print the calibration as JSON")
     p.set_defaults(func=cmd_lever_arm)
 
 
 def cmd_lever_arm(args: argparse.Namespace) -> int:
     from harness.flight.lever_arm import fit_lever_arm, save_lever_arm
-    from harness.flight.loaders import UsdOptions, load_recording
-    usd = UsdOptions.make(args.ignore_crc, args.lever_arm)
-    flights = [load_recording(Path(r), anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
-                              usd=usd) for r in args.recording]
+    flights = _calibration_flights(args)
     fit = fit_lever_arm(flights, flight_above=args.flight_above)
     save_lever_arm(fit, Path(args.out))
     if args.json:
