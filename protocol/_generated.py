@@ -8,7 +8,7 @@ from typing import ClassVar
 
 from protocol.config_check import ConfigError, ConfigField, check_field  # noqa: F401
 
-PROTOCOL_VERSION = 8
+PROTOCOL_VERSION = 9
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -50,6 +50,7 @@ class Status(enum.IntEnum):
     REJECTED_KINEMATIC = 1
     REJECTED_CHI2 = 2
     REJECTED_GEOMETRY = 3
+    REJECTED_BASELINE = 4
 
 
 class ErrorCode(enum.IntEnum):
@@ -91,6 +92,14 @@ class DropReason(enum.IntEnum):
     UNKNOWN_TYPE = 5
     NO_POSITION = 6
     BAD_ANCHOR = 7
+
+
+class TdoaMatch(enum.IntEnum):
+    """CONFIG.tdoa_match: how the tag's TDoA engine picks the reference anchor (docs/radio.md)"""
+
+    AUTO = 0
+    RANDOM = 1
+    YOUNGEST = 2
 
 
 class Layout(enum.IntEnum):
@@ -149,12 +158,12 @@ class Config:
     DIRECTION: ClassVar[str] = 'to_device'
     FORMAT: ClassVar[str] = '<BBBBfffffffffffffffffff'
     SIZE: ClassVar[int] = 80
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('reserved', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'))
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('tdoa_match', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'))
 
     mode: int  # estimator mode
     stages: int  # pipeline stages on
     reset: int  # 1: re-initialise the filter at init_pos
-    reserved: int  # must be 0
+    tdoa_match: int  # radio level: the TDoA engine's reference matching
     std_twr: float  # TWR measurement std
     std_tdoa: float  # TDoA measurement std
     a_max_twr: float  # kinematic gate acceleration bound for TWR (a tuned bound, as the paper's a_max = 4 T_max g, not a physical acceleration)
@@ -412,9 +421,9 @@ class Stats:
     MSG_ID: ClassVar[int] = 0x83
     NAME: ClassVar[str] = 'STATS'
     DIRECTION: ClassVar[str] = 'to_host'
-    FORMAT: ClassVar[str] = '<IIIIIIIIIIIIIIIIIIIIIIIIIIII'
-    SIZE: ClassVar[int] = 112
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('frames_ok', 'u32'), ('crc_errors', 'u32'), ('framing_errors', 'u32'), ('unknown_types', 'u32'), ('bad_lengths', 'u32'), ('non_finite', 'u32'), ('unknown_anchors', 'u32'), ('time_backwards', 'u32'), ('bad_configs', 'u32'), ('dropped_meas', 'u32'), ('imu_samples', 'u32'), ('twr_meas', 'u32'), ('tdoa_meas', 'u32'), ('results', 'u32'), ('predictions', 'u32'), ('seq_gaps', 'u32'), ('radio_packets', 'u32'), ('radio_meas', 'u32'), ('radio_no_reference', 'u32'), ('radio_clock', 'u32'), ('radio_expired', 'u32'), ('radio_malformed', 'u32'), ('radio_unknown_type', 'u32'), ('radio_no_position', 'u32'), ('divergences', 'u32'), ('heights', 'u32'), ('bad_values', 'u32'), ('nn_pairs_disabled', 'u32'))
+    FORMAT: ClassVar[str] = '<IIIIIIIIIIIIIIIIIIIIIIIIIIIII'
+    SIZE: ClassVar[int] = 116
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('frames_ok', 'u32'), ('crc_errors', 'u32'), ('framing_errors', 'u32'), ('unknown_types', 'u32'), ('bad_lengths', 'u32'), ('non_finite', 'u32'), ('unknown_anchors', 'u32'), ('time_backwards', 'u32'), ('bad_configs', 'u32'), ('dropped_meas', 'u32'), ('imu_samples', 'u32'), ('twr_meas', 'u32'), ('tdoa_meas', 'u32'), ('results', 'u32'), ('predictions', 'u32'), ('seq_gaps', 'u32'), ('radio_packets', 'u32'), ('radio_meas', 'u32'), ('radio_no_reference', 'u32'), ('radio_clock', 'u32'), ('radio_expired', 'u32'), ('radio_malformed', 'u32'), ('radio_unknown_type', 'u32'), ('radio_no_position', 'u32'), ('divergences', 'u32'), ('heights', 'u32'), ('bad_values', 'u32'), ('nn_pairs_disabled', 'u32'), ('baseline_rejects', 'u32'))
 
     frames_ok: int  # frames with a valid CRC
     crc_errors: int
@@ -444,6 +453,7 @@ class Stats:
     heights: int  # HEIGHT pseudo-measurements fused
     bad_values: int  # frames refused with BAD_VALUE (a field outside its range)
     nn_pairs_disabled: int  # anchor pairs on which the per-pair monitor switched the network's correction off
+    baseline_rejects: int  # TDoA measurements answered REJECTED_BASELINE (|difference| >= the anchors' distance)
 
 
 @dataclass(frozen=True)
@@ -538,6 +548,7 @@ MESSAGES_BY_ID: dict[int, type] = {cls.MSG_ID: cls for cls in MESSAGE_TYPES}
 CONFIG_FIELDS: tuple[ConfigField, ...] = (
     ConfigField('mode', 'u8', 0, doc='estimator mode', choices=(('IMU', 0), ('UWB_ONLY', 1), ('IMU_THRUST', 2))),
     ConfigField('stages', 'u8', 7, doc='pipeline stages on', mask=0x7f),
+    ConfigField('tdoa_match', 'u8', 0, doc="radio level: the TDoA engine's reference matching", choices=(('AUTO', 0), ('RANDOM', 1), ('YOUNGEST', 2))),
     ConfigField('std_twr', 'f32', 0.25, unit='m', doc='TWR measurement std', gt=0.0),
     ConfigField('std_tdoa', 'f32', 0.15, unit='m', doc='TDoA measurement std', gt=0.0),
     ConfigField('a_max_twr', 'f32', 5000.0, unit='m/s^2', doc="kinematic gate acceleration bound for TWR (a tuned bound, as the paper's a_max = 4 T_max g, not a physical acceleration)", gt=0.0),
@@ -558,7 +569,6 @@ CONFIG_FIELDS: tuple[ConfigField, ...] = (
     ConfigField('sup_max_speed', 'f32', 10.0, unit='m/s', doc="supervisor: speed bound (as the Crazyflie's maxVel)", gt=0.0),
     ConfigField('sup_max_var', 'f32', 50.0, unit='m^2', doc='supervisor: bound on each position variance (the covariance clamp is 100)', gt=0.0),
     ConfigField('reset', 'u8', 1, doc='1: re-initialise the filter at init_pos', le=1.0, control=True),
-    ConfigField('reserved', 'u8', 0, doc='must be 0', le=0.0, control=True),
 )
 
 
@@ -569,6 +579,7 @@ class EstimatorConfigBase:
 
     mode: int = 0  # estimator mode (ekf_mode)
     stages: int = 7  # pipeline stages on (stage bits)
+    tdoa_match: int = 0  # radio level: the TDoA engine's reference matching (tdoa_match)
     std_twr: float = 0.25  # TWR measurement std [m], > 0
     std_tdoa: float = 0.15  # TDoA measurement std [m], > 0
     a_max_twr: float = 5000.0  # kinematic gate acceleration bound for TWR (a tuned bound, as the paper's a_max = 4 T_max g, not a physical acceleration) [m/s^2], > 0
@@ -595,13 +606,13 @@ class EstimatorConfigBase:
             if not f.control:
                 check_field(f, getattr(self, f.name))
 
-    def to_message(self, reset: int = 1, reserved: int = 0) -> Config:
+    def to_message(self, reset: int = 1) -> Config:
         """The CONFIG message carrying this configuration."""
         return Config(
             mode=self.mode,
             stages=self.stages,
             reset=reset,
-            reserved=reserved,
+            tdoa_match=self.tdoa_match,
             std_twr=self.std_twr,
             std_tdoa=self.std_tdoa,
             a_max_twr=self.a_max_twr,

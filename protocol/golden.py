@@ -49,7 +49,7 @@ def _vectors() -> list[tuple[str, int, Any]]:
         # through the generated configuration: a CONFIG field added to messages.toml needs no edit here
         ("config_defaults", 2, m.EstimatorConfigBase(init_x=1.5).to_message(reset=1)),
         ("config_uwb_only", 3, m.EstimatorConfigBase(
-            mode=1, stages=0, std_twr=0.1, std_tdoa=0.3, a_max_twr=1.0, a_max_tdoa=2.0, gate_dt_min=0.005,
+            mode=1, stages=0, tdoa_match=2, std_twr=0.1, std_tdoa=0.3, a_max_twr=1.0, a_max_tdoa=2.0, gate_dt_min=0.005,
             chi2_twr=2.25, chi2_tdoa=3.24, proc_acc_xy=0.0, proc_acc_z=0.0, proc_cv_acc=1.0, init_x=-3.5,
             init_y=4.0, init_z=0.25, init_std_xy=100.0, init_std_z=1.0, nn_min_z=-1.0, sup_margin=0.0,
             sup_max_speed=1e6, sup_max_var=0.25).to_message(reset=0)),
@@ -86,7 +86,8 @@ def _vectors() -> list[tuple[str, int, Any]]:
                              imu_samples=1000, twr_meas=200, tdoa_meas=0, results=190, predictions=100,
                              seq_gaps=0, radio_packets=500, radio_meas=450, radio_no_reference=20,
                              radio_clock=16, radio_expired=5, radio_malformed=4, radio_unknown_type=3,
-                             radio_no_position=2, divergences=2, heights=30, bad_values=1, nn_pairs_disabled=3)),
+                             radio_no_position=2, divergences=2, heights=30, bad_values=1, nn_pairs_disabled=3,
+                             baseline_rejects=6)),
         ("error", 4, m.Error(code=4, msg_type=5, msg_seq=8, detail=12)),
         ("radio_tdoa2_lpp", 17, _radio(20_000, 0xFF_FFFF_FFFF, 0xBCCF000000000003, _TDOA2_LPP)),
         ("radio_tdoa3", 18, _radio(2**63, 0x12_3456_789A, 0xBCCF000000000005, _TDOA3)),

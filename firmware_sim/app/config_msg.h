@@ -11,6 +11,7 @@ static inline void config_from_msg(const uwb_config_t *m, estimator_config_t *cf
 {
     cfg->mode = m->mode;
     cfg->stages = m->stages;
+    cfg->tdoa_match = m->tdoa_match;
     cfg->std_twr = m->std_twr;
     cfg->std_tdoa = m->std_tdoa;
     cfg->a_max_twr = m->a_max_twr;
@@ -32,10 +33,10 @@ static inline void config_from_msg(const uwb_config_t *m, estimator_config_t *cf
     cfg->sup_max_var = m->sup_max_var;
 }
 
-/* 1 if the message's own fields (reset, reserved) are valid. */
+/* 1 if the message's own fields (reset) are valid. */
 static inline int config_msg_control_valid(const uwb_config_t *m)
 {
-    return m->reset <= 1u && m->reserved == 0u;
+    return m->reset <= 1u;
 }
 
 #endif

@@ -118,6 +118,7 @@ static void on_stats_req(firmware_t *fw)
     msg.u.stats.radio_no_position = s->radio_no_position;
     msg.u.stats.divergences = fw->est.divergences;
     msg.u.stats.nn_pairs_disabled = fw->est.nnmon.disabled;
+    msg.u.stats.baseline_rejects = fw->est.baseline_rejects;
     msg.u.stats.heights = fw->est.heights;
     msg.u.stats.bad_values = s->bad_values;
     fw_send_msg(fw, &msg);

@@ -51,8 +51,21 @@ static int radio_frame_ok(const uwb_radio_t *r)
     return 1;
 }
 
-/* One anchor packet: parse, LPP position into the anchor table, TDoA engine, then (if it formed a
- * measurement) the same pipeline as a TDOA frame. Answered by RESULT, RADIO_DROP or ERROR. */
+/* The drop reason of a measurement the engine formed whose positions are not both known (0: known). */
+static uint8_t position_check(const firmware_t *fw, const tdoa_meas_t *m)
+{
+    if (m->anchor_a >= ESTIMATOR_MAX_ANCHORS || m->anchor_b >= ESTIMATOR_MAX_ANCHORS) {
+        return UWB_DROP_REASON_BAD_ANCHOR;
+    }
+    if (!((fw->est.anchor_known >> m->anchor_a) & 1u) || !((fw->est.anchor_known >> m->anchor_b) & 1u)) {
+        return UWB_DROP_REASON_NO_POSITION;
+    }
+    return 0;
+}
+
+/* One anchor packet: parse, TDoA engine, then (if it formed a measurement whose anchors' positions are
+ * known) the same pipeline as a TDOA frame. The packet's LPP position is stored after the engine, as a
+ * Crazyflie's tag does (it serves the next measurements). Answered by RESULT, RADIO_DROP or ERROR. */
 void fw_on_radio(firmware_t *fw, const uwb_msg_t *in)
 {
     const uwb_radio_t *r = &in->u.radio;
@@ -73,20 +86,15 @@ void fw_on_radio(firmware_t *fw, const uwb_msg_t *in)
         radio_drop(fw, in, rc == LPS_ERR_UNKNOWN_TYPE ? UWB_DROP_REASON_UNKNOWN_TYPE : UWB_DROP_REASON_MALFORMED);
         return;
     }
+    rc = tdoa_engine_process(&fw->tdoa, &pkt, sender, r->rx_ts, r->t_us, fw->est.cfg.tdoa_match, &meas);
+    if (rc == TDOA_MEASUREMENT) {
+        rc = position_check(fw, &meas);
+    }
     if (pkt.has_pos && sender < ESTIMATOR_MAX_ANCHORS) {
         (void)estimator_set_anchor(&fw->est, sender, pkt.pos);
     }
-    rc = tdoa_engine_process(&fw->tdoa, &pkt, sender, r->rx_ts, r->t_us, &meas);
     if (rc != TDOA_MEASUREMENT) {
         radio_drop(fw, in, (uint8_t)rc);
-        return;
-    }
-    if (meas.anchor_a >= ESTIMATOR_MAX_ANCHORS || meas.anchor_b >= ESTIMATOR_MAX_ANCHORS) {
-        radio_drop(fw, in, UWB_DROP_REASON_BAD_ANCHOR);
-        return;
-    }
-    if (!((fw->est.anchor_known >> meas.anchor_a) & 1u) || !((fw->est.anchor_known >> meas.anchor_b) & 1u)) {
-        radio_drop(fw, in, UWB_DROP_REASON_NO_POSITION);
         return;
     }
     fw->stats.radio_meas++;

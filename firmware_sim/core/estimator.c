@@ -228,6 +228,14 @@ static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, u
     out->gain[2] = m->K[EKF_Z];
 }
 
+/* A TDoA's |diff| must be below the distance between its two anchors (a Crazyflie's outlier filter
+ * discards the others before its update: physically impossible, most likely a measurement error). */
+static int within_baseline(const float *a, const float *b, float diff)
+{
+    const float dx = a[0] - b[0], dy = a[1] - b[1], dz = a[2] - b[2];
+    return diff * diff < dx * dx + dy * dy + dz * dz;
+}
+
 /* The pipeline for one measurement z. anchor_b == NULL means TWR to anchor_a (then id_b == id_a). */
 static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b, const float *anchor_a,
                     const float *anchor_b, float z, estimator_result_t *out)
@@ -265,8 +273,10 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     c0 = platform_cost_now();
     rc = tdoa ? mm_tdoa(&ekf->x[EKF_X], anchor_a, anchor_b, &h, H) : mm_twr(&ekf->x[EKF_X], anchor_a, &h, H);
     c1 = platform_cost_now();
-    if (rc != MM_OK) {
-        out->status = EST_REJECTED_GEOMETRY;
+    out->status = rc != MM_OK ? EST_REJECTED_GEOMETRY
+                  : (tdoa && !within_baseline(anchor_a, anchor_b, z)) ? EST_REJECTED_BASELINE : EST_ACCEPTED;
+    if (out->status != EST_ACCEPTED) {
+        est->baseline_rejects += out->status == EST_REJECTED_BASELINE;
         out->cost_update = c1 - c0;
         out->flags = est->flags;
         est->flags = 0;

@@ -42,7 +42,8 @@ enum {
     EST_ACCEPTED = 0,
     EST_REJECTED_KINEMATIC = 1,
     EST_REJECTED_CHI2 = 2,
-    EST_REJECTED_GEOMETRY = 3
+    EST_REJECTED_GEOMETRY = 3,
+    EST_REJECTED_BASELINE = 4   /* TDoA: |diff| >= distance between its anchors (always on) */
 };
 
 /* Modes and stage bits (= protocol enums ekf_mode, stage). */
@@ -98,6 +99,7 @@ typedef struct {
     uint32_t divergences;             /* times the supervisor re-initialised the filter (not after gaps) */
     uint32_t gap_restarts;            /* restarts after a measurement gap (EST_FLAG_GAP_RESTART) */
     uint32_t heights;                 /* HEIGHT pseudo-measurements fused */
+    uint32_t baseline_rejects;        /* TDoA measurements answered EST_REJECTED_BASELINE */
 } estimator_t;
 
 /* Default config, filter at its init position, no anchors, counters zero. */

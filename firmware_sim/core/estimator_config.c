@@ -8,6 +8,7 @@
 static const estimator_config_t defaults = {
     .mode = 0u,
     .stages = 7u,
+    .tdoa_match = 0u,
     .std_twr = 0.25f,
     .std_tdoa = 0.15f,
     .a_max_twr = 5000.0f,
@@ -41,6 +42,9 @@ int estimator_config_valid(const estimator_config_t *cfg)
         return 0;
     }
     if (!((cfg->stages & ~0x7fu) == 0u)) {
+        return 0;
+    }
+    if (!(cfg->tdoa_match == 0u || cfg->tdoa_match == 1u || cfg->tdoa_match == 2u)) {
         return 0;
     }
     {
@@ -81,6 +85,7 @@ int estimator_config_valid(const estimator_config_t *cfg)
 const estimator_config_field_t estimator_config_fields[ESTIMATOR_CONFIG_N_FIELDS] = {
     {"mode", (uint16_t)offsetof(estimator_config_t, mode), 0},
     {"stages", (uint16_t)offsetof(estimator_config_t, stages), 0},
+    {"tdoa_match", (uint16_t)offsetof(estimator_config_t, tdoa_match), 0},
     {"std_twr", (uint16_t)offsetof(estimator_config_t, std_twr), 1},
     {"std_tdoa", (uint16_t)offsetof(estimator_config_t, std_tdoa), 1},
     {"a_max_twr", (uint16_t)offsetof(estimator_config_t, a_max_twr), 1},

@@ -9,6 +9,7 @@
 typedef struct {
     uint8_t mode; /* estimator mode (ekf_mode) */
     uint8_t stages; /* pipeline stages on (stage bits) */
+    uint8_t tdoa_match; /* radio level: the TDoA engine's reference matching (tdoa_match) */
     float std_twr; /* TWR measurement std [m], > 0 */
     float std_tdoa; /* TDoA measurement std [m], > 0 */
     float a_max_twr; /* kinematic gate acceleration bound for TWR (a tuned bound, as the paper's a_max = 4 T_max g, not a physical acceleration) [m/s^2], > 0 */
@@ -30,7 +31,7 @@ typedef struct {
     float sup_max_var; /* supervisor: bound on each position variance (the covariance clamp is 100) [m^2], > 0 */
 } estimator_config_t;
 
-#define ESTIMATOR_CONFIG_N_FIELDS 21u
+#define ESTIMATOR_CONFIG_N_FIELDS 22u
 
 /* The power-up values (harness/config.py EstimatorConfig's defaults). */
 void estimator_default_config(estimator_config_t *cfg);

@@ -20,36 +20,29 @@ static float rd_f32(const uint8_t *p)
     return f;
 }
 
-/* LPP short packet at the end of an anchor payload. Only ANCHOR_POSITION is used; other LPP ids are
- * accepted and ignored (an anchor may carry them), an ANCHOR_POSITION of the wrong size or with a
- * non-finite or implausible coordinate is malformed. */
-static int parse_lpp(const uint8_t *p, size_t n, lps_packet_t *out)
+/* Bytes after the remote entries: an LPP short packet ANCHOR_POSITION (at least 14 bytes, finite
+ * coordinates within LPS_MAX_COORD) sets the position; anything else is ignored, as the Crazyflie's tag
+ * ignores LPP data it does not use. */
+static void parse_lpp(const uint8_t *p, size_t n, lps_packet_t *out)
 {
+    float v[3];
     int k;
-    if (n == 0) {
-        return LPS_OK;
-    }
-    if (n < 2 || p[0] != LPS_LPP_SHORT) {
-        return LPS_ERR_MALFORMED;
-    }
-    if (p[1] != LPS_LPP_POSITION) {
-        return LPS_OK;
-    }
-    if (n != 14) {
-        return LPS_ERR_MALFORMED;
+    if (n < 14 || p[0] != LPS_LPP_SHORT || p[1] != LPS_LPP_POSITION) {
+        return;
     }
     for (k = 0; k < 3; k++) {
-        float v = rd_f32(p + 2 + 4 * k);
+        v[k] = rd_f32(p + 2 + 4 * k);
         /* v != v: NaN; the bound also refuses infinities. */
-        if (v != v || v > LPS_MAX_COORD || v < -LPS_MAX_COORD) {
-            return LPS_ERR_MALFORMED;
+        if (v[k] != v[k] || v[k] > LPS_MAX_COORD || v[k] < -LPS_MAX_COORD) {
+            return;
         }
-        out->pos[k] = v;
     }
+    memcpy(out->pos, v, sizeof v);
     out->has_pos = 1;
-    return LPS_OK;
 }
 
+/* TDoA2: the sender's slot is its own TX, the other seven its remotes (a zero stamp or distance:
+ * not heard / not ranged, the engine skips it). */
 static int parse_tdoa2(const uint8_t *p, size_t n, uint8_t sender, lps_packet_t *out)
 {
     unsigned i;
@@ -60,55 +53,50 @@ static int parse_tdoa2(const uint8_t *p, size_t n, uint8_t sender, lps_packet_t 
     out->tx_ts = rd_u32(p + 9 + 4 * sender);
     for (i = 0; i < LPS_TDOA2_ANCHORS; i++) {
         lps_remote_t *r;
-        uint32_t ts = rd_u32(p + 9 + 4 * i);
-        /* Slot i of the sender is its own TX; a zero timestamp means "not heard". */
-        if (i == sender || ts == 0) {
+        if (i == sender) {
             continue;
         }
         r = &out->remote[out->n_remote++];
         r->id = (uint8_t)i;
         r->seq = (uint8_t)(p[1 + i] & LPS_SEQ_MASK);
-        r->rx_ts = ts;
+        r->rx_ts = rd_u32(p + 9 + 4 * i);
         r->tof = rd_u16(p + 41 + 2 * i);
-        r->has_tof = r->tof != 0;
     }
-    return parse_lpp(p + LPS_TDOA2_SIZE, n - LPS_TDOA2_SIZE, out);
+    parse_lpp(p + LPS_TDOA2_SIZE, n - LPS_TDOA2_SIZE, out);
+    return LPS_OK;
 }
 
+/* TDoA3: remoteCount entries of 6 bytes, 8 with a distance (seq bit 7). The entries that fit are used;
+ * a truncated one ends the list (and there is no LPP after it). */
 static int parse_tdoa3(const uint8_t *p, size_t n, uint8_t sender, lps_packet_t *out)
 {
     size_t off = LPS_TDOA3_HEADER;
-    unsigned i, count;
+    unsigned i;
     if (n < LPS_TDOA3_HEADER) {
         return LPS_ERR_MALFORMED;
     }
     out->seq = (uint8_t)(p[1] & LPS_SEQ_MASK);
     out->tx_ts = rd_u32(p + 2);
-    count = p[6];
-    if (count > LPS_MAX_REMOTE) {
-        return LPS_ERR_MALFORMED;
-    }
-    for (i = 0; i < count; i++) {
-        lps_remote_t *r = &out->remote[i];
+    for (i = 0; i < p[6]; i++) {
         size_t need;
-        if (n - off < 6) {
-            return LPS_ERR_MALFORMED;
+        if (n - off < 6u) {
+            return LPS_OK;
         }
-        r->id = p[off];
-        r->has_tof = (uint8_t)(p[off + 1] >> 7);
-        r->seq = (uint8_t)(p[off + 1] & LPS_SEQ_MASK);
-        r->rx_ts = rd_u32(p + off + 2);
-        need = r->has_tof ? 8u : 6u;
-        if (n - off < need || r->id == sender) {
-            return LPS_ERR_MALFORMED;
+        need = (p[off + 1] & 0x80u) ? 8u : 6u;
+        if (n - off < need) {
+            return LPS_OK;
         }
-        r->tof = r->has_tof ? rd_u16(p + off + 6) : 0u;
-        /* A zero ToF carries no information (the anchor has not ranged yet). */
-        r->has_tof = (uint8_t)(r->has_tof && r->tof != 0);
+        if (p[off] != sender && out->n_remote < LPS_MAX_REMOTE) {
+            lps_remote_t *r = &out->remote[out->n_remote++];
+            r->id = p[off];
+            r->seq = (uint8_t)(p[off + 1] & LPS_SEQ_MASK);
+            r->rx_ts = rd_u32(p + off + 2);
+            r->tof = need == 8u ? rd_u16(p + off + 6) : 0u;
+        }
         off += need;
     }
-    out->n_remote = (uint8_t)count;
-    return parse_lpp(p + off, n - off, out);
+    parse_lpp(p + off, n - off, out);
+    return LPS_OK;
 }
 
 int lps_parse(const uint8_t *payload, size_t n, uint8_t sender, lps_packet_t *out)

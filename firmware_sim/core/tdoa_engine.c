@@ -7,6 +7,11 @@ void tdoa_engine_init(tdoa_engine_t *e)
     memset(e, 0, sizeof *e);
 }
 
+uint32_t tdoa_engine_ms(uint64_t t_us)
+{
+    return (uint32_t)(t_us / 1000u);
+}
+
 static tdoa_anchor_t *find(tdoa_engine_t *e, uint8_t id)
 {
     unsigned i;
@@ -23,100 +28,106 @@ const tdoa_anchor_t *tdoa_engine_anchor(const tdoa_engine_t *e, uint8_t id)
     return find((tdoa_engine_t *)e, id);
 }
 
-/* A free slot, else the one updated longest ago (lowest slot index on ties). */
-static tdoa_anchor_t *get_or_create(tdoa_engine_t *e, uint8_t id)
+/* The context of id; a missing one is created (*created = 1) in the first free slot, else in the one
+ * whose last packet is the oldest, strictly before now (slot 0 if none is). */
+static tdoa_anchor_t *get_or_create(tdoa_engine_t *e, uint8_t id, uint32_t now_ms, int *created)
 {
     tdoa_anchor_t *a = find(e, id);
-    unsigned i;
+    unsigned i, victim = 0;
+    uint32_t oldest = now_ms;
+    *created = a == NULL;
     if (a != NULL) {
         return a;
     }
     for (i = 0; i < TDOA_STORAGE_COUNT; i++) {
-        tdoa_anchor_t *c = &e->anchors[i];
-        if (!c->in_use) {
-            a = c;
+        if (!e->anchors[i].in_use) {
+            victim = i;
             break;
         }
-        if (a == NULL || c->rx_t_us < a->rx_t_us) {
-            a = c;
+        if (e->anchors[i].last_ms < oldest) {
+            oldest = e->anchors[i].last_ms;
+            victim = i;
         }
     }
+    a = &e->anchors[victim];
     memset(a, 0, sizeof *a);
     a->in_use = 1;
     a->id = id;
     return a;
 }
 
-static uint64_t age_us(uint64_t now, uint64_t then)
+/* Slot for id in a table of n (ids, end_ms): the first slot holding id, else the first one that
+ * expires earliest. Unused slots hold id 0 and end 0. */
+static unsigned slot_for(const uint8_t *ids, const uint32_t *end_ms, unsigned n, uint8_t id)
 {
-    return now >= then ? now - then : UINT64_MAX;
+    unsigned k, best = 0;
+    uint32_t earliest = 0xFFFFFFFFu;
+    for (k = 0; k < n; k++) {
+        if (ids[k] == id) {
+            return k;
+        }
+        if (end_ms[k] < earliest) {
+            earliest = end_ms[k];
+            best = k;
+        }
+    }
+    return best;
 }
 
-/* The slot for remote id: its own, else a free one, else the oldest (lowest index on ties). */
-static tdoa_tof_t *tof_slot(tdoa_anchor_t *a, uint8_t id)
+/* Index of id's live entry (the first slot holding id, if it has not expired), or -1. */
+static int live(const uint8_t *ids, const uint32_t *end_ms, unsigned n, uint8_t id, uint32_t now_ms)
 {
-    tdoa_tof_t *slot = NULL;
     unsigned k;
-    for (k = 0; k < TDOA_TOF_PER_ANCHOR; k++) {
-        if (a->tof[k].has_tof && a->tof[k].id == id) {
-            return &a->tof[k];
+    for (k = 0; k < n; k++) {
+        if (ids[k] == id) {
+            return end_ms[k] > now_ms ? (int)k : -1;
         }
     }
-    for (k = 0; k < TDOA_TOF_PER_ANCHOR; k++) {
-        tdoa_tof_t *t = &a->tof[k];
-        if (!t->has_tof) {
-            return t;
-        }
-        if (slot == NULL || t->t_us < slot->t_us) {
-            slot = t;
-        }
-    }
-    return slot;
+    return -1;
 }
 
-/* Remember the ToFs the packet carries (TDoA3 short entries carry none: earlier ones are used). */
-static void store_tofs(tdoa_anchor_t *a, const lps_packet_t *pkt, uint64_t t_us)
+static uint16_t tof_of(const tdoa_anchor_t *a, uint8_t id, uint32_t now_ms)
+{
+    const int k = live(a->tof.id, a->tof.end_ms, TDOA_TOF_COUNT, id, now_ms);
+    return k < 0 ? 0u : a->tof.tof[k];
+}
+
+/* Remember what the packet reports: remote RX data (if the stamp is not 0) and ToFs (if not 0). */
+static void store_remotes(tdoa_anchor_t *a, const lps_packet_t *pkt, uint32_t now_ms)
 {
     unsigned r;
     for (r = 0; r < pkt->n_remote; r++) {
         const lps_remote_t *rm = &pkt->remote[r];
-        tdoa_tof_t *slot;
-        if (!rm->has_tof) {
-            continue;
+        if (rm->rx_ts != 0) {
+            tdoa_remote_t *d = &a->remote;
+            const unsigned k = slot_for(d->id, d->end_ms, TDOA_REMOTE_COUNT, rm->id);
+            d->id[k] = rm->id;
+            d->seq[k] = rm->seq;
+            d->rx_ts[k] = rm->rx_ts;
+            d->end_ms[k] = now_ms + TDOA_REMOTE_VALID_MS;
         }
-        slot = tof_slot(a, rm->id);
-        slot->id = rm->id;
-        slot->tof = rm->tof;
-        slot->has_tof = 1;
-        slot->t_us = t_us;
+        if (rm->tof != 0) {
+            tdoa_tofs_t *t = &a->tof;
+            const unsigned k = slot_for(t->id, t->end_ms, TDOA_TOF_COUNT, rm->id);
+            t->id[k] = rm->id;
+            t->tof[k] = rm->tof;
+            t->end_ms[k] = now_ms + TDOA_TOF_VALID_MS;
+        }
     }
 }
 
-static const tdoa_tof_t *lookup_tof(const tdoa_anchor_t *a, uint8_t remote)
-{
-    unsigned k;
-    for (k = 0; k < TDOA_TOF_PER_ANCHOR; k++) {
-        if (a->tof[k].has_tof && a->tof[k].id == remote) {
-            return &a->tof[k];
-        }
-    }
-    return NULL;
-}
-
-/* The bucket rule; returns 1 if this sample is reliable. */
+/* The bucket rule on candidate = trunc32(rx - rx_prev) / trunc32(tx - tx_prev) (-1 when the TX
+ * interval is 0). Needs a previous packet (both its stamps non-zero). Returns 1 if reliable. */
 static int clock_update(tdoa_anchor_t *a, uint64_t rx_ts, uint32_t tx_ts)
 {
     uint32_t drx, dtx;
     double cand, dev;
-    if (!a->has_last) {
+    if (a->rx_ts == 0 || a->tx_ts == 0) {
         return 0;
     }
     drx = (uint32_t)(rx_ts - a->rx_ts);
     dtx = tx_ts - a->tx_ts;
-    if (dtx == 0) {
-        return 0;
-    }
-    cand = (double)drx / (double)dtx;
+    cand = dtx == 0 ? -1.0 : (double)drx / (double)dtx;
     dev = cand - a->cc;
     if (dev < TDOA_CC_ACCEPTED_NOISE && dev > -TDOA_CC_ACCEPTED_NOISE) {
         a->cc = TDOA_CC_FILTER * a->cc + (1.0 - TDOA_CC_FILTER) * cand;
@@ -125,94 +136,106 @@ static int clock_update(tdoa_anchor_t *a, uint64_t rx_ts, uint32_t tx_ts)
         }
         return 1;
     }
-    if (a->bucket == 0) {
-        if (cand > 1.0 - TDOA_CC_MAX_DEVIATION && cand < 1.0 + TDOA_CC_MAX_DEVIATION) {
-            a->cc = cand;
-        }
-    } else {
+    if (a->bucket > 0) {
         a->bucket--;
+    } else if (cand > 1.0 - TDOA_CC_MAX_DEVIATION && cand < 1.0 + TDOA_CC_MAX_DEVIATION) {
+        a->cc = cand;
     }
     return 0;
 }
 
-/* Is remote r of the packet usable as reference? 0: yes, else the drop reason it would give. */
-static int candidate(tdoa_engine_t *e, const tdoa_anchor_t *an, const lps_remote_t *r, uint64_t t_us,
-                     const tdoa_anchor_t **ar_out, const tdoa_tof_t **tof_out)
+/* Is the live remote entry k of An a reference? Its anchor must be stored already (looking it up
+ * creates it otherwise, as the reference's storage does), the seq An reports must be that of the
+ * tag's last packet from it, and An must know a ToF from it. */
+static tdoa_anchor_t *reference(tdoa_engine_t *e, const tdoa_anchor_t *an, unsigned k, uint32_t now_ms)
 {
-    const tdoa_anchor_t *ar = find(e, r->id);
-    const tdoa_tof_t *tof = lookup_tof(an, r->id);
-    if (ar == NULL || !ar->has_last || ar->seq != r->seq || tof == NULL) {
-        return TDOA_DROP_NO_REFERENCE;
+    int created;
+    tdoa_anchor_t *ar = get_or_create(e, an->remote.id[k], now_ms, &created);
+    if (created || an->remote.seq[k] != ar->seq || tof_of(an, ar->id, now_ms) == 0) {
+        return NULL;
     }
-    if (age_us(t_us, ar->rx_t_us) > TDOA_REMOTE_VALID_US || age_us(t_us, tof->t_us) > TDOA_TOF_VALID_US) {
-        return TDOA_DROP_EXPIRED;
-    }
-    *ar_out = ar;
-    *tof_out = tof;
-    return 0;
+    return ar;
 }
 
-/* The candidate the tag heard most recently (first in packet order on ties), TDoA2 and TDoA3 alike.
- * The engine's difference multiplies the clock-correction error by the age of the reference, so the
- * youngest reference keeps that part small: ~2.5 ms with TDoA3's random schedule, where the reference's
- * rotating start picked references ~20 ms old (1.3 mm RMS from clock correction alone against 0.2 mm).
- * The schedule is random, so the pairs still vary. */
-static int match(tdoa_engine_t *e, const tdoa_anchor_t *an, const lps_packet_t *pkt, uint64_t t_us,
-                 const lps_remote_t **rm, const tdoa_anchor_t **ar, const tdoa_tof_t **tof)
+/* "random": the live remote entries in slot order, searched from a start that advances by one per
+ * search (an engine-wide 8-bit counter); the first reference wins. */
+static tdoa_anchor_t *match_random(tdoa_engine_t *e, const tdoa_anchor_t *an, uint32_t now_ms, int *entry)
 {
-    int reason = TDOA_DROP_NO_REFERENCE;
+    uint8_t live_k[TDOA_REMOTE_COUNT];
+    unsigned n = 0, k, i;
+    e->offset++;
+    for (k = 0; k < TDOA_REMOTE_COUNT; k++) {
+        if (an->remote.end_ms[k] > now_ms) {
+            live_k[n++] = (uint8_t)k;
+        }
+    }
+    for (i = e->offset; i < n + e->offset; i++) {
+        tdoa_anchor_t *ar = reference(e, an, live_k[i % n], now_ms);
+        if (ar != NULL) {
+            *entry = live_k[i % n];
+            return ar;
+        }
+    }
+    return NULL;
+}
+
+/* "youngest": of the live remote entries with a known ToF, the one whose anchor the tag heard last
+ * (in whole ms, strictly later than 0 and than the earlier candidates: ties go to the first). */
+static tdoa_anchor_t *match_youngest(tdoa_engine_t *e, const tdoa_anchor_t *an, uint32_t now_ms, int *entry)
+{
+    tdoa_anchor_t *best = NULL;
+    uint32_t youngest = 0;
     unsigned k;
-    for (k = 0; k < pkt->n_remote; k++) {
-        const lps_remote_t *r = &pkt->remote[k];
-        const tdoa_anchor_t *c_ar = NULL;
-        const tdoa_tof_t *c_tof = NULL;
-        int why = candidate(e, an, r, t_us, &c_ar, &c_tof);
-        if (why != 0) {
-            /* Report "expired" only if nothing better turned up. */
-            if (why == TDOA_DROP_EXPIRED) {
-                reason = why;
-            }
+    for (k = 0; k < TDOA_REMOTE_COUNT; k++) {
+        tdoa_anchor_t *ar;
+        int created;
+        if (an->remote.end_ms[k] <= now_ms || tof_of(an, an->remote.id[k], now_ms) == 0) {
             continue;
         }
-        if (*ar == NULL || c_ar->rx_t_us > (*ar)->rx_t_us) {
-            *rm = r;
-            *ar = c_ar;
-            *tof = c_tof;
+        ar = get_or_create(e, an->remote.id[k], now_ms, &created);
+        if (!created && ar->last_ms > youngest && an->remote.seq[k] == ar->seq) {
+            youngest = ar->last_ms;
+            best = ar;
+            *entry = (int)k;
         }
     }
-    return *ar != NULL ? TDOA_MEASUREMENT : reason;
+    return best;
+}
+
+/* tdoa = trunc32(rx_An - rx_Ar) - (tof + trunc32(tx_An - rx_Ar_by_An)) cc, truncated toward zero. */
+static int64_t tdoa_ticks(const tdoa_anchor_t *an, const tdoa_anchor_t *ar, int entry, uint64_t rx_ts,
+                          uint32_t tx_ts, uint32_t now_ms)
+{
+    const uint32_t drx = (uint32_t)(rx_ts - ar->rx_ts);
+    const uint32_t dtx = tx_ts - an->remote.rx_ts[entry];
+    const int64_t delta = (int64_t)tof_of(an, ar->id, now_ms) + (int64_t)dtx;
+    return (int64_t)((double)drx - (double)delta * an->cc);
 }
 
 int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sender, uint64_t rx_ts,
-                        uint64_t t_us, tdoa_meas_t *out)
+                        uint64_t t_us, int match, tdoa_meas_t *out)
 {
-    tdoa_anchor_t *an = get_or_create(e, sender);
-    const lps_remote_t *rm = NULL;
-    const tdoa_anchor_t *ar = NULL;
-    const tdoa_tof_t *tof = NULL;
-    int reliable, rc = TDOA_DROP_CLOCK;
+    const uint32_t now_ms = tdoa_engine_ms(t_us);
+    int created, entry = -1, rc = TDOA_DROP_CLOCK;
+    tdoa_anchor_t *an = get_or_create(e, sender, now_ms, &created);
     rx_ts &= TDOA_MASK40;
     an->packets++;
-    store_tofs(an, pkt, t_us);
-    reliable = clock_update(an, rx_ts, pkt->tx_ts);
-    if (reliable && an->cc > 0.0) {
-        rc = match(e, an, pkt, t_us, &rm, &ar, &tof);
+    store_remotes(an, pkt, now_ms);
+    if (clock_update(an, rx_ts, pkt->tx_ts) && an->cc > 0.0) {
+        const int youngest = match == TDOA_MATCH_YOUNGEST || (match == TDOA_MATCH_AUTO && pkt->type == LPS_TYPE_TDOA2);
+        const tdoa_anchor_t *ar = youngest ? match_youngest(e, an, now_ms, &entry) : match_random(e, an, now_ms, &entry);
+        rc = TDOA_DROP_NO_REFERENCE;
+        if (ar != NULL) {
+            out->anchor_a = ar->id;
+            out->anchor_b = sender;
+            out->ticks = tdoa_ticks(an, ar, entry, rx_ts, pkt->tx_ts, now_ms);
+            out->diff = TDOA_SPEED_OF_LIGHT * (double)out->ticks / TDOA_TS_FREQ;
+            rc = TDOA_MEASUREMENT;
+        }
     }
-    if (rc == TDOA_MEASUREMENT) {
-        /* All differences in 32-bit truncated ticks: rx in the tag clock, the sender's part converted
-         * to the tag clock by cc. The ToF includes the antenna delay, which the tag's own difference
-         * also contains, so it cancels. */
-        const uint32_t drx = (uint32_t)(rx_ts - ar->rx_ts);
-        const uint32_t dtx = pkt->tx_ts - rm->rx_ts;
-        const double ticks = (double)drx - ((double)tof->tof + (double)dtx) * an->cc;
-        out->anchor_a = ar->id;
-        out->anchor_b = sender;
-        out->diff = ticks * (TDOA_SPEED_OF_LIGHT / TDOA_TS_FREQ);
-    }
-    an->has_last = 1;
     an->seq = pkt->seq;
     an->rx_ts = rx_ts;
     an->tx_ts = pkt->tx_ts;
-    an->rx_t_us = t_us;
+    an->last_ms = now_ms;
     return rc;
 }

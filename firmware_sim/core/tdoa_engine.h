@@ -1,10 +1,11 @@
 /* The tag's TDoA engine: turns anchor packets (lps_packets.h) received with the tag's 40-bit DW1000
  * timestamps into TDoA measurements d(tag, An) - d(tag, Ar), An = the sender, Ar = a reference anchor.
- * Behaviour as documented in ../shared/reference/crazyflie-estimator-and-lps.md 4.6: per-anchor clock
- * correction with the bucket rule, reference matching by seq (the youngest candidate, TDoA2 and TDoA3:
- * the reference's TDoA3 tag rotates its start instead, see tdoa_engine.c), 32-bit truncated differences,
- * 40-bit wrap. Bounded storage, no allocation.
- * harness/twin/tdoa_engine.py is the numpy twin. */
+ * It forms what a Crazyflie's tag forms from the same packets (Bitcraze crazyflie-firmware 2026.08,
+ * tdoaEngine / tdoaStorage / clockCorrectionEngine, studied for their behaviour; our own code):
+ * storage and expiry in whole milliseconds of tag time, per-anchor clock correction with the bucket
+ * rule, reference matching "random" (rotating start, the TDoA3 tag's default) or "youngest" (TDoA2),
+ * the difference in whole clock ticks truncated toward zero. docs/radio.md lists each rule.
+ * Bounded storage, no allocation. harness/twin/tdoa_engine.py is the twin. */
 #ifndef UWB_TDOA_ENGINE_H
 #define UWB_TDOA_ENGINE_H
 
@@ -12,64 +13,81 @@
 
 #include "lps_packets.h"
 
-#define TDOA_STORAGE_COUNT 16u
-#define TDOA_TOF_PER_ANCHOR 8u
+#define TDOA_STORAGE_COUNT 16u            /* anchor contexts */
+#define TDOA_REMOTE_COUNT 16u             /* remote RX data per anchor */
+#define TDOA_TOF_COUNT 16u                /* remote ToFs per anchor */
+#define TDOA_REMOTE_VALID_MS 30u          /* remote RX data expires [ms] */
+#define TDOA_TOF_VALID_MS 2000u           /* remote ToFs expire [ms] */
 #define TDOA_TS_FREQ 63.8976e9            /* DW1000 ticks per second */
 #define TDOA_SPEED_OF_LIGHT 299792458.0
 #define TDOA_CC_ACCEPTED_NOISE 0.03e-6    /* candidate within this of the estimate: reliable sample */
 #define TDOA_CC_MAX_DEVIATION 20e-6       /* a fresh estimate must be within this of 1 */
 #define TDOA_CC_FILTER 0.1                /* weight of the old estimate */
 #define TDOA_CC_BUCKET_MAX 4u
-/* The tag's own reception of a reference anchor must be younger than this: 32-bit differences wrap
- * every 67.2 ms, and LPS anchors transmit at >= 20 Hz. [us] */
-#define TDOA_REMOTE_VALID_US 60000u
-#define TDOA_TOF_VALID_US 2000000u        /* remote ToFs from earlier packets [us] */
+#define TDOA_MASK32 0xFFFFFFFFull
 #define TDOA_MASK40 0xFFFFFFFFFFull
+
+/* Reference matching (= protocol enum tdoa_match). AUTO: as a Crazyflie's tag, TDoA2 packets youngest,
+ * TDoA3 packets random. */
+enum { TDOA_MATCH_AUTO = 0, TDOA_MATCH_RANDOM = 1, TDOA_MATCH_YOUNGEST = 2 };
 
 /* Outcome of one packet (values = protocol enum drop_reason; TDOA_MEASUREMENT = a measurement). */
 enum {
     TDOA_MEASUREMENT = 0,
     TDOA_DROP_NO_REFERENCE = 1,
     TDOA_DROP_CLOCK = 2,
-    TDOA_DROP_EXPIRED = 3,
     TDOA_DROP_MALFORMED = 4,
     TDOA_DROP_UNKNOWN_TYPE = 5
 };
 
+/* Remote data the anchor reported: parallel arrays (no padding). Unused slots: id 0, end 0. */
 typedef struct {
-    uint8_t id, has_tof;
-    uint16_t tof;
-    uint64_t t_us;
-} tdoa_tof_t;
+    uint8_t id[TDOA_REMOTE_COUNT];
+    uint8_t seq[TDOA_REMOTE_COUNT];
+    uint32_t rx_ts[TDOA_REMOTE_COUNT];   /* when the anchor received it, anchor clock, 32 bits */
+    uint32_t end_ms[TDOA_REMOTE_COUNT];  /* valid while now_ms < end_ms */
+} tdoa_remote_t;
+
+typedef struct {
+    uint8_t id[TDOA_TOF_COUNT];
+    uint16_t tof[TDOA_TOF_COUNT];        /* ToF remote -> this anchor, its clock, antenna delay included */
+    uint32_t end_ms[TDOA_TOF_COUNT];
+} tdoa_tofs_t;
 
 typedef struct {
     uint8_t in_use, id;
-    uint8_t has_last, seq;        /* the last packet the tag received from this anchor */
-    uint64_t rx_ts;               /* its tag RX time (40 bits) */
-    uint32_t tx_ts;               /* its anchor TX time (32 bits) */
-    uint64_t rx_t_us;             /* and when (tag system time) */
-    double cc;                    /* clock correction: d(tag clock) / d(anchor clock); 0 = unknown */
+    uint8_t seq;                  /* the last packet the tag received from this anchor: seq, */
     uint8_t bucket;
+    uint64_t rx_ts;               /* its tag RX time (40 bits; 0 = none), */
+    uint32_t tx_ts;               /* its anchor TX time (32 bits; 0 = none), */
+    uint32_t last_ms;             /* and when (tag time, ms) */
     uint32_t packets;
-    tdoa_tof_t tof[TDOA_TOF_PER_ANCHOR];   /* ToFs remote -> this anchor, this anchor's clock */
+    double cc;                    /* clock correction: d(tag clock) / d(anchor clock); 0 = unknown */
+    tdoa_remote_t remote;
+    tdoa_tofs_t tof;
 } tdoa_anchor_t;
 
 typedef struct {
     tdoa_anchor_t anchors[TDOA_STORAGE_COUNT];
+    uint8_t offset;               /* random matching: start of the next search (8 bits, wraps) */
 } tdoa_engine_t;
 
 typedef struct {
     uint8_t anchor_a, anchor_b;   /* A = reference Ar, B = sender An */
-    double diff;                  /* d(tag, B) - d(tag, A) [m] */
+    int64_t ticks;                /* d(tag, B) - d(tag, A) in whole ticks of the tag clock */
+    double diff;                  /* the same in metres */
 } tdoa_meas_t;
 
 void tdoa_engine_init(tdoa_engine_t *e);
 
-/* One received packet. rx_ts: tag RX time (40 bits, higher bits ignored), t_us: tag system time.
- * Returns TDOA_MEASUREMENT (*out filled) or a TDOA_DROP_* reason; the anchor state is updated either
- * way (a parsed packet always feeds the clock correction and the stored ToFs). */
+/* Tag time in whole milliseconds, the clock of every expiry. */
+uint32_t tdoa_engine_ms(uint64_t t_us);
+
+/* One parsed packet. rx_ts: tag RX time (40 bits, higher bits ignored), t_us: tag system time,
+ * match: TDOA_MATCH_*. Returns TDOA_MEASUREMENT (*out filled) or a TDOA_DROP_* reason; the anchor
+ * state is updated either way (remote data, ToFs, clock correction, the last packet). */
 int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sender, uint64_t rx_ts,
-                        uint64_t t_us, tdoa_meas_t *out);
+                        uint64_t t_us, int match, tdoa_meas_t *out);
 
 /* The stored context of an anchor, or NULL. */
 const tdoa_anchor_t *tdoa_engine_anchor(const tdoa_engine_t *e, uint8_t id);

@@ -1,7 +1,8 @@
 /* libFuzzer target 3: the tag's radio path without the wire protocol: a sequence of packets
  * [sender u8][rx_ts 5 bytes LE][t_us delta u8][len u8][payload len bytes] into lps_parse and the TDoA
  * engine. Invariants: nothing overflows (ASan), no UB (UBSan), every outcome is a known code, a
- * measurement names the sender as B and a stored anchor as A and has a finite difference, the
+ * measurement names the sender as B and a stored anchor as A and has a finite difference within the
+ * 32-bit range, the
  * storage never holds an id twice, and buckets stay within their bound. */
 #include <math.h>
 #include <string.h>
@@ -64,12 +65,13 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         if (pkt.n_remote > LPS_MAX_REMOTE) {
             fuzz_fail("too many remotes");
         }
-        rc = tdoa_engine_process(&eng, &pkt, sender, rx_ts, t_us, &m);
-        if (rc < TDOA_MEASUREMENT || rc > TDOA_DROP_EXPIRED) {
+        rc = tdoa_engine_process(&eng, &pkt, sender, rx_ts, t_us, data[off - 8 + 6] % 3u, &m);
+        if (rc != TDOA_MEASUREMENT && rc != TDOA_DROP_NO_REFERENCE && rc != TDOA_DROP_CLOCK) {
             fuzz_fail("unknown engine outcome");
         }
         if (rc == TDOA_MEASUREMENT &&
-            (m.anchor_b != sender || tdoa_engine_anchor(&eng, m.anchor_a) == NULL || !isfinite(m.diff))) {
+            (m.anchor_b != sender || tdoa_engine_anchor(&eng, m.anchor_a) == NULL || !isfinite(m.diff) ||
+             m.ticks > (int64_t)TDOA_MASK32 || m.ticks < -2 * (int64_t)TDOA_MASK32)) {
             fuzz_fail("inconsistent measurement");
         }
         check_storage(&eng);

@@ -128,7 +128,7 @@ static void unpack_config(const uint8_t *p, uwb_config_t *m)
     m->mode = p[0];
     m->stages = p[1];
     m->reset = p[2];
-    m->reserved = p[3];
+    m->tdoa_match = p[3];
     m->std_twr = get_f32(p + 4);
     m->std_tdoa = get_f32(p + 8);
     m->a_max_twr = get_f32(p + 12);
@@ -155,7 +155,7 @@ static void pack_config(const uwb_config_t *m, uint8_t *p)
     p[0] = m->mode;
     p[1] = m->stages;
     p[2] = m->reset;
-    p[3] = m->reserved;
+    p[3] = m->tdoa_match;
     put_f32(p + 4, m->std_twr);
     put_f32(p + 8, m->std_tdoa);
     put_f32(p + 12, m->a_max_twr);
@@ -461,6 +461,7 @@ static void unpack_stats(const uint8_t *p, uwb_stats_t *m)
     m->heights = get_u32(p + 100);
     m->bad_values = get_u32(p + 104);
     m->nn_pairs_disabled = get_u32(p + 108);
+    m->baseline_rejects = get_u32(p + 112);
 }
 
 static void pack_stats(const uwb_stats_t *m, uint8_t *p)
@@ -493,6 +494,7 @@ static void pack_stats(const uwb_stats_t *m, uint8_t *p)
     put_u32(p + 100, m->heights);
     put_u32(p + 104, m->bad_values);
     put_u32(p + 108, m->nn_pairs_disabled);
+    put_u32(p + 112, m->baseline_rejects);
 }
 
 static void unpack_error(const uint8_t *p, uwb_error_t *m)

@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 8u
+#define UWB_PROTO_VERSION 9u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -42,6 +42,7 @@ enum {
     UWB_STATUS_REJECTED_KINEMATIC = 1,
     UWB_STATUS_REJECTED_CHI2 = 2,
     UWB_STATUS_REJECTED_GEOMETRY = 3,
+    UWB_STATUS_REJECTED_BASELINE = 4,
 };
 
 /* ERROR.code: why a well-framed message was refused */
@@ -80,6 +81,13 @@ enum {
     UWB_DROP_REASON_UNKNOWN_TYPE = 5,
     UWB_DROP_REASON_NO_POSITION = 6,
     UWB_DROP_REASON_BAD_ANCHOR = 7,
+};
+
+/* CONFIG.tdoa_match: how the tag's TDoA engine picks the reference anchor (docs/radio.md) */
+enum {
+    UWB_TDOA_MATCH_AUTO = 0,
+    UWB_TDOA_MATCH_RANDOM = 1,
+    UWB_TDOA_MATCH_YOUNGEST = 2,
 };
 
 /* Input layout of a bias network */
@@ -125,7 +133,7 @@ typedef struct {
     uint8_t mode;
     uint8_t stages;
     uint8_t reset;
-    uint8_t reserved;
+    uint8_t tdoa_match;
     float std_twr;
     float std_tdoa;
     float a_max_twr;
@@ -300,7 +308,7 @@ typedef struct {
 
 /* STATS (to_host): Counters since power-up. Every byte or frame the device did not use is in one of them. */
 #define UWB_MSG_STATS 0x83u
-#define UWB_MSG_STATS_LEN 112u
+#define UWB_MSG_STATS_LEN 116u
 typedef struct {
     uint32_t frames_ok;
     uint32_t crc_errors;
@@ -330,6 +338,7 @@ typedef struct {
     uint32_t heights;
     uint32_t bad_values;
     uint32_t nn_pairs_disabled;
+    uint32_t baseline_rejects;
 } uwb_stats_t;
 
 /* ERROR (to_host): A frame with a valid CRC was refused. */

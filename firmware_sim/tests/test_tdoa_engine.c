@@ -1,6 +1,7 @@
 /* The tag's TDoA engine and its packet parser, on hand-built packet sequences: exact differences with
- * ideal clocks across the 2^32 and 2^40 wraps, a skewed anchor clock, the bucket rule's warm-up,
- * expiry, eviction, TDoA3 short entries, and the firmware's RADIO path (RESULT, RADIO_DROP, STATS). */
+ * ideal clocks across the 2^32 and 2^40 wraps, a skewed anchor clock, the bucket rule's warm-up, the
+ * 30 ms life of remote data, the rotating "random" matching, whole-tick truncation, eviction, tolerant
+ * parsing, TDoA3 short entries, and the firmware's RADIO path (RESULT, RADIO_DROP, STATS). */
 #include <math.h>
 #include <string.h>
 
@@ -77,7 +78,7 @@ static int feed(tdoa_engine_t *e, scen_t *s, int a, uint64_t t, int short_entry,
     lps_packet_t pkt;
     size_t n = tdoa3_packet(s, a, t, short_entry, 0, p);
     CHECK(lps_parse(p, n, (uint8_t)a, &pkt) == LPS_OK);
-    return tdoa_engine_process(e, &pkt, (uint8_t)a, (t + tag_range[a]) & MASK40, t / 63898u, m);
+    return tdoa_engine_process(e, &pkt, (uint8_t)a, (t + tag_range[a]) & MASK40, t / 63898u, TDOA_MATCH_AUTO, m);
 }
 
 static void test_exact_across_wraps(void)
@@ -128,40 +129,135 @@ static void test_skewed_anchor_clock(void)
     CHECK_NEAR(tdoa_engine_anchor(&e, 1)->cc, 1.0 / (1.0 + 8e-6), 2e-9);   /* 0.002 ppm: tick rounding */
 }
 
-static void test_expired_reference(void)
+/* Remote data lives 30 ms (whole ms of tag time): a packet without entries still finds the reference
+ * its previous packet reported, until then. */
+static void test_remote_data_expires_after_30_ms(void)
 {
     static tdoa_engine_t e;
     scen_t s;
     tdoa_meas_t m;
+    lps_packet_t pkt;
+    uint8_t p[7] = {LPS_TYPE_TDOA3, 0, 0, 0, 0, 0, 0};
     int k;
     memset(&s, 0, sizeof s);
     tdoa_engine_init(&e);
     for (k = 0; k < 8; k++) {
-        feed(&e, &s, k % 2, (uint64_t)(k + 1) * STEP_TICKS, 0, &m);
+        feed(&e, &s, k % 2, (uint64_t)(k + 1) * STEP_TICKS, 0, &m);   /* anchor 1 last at 80 ms */
     }
-    /* anchor 1 reports anchor 0's packet of 10 ms ago, but the tag hears it 100 ms later */
-    CHECK(feed(&e, &s, 1, 18 * STEP_TICKS, 0, &m) == TDOA_DROP_EXPIRED);
+    for (k = 0; k < 2; k++) {       /* anchor 1 again, no entries: 29 ms after its last packet, then 31 */
+        const uint64_t t_us = (uint64_t)(8 * 10000 + 29000 + 2000 * k);
+        const uint32_t tx = (uint32_t)(anchor_clock(&s, 1, t_us * 63898u) & MASK32);
+        p[1] = s.seq[1];
+        put32(p + 2, tx);
+        CHECK(lps_parse(p, sizeof p, 1, &pkt) == LPS_OK);
+        s.seq[1]++;
+        /* its clock is consistent: only the expiry decides */
+        CHECK(tdoa_engine_process(&e, &pkt, 1, (t_us * 63898u + tag_range[1]) & MASK40, t_us, TDOA_MATCH_AUTO, &m) ==
+              (k == 0 ? TDOA_MEASUREMENT : TDOA_DROP_NO_REFERENCE));
+    }
 }
 
-static void test_eviction_and_malformed(void)
+/* Three anchors at ideal clocks: anchor 2 reports 0 and 1, both valid references; "random" alternates
+ * them (the start rotates by one per search), "youngest" takes the one heard last. */
+static void test_matching(void)
+{
+    static tdoa_engine_t e;
+    int mode, k;
+    for (mode = TDOA_MATCH_RANDOM; mode <= TDOA_MATCH_YOUNGEST; mode++) {
+        int refs[2] = {0, 0};
+        tdoa_engine_init(&e);
+        for (k = 0; k < 30; k++) {
+            const int a = k % 3;
+            const uint64_t t = 1000000000ull + (uint64_t)k * STEP_TICKS;
+            uint8_t p[7 + 2 * 8];
+            size_t n = 7;
+            int b;
+            lps_packet_t pkt;
+            tdoa_meas_t m;
+            p[0] = LPS_TYPE_TDOA3;
+            p[1] = (uint8_t)(k / 3);
+            put32(p + 2, (uint32_t)(t & MASK32));
+            p[6] = 2;
+            for (b = 0; b < 3; b++) {
+                const int kb = k - ((a - b + 3) % 3);     /* b's last transmission */
+                if (b == a) {
+                    continue;
+                }
+                p[n] = (uint8_t)b;
+                p[n + 1] = (uint8_t)(0x80u | (kb >= 0 ? (unsigned)(kb / 3) : 0u));
+                put32(p + n + 2, (uint32_t)((1000000000ull + (uint64_t)kb * STEP_TICKS + TOF01) & MASK32));
+                p[n + 6] = (uint8_t)(TOF01 & 0xFF);
+                p[n + 7] = (uint8_t)(TOF01 >> 8);
+                n += 8;
+            }
+            CHECK(lps_parse(p, n, (uint8_t)a, &pkt) == LPS_OK);
+            if (tdoa_engine_process(&e, &pkt, (uint8_t)a, t + 5000, t / 63898u, mode, &m) == TDOA_MEASUREMENT) {
+                CHECK(m.ticks == 0 && m.anchor_b == a);
+                if (a == 2) {
+                    refs[m.anchor_a]++;
+                }
+            }
+        }
+        if (mode == TDOA_MATCH_RANDOM) {
+            CHECK(refs[0] > 0 && refs[1] > 0 && refs[0] + refs[1] >= 7);
+        } else {
+            CHECK(refs[0] == 0 && refs[1] >= 7);      /* 1 transmitted after 0 */
+        }
+    }
+}
+
+/* The difference is stored in whole ticks, truncated toward zero: a skewed clock makes fractions. */
+static void test_whole_ticks(void)
+{
+    static tdoa_engine_t e;
+    scen_t s;
+    tdoa_meas_t m;
+    int k, frac = 0;
+    memset(&s, 0, sizeof s);
+    s.skew1 = 3e-6;
+    tdoa_engine_init(&e);
+    for (k = 0; k < 40; k++) {
+        if (feed(&e, &s, k % 2, 9000000000ull + (uint64_t)k * 3 * STEP_TICKS / 2, 0, &m) == TDOA_MEASUREMENT) {
+            CHECK_NEAR(m.diff, (double)m.ticks * M_PER_TICK, 1e-12);
+            frac += 1;
+        }
+    }
+    CHECK(frac > 30);
+}
+
+static void test_eviction_and_parsing(void)
 {
     static tdoa_engine_t e;
     lps_packet_t pkt;
     tdoa_meas_t m;
-    uint8_t p[7] = {LPS_TYPE_TDOA3, 0, 1, 0, 0, 0, 0};
-    unsigned id;
+    uint8_t p[128] = {LPS_TYPE_TDOA3, 0, 1, 0, 0, 0, 0};
+    unsigned id, k;
     tdoa_engine_init(&e);
     for (id = 0; id <= TDOA_STORAGE_COUNT; id++) {
-        CHECK(lps_parse(p, sizeof p, (uint8_t)id, &pkt) == LPS_OK);
-        CHECK(tdoa_engine_process(&e, &pkt, (uint8_t)id, 1000u * id, 1000u * id, &m) == TDOA_DROP_CLOCK);
+        CHECK(lps_parse(p, 7, (uint8_t)id, &pkt) == LPS_OK);
+        CHECK(tdoa_engine_process(&e, &pkt, (uint8_t)id, 1000u * id, 1000u * id, TDOA_MATCH_AUTO, &m) == TDOA_DROP_CLOCK);
     }
     CHECK(tdoa_engine_anchor(&e, 0) == NULL);      /* the one heard longest ago made room */
     CHECK(tdoa_engine_anchor(&e, 1) != NULL && tdoa_engine_anchor(&e, TDOA_STORAGE_COUNT) != NULL);
-    p[6] = 1;                                      /* one entry announced, none there */
-    CHECK(lps_parse(p, sizeof p, 3, &pkt) == LPS_ERR_MALFORMED);
+    p[6] = 1;                                      /* one entry announced, none there: a packet all the same */
+    CHECK(lps_parse(p, 7, 3, &pkt) == LPS_OK && pkt.n_remote == 0);
+    p[6] = 12;                                     /* 12 short entries (more than 8), one of them the sender */
+    for (k = 0; k < 12; k++) {
+        p[7 + 6 * k] = (uint8_t)(k == 5 ? 3 : 100 + k);
+        p[8 + 6 * k] = (uint8_t)k;
+        put32(p + 9 + 6 * k, 1000u + k);
+    }
+    p[79] = 0xAB;                                  /* and a trailing byte */
+    CHECK(lps_parse(p, 80, 3, &pkt) == LPS_OK && pkt.n_remote == 11 && pkt.remote[10].id == 111);
+    CHECK(pkt.remote[5].id == 106 && pkt.remote[0].tof == 0 && !pkt.has_pos);
+    CHECK(lps_parse(p, 78, 3, &pkt) == LPS_OK && pkt.n_remote == 10);   /* the truncated 12th is left out */
     p[0] = 0x31;
-    CHECK(lps_parse(p, sizeof p, 3, &pkt) == LPS_ERR_UNKNOWN_TYPE);
+    CHECK(lps_parse(p, 7, 3, &pkt) == LPS_ERR_UNKNOWN_TYPE);
     CHECK(lps_parse(p, 0, 3, &pkt) == LPS_ERR_MALFORMED);
+    p[0] = LPS_TYPE_TDOA3;
+    CHECK(lps_parse(p, 6, 3, &pkt) == LPS_ERR_MALFORMED);
+    p[0] = LPS_TYPE_TDOA2;
+    CHECK(lps_parse(p, 57, 8, &pkt) == LPS_ERR_MALFORMED && lps_parse(p, 56, 2, &pkt) == LPS_ERR_MALFORMED);
 }
 
 /* ------------------------------------------------------------------- the firmware's RADIO path */
@@ -211,8 +307,10 @@ int main(void)
 {
     RUN(test_exact_across_wraps);
     RUN(test_skewed_anchor_clock);
-    RUN(test_expired_reference);
-    RUN(test_eviction_and_malformed);
+    RUN(test_remote_data_expires_after_30_ms);
+    RUN(test_matching);
+    RUN(test_whole_ticks);
+    RUN(test_eviction_and_parsing);
     RUN(test_firmware_radio_path);
     return UNIT_DONE();
 }

@@ -41,7 +41,7 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_u64(out + w, cap - w, "mode", (unsigned long long)msg->u.config.mode);
         w += fmt_u64(out + w, cap - w, "stages", (unsigned long long)msg->u.config.stages);
         w += fmt_u64(out + w, cap - w, "reset", (unsigned long long)msg->u.config.reset);
-        w += fmt_u64(out + w, cap - w, "reserved", (unsigned long long)msg->u.config.reserved);
+        w += fmt_u64(out + w, cap - w, "tdoa_match", (unsigned long long)msg->u.config.tdoa_match);
         w += fmt_f32(out + w, cap - w, "std_twr", msg->u.config.std_twr);
         w += fmt_f32(out + w, cap - w, "std_tdoa", msg->u.config.std_tdoa);
         w += fmt_f32(out + w, cap - w, "a_max_twr", msg->u.config.a_max_twr);
@@ -200,6 +200,7 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_u64(out + w, cap - w, "heights", (unsigned long long)msg->u.stats.heights);
         w += fmt_u64(out + w, cap - w, "bad_values", (unsigned long long)msg->u.stats.bad_values);
         w += fmt_u64(out + w, cap - w, "nn_pairs_disabled", (unsigned long long)msg->u.stats.nn_pairs_disabled);
+        w += fmt_u64(out + w, cap - w, "baseline_rejects", (unsigned long long)msg->u.stats.baseline_rejects);
         break;
     case UWB_MSG_ERROR:
         w += fmt_u64(out + w, cap - w, "code", (unsigned long long)msg->u.error.code);

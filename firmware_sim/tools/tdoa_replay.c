@@ -1,11 +1,13 @@
 /* tdoa_replay: drive lps_parse + the TDoA engine from a text packet stream, without the wire protocol.
  * Used by tests/unit/test_tdoa_engine.py to compare the C engine with its twin (harness/twin/tdoa_engine.py).
- * Input lines (stdin): `P t_us rx_ts sender hexpayload` (hexpayload "-" for an empty payload).
- * Output per packet: `M a b diff` (a measurement; diff with 17 significant digits) or `D reason`
+ * Input lines (stdin): `P t_us rx_ts sender hexpayload` (hexpayload "-" for an empty payload); argument 1:
+ * the matching (protocol enum tdoa_match, default 0 = AUTO).
+ * Output per packet: `M a b ticks diff` (a measurement; diff with 17 significant digits) or `D reason`
  * (drop_reason: 4 malformed, 5 unknown type, else the engine's); finally `C id bucket cc packets` per
  * stored anchor, in storage order. */
 #include <inttypes.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "lps_packets.h"
@@ -22,8 +24,9 @@ static int hexval(int c)
     return -1;
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
+    const int match = argc > 1 ? atoi(argv[1]) : TDOA_MATCH_AUTO;
     static char line[1024];
     static tdoa_engine_t eng;
     unsigned i;
@@ -50,9 +53,9 @@ int main(void)
             printf("D %d\n", rc == LPS_ERR_UNKNOWN_TYPE ? TDOA_DROP_UNKNOWN_TYPE : TDOA_DROP_MALFORMED);
             continue;
         }
-        rc = tdoa_engine_process(&eng, &pkt, (uint8_t)sender, rx_ts, t_us, &m);
+        rc = tdoa_engine_process(&eng, &pkt, (uint8_t)sender, rx_ts, t_us, match, &m);
         if (rc == TDOA_MEASUREMENT) {
-            printf("M %u %u %.17g\n", (unsigned)m.anchor_a, (unsigned)m.anchor_b, m.diff);
+            printf("M %u %u %" PRId64 " %.17g\n", (unsigned)m.anchor_a, (unsigned)m.anchor_b, m.ticks, m.diff);
         } else {
             printf("D %d\n", rc);
         }

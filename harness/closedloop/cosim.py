@@ -242,7 +242,8 @@ class ClosedLoop:
 
 
 _STATUS_NAMES = {int(m.Status.ACCEPTED): "accepted", int(m.Status.REJECTED_KINEMATIC): "rejected_kinematic",
-                 int(m.Status.REJECTED_CHI2): "rejected_chi2", int(m.Status.REJECTED_GEOMETRY): "rejected_geometry"}
+                 int(m.Status.REJECTED_CHI2): "rejected_chi2", int(m.Status.REJECTED_GEOMETRY): "rejected_geometry",
+                 int(m.Status.REJECTED_BASELINE): "rejected_baseline"}
 
 
 def _setpoint(plan: MissionPlan, k: int, t_us: int) -> m.Setpoint:

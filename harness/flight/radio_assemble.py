@@ -22,6 +22,7 @@ from harness.twin.tdoa_engine import MEASUREMENT, TdoaEngine
 
 MASK32 = 0xFFFFFFFF
 MASK40 = 0xFFFFFFFFFF
+WRAP_ERROR_M = 1.0   # an engine value this far from the modelled one is a 32-bit wrap (docs/radio.md)
 
 
 def _in(t: float, window: tuple[float, float] | None, extra: float = 0.0) -> bool:
@@ -83,7 +84,7 @@ def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: di
             tof_unknown = _in(t, silent.get(a), cfg.reboot_tof_s) or _in(t, silent.get(b), cfg.reboot_tof_s)
             tof, tof_x = (0, 0.0) if tof_unknown else _tof(cfg, sim, hw, clocks, apos, a, b, t, rng_noise)
             remotes.append(RemoteInfo(id=b, seq=h[0], rx_ts=int(round(h[1])) & MASK32, tof=tof))
-            remotes_x.append(lp.Remote(id=b, seq=h[0], has_tof=tof != 0, tof=tof_x, rx_ts=h[1] % 2.0**32))
+            remotes_x.append(lp.Remote(id=b, seq=h[0], tof=tof_x if tof != 0 else 0, rx_ts=h[1] % 2.0**32))
         pos = tuple(float(v) for v in apos[a]) if cfg.lpp else None
         tx32 = int(tx_ticks[e]) & MASK32
         if cfg.protocol == "tdoa2":
@@ -92,7 +93,7 @@ def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: di
             remotes, remotes_x = remotes[:8], remotes_x[:8]
             full = [(seq[a] + r.id) % 2 == 0 for r in remotes]
             payload = tdoa3_payload(seq[a], tx32, remotes, pos, full)  # type: ignore[arg-type]
-            remotes_x = [replace(r, has_tof=r.has_tof and f) for r, f in zip(remotes_x, full)]
+            remotes_x = [replace(r, tof=r.tof if f else 0) for r, f in zip(remotes_x, full)]
         for k, b in enumerate(ids):
             b = int(b)
             if b != a and not anchor_miss[e, k] and not collided[e] and not _in(t, silent.get(b)):
@@ -139,7 +140,7 @@ def _flight(flight: Flight, cfg: RadioConfig, clocks: dict[int, DeviceClock], ta
     engine = TdoaEngine()
     last_event: dict[int, int] = {}
     last_t: dict[int, float] = {}
-    t_us, a_ids, b_ids, err = [], [], [], []
+    t_us, a_ids, b_ids, err, formed = [], [], [], [], []
     for t, rx, sender, payload, e in rows:
         rc, pkt = lp.parse(payload, sender)
         if rc == lp.OK:
@@ -151,6 +152,7 @@ def _flight(flight: Flight, cfg: RadioConfig, clocks: dict[int, DeviceClock], ta
                 a_ids.append(meas.anchor_a)
                 b_ids.append(sender)
                 err.append(float(excess[e] - excess[ref] + anchor_err[row_of[sender], ref]) + pair)
+                formed.append(meas.diff)
         last_event[sender] = e
         last_t[sender] = t * 1e-6
     tt = np.array(t_us, dtype=np.int64)
@@ -162,8 +164,13 @@ def _flight(flight: Flight, cfg: RadioConfig, clocks: dict[int, DeviceClock], ta
     true_value = np.linalg.norm(pos - pb, axis=1) - np.linalg.norm(pos - pa, axis=1)
     truth = {a: float(((1.0 + tag.skew_at(t)) / (1.0 + clocks[a].skew_at(t)) - 1.0) * 1e6)
              for a, t in last_t.items()}
-    uwb = UwbStream(kind=KIND_TDOA, t_us=tt, anchor_a=a_arr, anchor_b=b_arr,
-                    value=true_value + np.array(err), true_value=true_value)
+    value = true_value + np.array(err)
+    # A reference whose packet the sender heard > 2^32 ticks before transmitting wraps the engine's 32-bit
+    # arithmetic (2^32 (cc - 1) ticks: metres to hundreds; a Crazyflie's engine forms it too): both levels
+    # carry the value the engine formed, so both see the same wrong measurement.
+    wrapped = np.abs(np.array(formed) - value) > WRAP_ERROR_M
+    value[wrapped] = np.array(formed)[wrapped]
+    uwb = UwbStream(kind=KIND_TDOA, t_us=tt, anchor_a=a_arr, anchor_b=b_arr, value=value, true_value=true_value)
     meta = dict(flight.meta)
     meta["radio"] = {"protocol": cfg.protocol, "seed": cfg.seed, "packets": len(rows), "loss": cfg.loss,
                      "max_ppm": cfg.max_ppm, "reboots": [list(r) for r in cfg.reboots]}

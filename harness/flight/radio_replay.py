@@ -4,9 +4,12 @@ engine forms exactly the recorded differences.
 Ideal clocks (no skew; every device counts the same ticks): a transmission at time t carries the TX
 stamp round(t f) and the tag stamps its reception at the same instant plus a constant (a fixed virtual
 distance), so every clock-correction sample is exactly 1. For a recorded measurement (A, B, d) at t:
-A sends a packet at t - `lead` listing no remote (it forms no measurement: NO_REFERENCE), then B sends
-at t reporting A's packet as received at tx_A + ToF + d (in ticks) with ToF = `tof_ticks`; the engine's
-difference is then round(d f / c) ticks: the recorded value within half a DW1000 tick (2.35 mm).
+A sends a packet at t - `lead` (it forms no measurement: NO_REFERENCE), then B sends at t reporting A's
+packet as received at tx_A + ToF + d (in ticks) with ToF = `tof_ticks`; the engine's difference is then
+round(d f / c) ticks: the recorded value within half a DW1000 tick (2.35 mm). A tag keeps an anchor's
+remote data 30 ms, so each packet also lists every other anchor (up to 7) with a seq the tag has not heard
+from it (stale entries from earlier packets could otherwise be references): A's packet and B's only
+reference is the one intended.
 Three packets per anchor (no remotes) warm the clock corrections up first. All packets carry the
 anchor's LPP position. 32-bit and 40-bit wraps occur as on a real tag (every 67 ms and 17.2 s).
 """
@@ -53,6 +56,9 @@ def radio_from_recording(flight: Flight, protocol: str = "tdoa3", lead_us: int =
 
     def send(t_us: int, a: int, remotes: list[RemoteInfo]) -> int:
         tx = (int(round(t_us * 1e-6 * TS_FREQ)) & ~0x1FF) & MASK40
+        named = {r.id for r in remotes} | {a}
+        # the next seq of each other anchor: not yet sent, so no reference (rx_ts 1: a stored entry)
+        remotes = remotes + [RemoteInfo(id=o, seq=seq[o], rx_ts=1) for o in ids if o not in named][:8 - len(remotes)]
         rows.append((t_us, (tx + RX_OFFSET) & MASK40, a, _payload(protocol, a, seq[a], tx & MASK32, remotes, pos[a])))
         seq[a] = (seq[a] + 1) & 0x7F
         return tx

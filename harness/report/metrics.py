@@ -59,6 +59,7 @@ class AccuracySummary:
     rejected_chi2: int
     rejected_geometry: int
     z_mean_error: float = float("nan")   # mean of estimate - truth along z [m] (a height bias shows here)
+    rejected_baseline: int = 0   # TDoA |difference| >= the anchors' distance (as a Crazyflie's filter)
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
@@ -104,6 +105,7 @@ def accuracy_of(err: np.ndarray, status: np.ndarray) -> AccuracySummary:
         rejected_chi2=int(np.count_nonzero(status == Status.REJECTED_CHI2)),
         rejected_geometry=int(np.count_nonzero(status == Status.REJECTED_GEOMETRY)),
         z_mean_error=float(np.mean(err[:, 2])),
+        rejected_baseline=int(np.count_nonzero(status == Status.REJECTED_BASELINE)),
     )
 
 
@@ -125,7 +127,8 @@ def health_summary(run: RunResult) -> dict[str, object]:
     r_var = np.where(res["kind"] == MeasKind.TWR, run.config.std_twr ** 2, run.config.std_tdoa ** 2)
     if run.config.stages & Stage.NN_STD:   # R is the network's std, unknown here; S > 0 is still required
         r_var = np.zeros(len(res))
-    answered = res["status"] != Status.REJECTED_GEOMETRY   # geometry rejections carry S = 0
+    # geometry and baseline rejections are answered before the model: they carry S = 0
+    answered = (res["status"] != Status.REJECTED_GEOMETRY) & (res["status"] != Status.REJECTED_BASELINE)
     s_low = (res["innovation_var"] < r_var * (1 - 1e-3)) | (res["innovation_var"] <= 0)
     not_pd = (np.any(var <= 0, axis=1) | (answered & s_low)) & finite
     from_errors = sum(1 for e in run.errors if e.code == ErrorCode.DIVERGED)

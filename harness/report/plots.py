@@ -186,7 +186,8 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
                    rasterized=True)
     for status, name, color in ((Status.REJECTED_KINEMATIC, "rejected: kinematic gate", "#ff7f0e"),
                                 (Status.REJECTED_CHI2, "rejected: chi-square gate", "#d62728"),
-                                (Status.REJECTED_GEOMETRY, "rejected: geometry", "#9467bd")):
+                                (Status.REJECTED_GEOMETRY, "rejected: geometry", "#9467bd"),
+                                (Status.REJECTED_BASELINE, "rejected: beyond the anchors' distance", "#8c564b")):
         sel = ok & (c["status"] == status)
         if np.any(sel):
             ax.scatter(t[sel], err[sel], s=9, marker="x", color=color, label=f"{name} ({int(sel.sum())})")

@@ -51,7 +51,7 @@ def radio_summary(run: RunResult, flight: Flight, clocks: dict[int, m.Clock]) ->
         "drops": drops,
         "device_counters": {k: getattr(stats, k) for k in ("radio_packets", "radio_meas", "radio_no_reference",
                                                             "radio_clock", "radio_expired", "radio_malformed",
-                                                            "radio_unknown_type", "radio_no_position")}
+                                                            "radio_unknown_type", "radio_no_position", "baseline_rejects")}
         if stats is not None else None,
         "clock": per_anchor,
         "max_skew_error_ppm": max(errors) if errors else None,

@@ -25,7 +25,7 @@ from harness.flight.data import Flight
 from harness.stream.results_file import OUTCOME_RESULT
 from harness.stream.streamer import RunResult
 from harness.twin.tdoa_engine import MEASUREMENT, Measurement, replay
-from protocol._generated import DropReason, ResultFlag
+from protocol._generated import DropReason, ResultFlag, Status
 
 FIRMWARE_TOLERANCE_M = 1e-3   # a RESULT's value this far from the twin's is another measurement
 
@@ -118,6 +118,7 @@ def firmware_values(run: RunResult, flight: Flight, anchor_a: np.ndarray, anchor
     h = np.linalg.norm(before - pb, axis=1) - np.linalg.norm(before - pa, axis=1)
     z = innov + res["bias"].astype(np.float64) + h
     z[(res["flags"] & int(ResultFlag.DIVERGED | ResultFlag.GAP_RESTART)) != 0] = np.nan   # estimate after a restart
+    z[res["status"] == int(Status.REJECTED_BASELINE)] = np.nan     # answered before the model: no value in it
     return z
 
 
@@ -131,8 +132,14 @@ def firmware_check(run: RunResult, flight: Flight, twin: TwinStream | None = Non
         bad = int(np.count_nonzero(formed[:n] != (tw.outcome[:n] == MEASUREMENT))) + abs(len(out) - len(tw.outcome))
         return FirmwareCheck(checked=int(np.count_nonzero(formed)), mismatched=bad, max_abs_m=float("inf"))
     err = np.abs(firmware_values(run, flight, tw.anchor_a, tw.anchor_b) - tw.value)
+    # the firmware refused REJECTED_BASELINE ones: the twin's value must be beyond the anchors' distance
+    base = run.results[formed]["status"] == int(Status.REJECTED_BASELINE)
+    pos = {int(i): np.asarray(p, dtype=np.float64) for i, p in zip(flight.anchors.ids, flight.anchors.positions)}
+    dist = np.array([np.linalg.norm(pos[int(a)] - pos[int(b)]) for a, b in zip(tw.anchor_a[base], tw.anchor_b[base])])
+    wrong_base = int(np.count_nonzero(np.abs(tw.value[base]) < dist - FIRMWARE_TOLERANCE_M))
     err = err[np.isfinite(err)]
-    return FirmwareCheck(checked=len(err), mismatched=int(np.count_nonzero(err > FIRMWARE_TOLERANCE_M)),
+    return FirmwareCheck(checked=len(err) + int(np.count_nonzero(base)),
+                         mismatched=int(np.count_nonzero(err > FIRMWARE_TOLERANCE_M)) + wrong_base,
                          max_abs_m=float(err.max()) if len(err) else 0.0)
 
 

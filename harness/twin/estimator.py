@@ -44,6 +44,7 @@ ACCEPTED = int(Status.ACCEPTED)
 REJECTED_KINEMATIC = int(Status.REJECTED_KINEMATIC)
 REJECTED_CHI2 = int(Status.REJECTED_CHI2)
 REJECTED_GEOMETRY = int(Status.REJECTED_GEOMETRY)
+REJECTED_BASELINE = int(Status.REJECTED_BASELINE)
 
 # protocol enum error_code (what the firmware answers with ERROR)
 ERR_UNKNOWN_ANCHOR = int(ErrorCode.UNKNOWN_ANCHOR)
@@ -86,7 +87,7 @@ class TwinResult:
     Attributes
     ----------
     status : int
-        ACCEPTED, REJECTED_KINEMATIC, REJECTED_CHI2 or REJECTED_GEOMETRY.
+        ACCEPTED, REJECTED_KINEMATIC, REJECTED_CHI2, REJECTED_GEOMETRY or REJECTED_BASELINE.
     innovation : float
         ``y = z - bias - h(x)`` before the update (0 for geometry).
     innovation_var : float
@@ -119,6 +120,14 @@ class TwinResult:
     flags: int = 0
 
 
+def within_baseline(anchor_a: np.ndarray, anchor_b: np.ndarray, diff: float) -> bool:
+    """|diff| below the distance between the two anchors, in float32 as the firmware (estimator.c): a
+    Crazyflie's TDoA outlier filter discards the others before its update."""
+    d = np.asarray(anchor_a, dtype=np.float32) - np.asarray(anchor_b, dtype=np.float32)
+    f = np.float32(diff)
+    return bool(f * f < d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+
+
 class TwinEstimator:
     """Float64 reference of the firmware estimator.
 
@@ -148,6 +157,7 @@ class TwinEstimator:
         self.kin = gates.KinematicGate()
         self.bstates = BiasStates()
         self.heights = 0
+        self.baseline_rejects = 0   # TDoA answered REJECTED_BASELINE
         self._reset_filter()
 
     # ---------------------------------------------------------------------------- configuration
@@ -316,6 +326,9 @@ class TwinEstimator:
                  else measurements.twr(ekf.x[POS], anchor_a))
         if model is None:
             return self._result(REJECTED_GEOMETRY, 0.0, 0.0, 0.0, d_max, np.zeros(3), 0.0)
+        if anchor_b is not None and not within_baseline(anchor_a, anchor_b, z):
+            self.baseline_rejects += 1
+            return self._result(REJECTED_BASELINE, 0.0, 0.0, 0.0, d_max, np.zeros(3), 0.0)
         h, H3 = model
 
         net = getattr(self.model, "tdoa" if tdoa else "twr", None) if self.model is not None else None

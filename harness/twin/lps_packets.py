@@ -1,7 +1,9 @@
 """Twin of firmware_sim/core/lps_packets.c: parse an LPS anchor payload (TDoA2 / TDoA3 + optional LPP).
 
 Same checks, same outcome for every byte sequence (tests feed both the same payloads). Byte layouts:
-../shared/reference/crazyflie-estimator-and-lps.md 4.4, 4.5, 4.7.
+../shared/reference/crazyflie-estimator-and-lps.md 4.4, 4.5, 4.7. Tolerant as a Crazyflie's tag: only an
+incomplete header (or a TDoA2 sender id > 7) is malformed; the remote entries that fit are used (an entry
+naming the sender is skipped), other trailing bytes are ignored unless they are a complete LPP position.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ LPP_POSITION = 0x01
 TDOA2_SIZE = 57
 TDOA2_ANCHORS = 8
 TDOA3_HEADER = 7
-MAX_REMOTE = 8
+MAX_REMOTE = 20     # entries one 128-byte payload can carry
 SEQ_MASK = 0x7F
 MAX_COORD = 1000.0
 
@@ -28,9 +30,8 @@ OK, ERR_MALFORMED, ERR_UNKNOWN_TYPE = 0, 1, 2
 class Remote:
     id: int
     seq: int
-    has_tof: bool
-    tof: float      # integer ticks as parsed; float only in the simulator's unrounded analysis packets
-    rx_ts: float
+    tof: float      # ticks, 0 = none; integer as parsed, float only in the simulator's unrounded analysis packets
+    rx_ts: float    # 0 = not heard
 
 
 @dataclass
@@ -46,20 +47,12 @@ def _f32(b: bytes) -> float:
     return float(struct.unpack("<f", b)[0])
 
 
-def _lpp(p: bytes, pkt: Packet) -> int:
-    if len(p) == 0:
-        return OK
-    if len(p) < 2 or p[0] != LPP_SHORT:
-        return ERR_MALFORMED
-    if p[1] != LPP_POSITION:
-        return OK
-    if len(p) != 14:
-        return ERR_MALFORMED
+def _lpp(p: bytes, pkt: Packet) -> None:
+    if len(p) < 14 or p[0] != LPP_SHORT or p[1] != LPP_POSITION:
+        return
     xyz = tuple(_f32(p[2 + 4 * k:6 + 4 * k]) for k in range(3))
-    if not all(math.isfinite(v) and -MAX_COORD <= v <= MAX_COORD for v in xyz):
-        return ERR_MALFORMED
-    pkt.pos = (xyz[0], xyz[1], xyz[2])
-    return OK
+    if all(math.isfinite(v) and -MAX_COORD <= v <= MAX_COORD for v in xyz):
+        pkt.pos = (xyz[0], xyz[1], xyz[2])
 
 
 def _tdoa2(p: bytes, sender: int, pkt: Packet) -> int:
@@ -70,11 +63,9 @@ def _tdoa2(p: bytes, sender: int, pkt: Packet) -> int:
     tofs = struct.unpack_from("<8H", p, 41)
     pkt.seq = seqs[sender] & SEQ_MASK
     pkt.tx_ts = ts[sender]
-    for i in range(TDOA2_ANCHORS):
-        if i == sender or ts[i] == 0:
-            continue
-        pkt.remote.append(Remote(i, seqs[i] & SEQ_MASK, tofs[i] != 0, tofs[i], ts[i]))
-    return _lpp(p[TDOA2_SIZE:], pkt)
+    pkt.remote = [Remote(i, seqs[i] & SEQ_MASK, tofs[i], ts[i]) for i in range(TDOA2_ANCHORS) if i != sender]
+    _lpp(p[TDOA2_SIZE:], pkt)
+    return OK
 
 
 def _tdoa3(p: bytes, sender: int, pkt: Packet) -> int:
@@ -82,23 +73,20 @@ def _tdoa3(p: bytes, sender: int, pkt: Packet) -> int:
         return ERR_MALFORMED
     pkt.seq = p[1] & SEQ_MASK
     pkt.tx_ts = struct.unpack_from("<I", p, 2)[0]
-    count = p[6]
-    if count > MAX_REMOTE:
-        return ERR_MALFORMED
     off = TDOA3_HEADER
-    for _ in range(count):
+    for _ in range(p[6]):
         if len(p) - off < 6:
-            return ERR_MALFORMED
+            return OK
         rid, s = p[off], p[off + 1]
-        has = bool(s >> 7)
-        need = 8 if has else 6
-        if len(p) - off < need or rid == sender:
-            return ERR_MALFORMED
-        rx = struct.unpack_from("<I", p, off + 2)[0]
-        tof = struct.unpack_from("<H", p, off + 6)[0] if has else 0
-        pkt.remote.append(Remote(rid, s & SEQ_MASK, has and tof != 0, tof, rx))
+        need = 8 if s >> 7 else 6
+        if len(p) - off < need:
+            return OK
+        if rid != sender and len(pkt.remote) < MAX_REMOTE:
+            tof = struct.unpack_from("<H", p, off + 6)[0] if need == 8 else 0
+            pkt.remote.append(Remote(rid, s & SEQ_MASK, tof, struct.unpack_from("<I", p, off + 2)[0]))
         off += need
-    return _lpp(p[off:], pkt)
+    _lpp(p[off:], pkt)
+    return OK
 
 
 def parse(payload: bytes, sender: int) -> tuple[int, Packet]:

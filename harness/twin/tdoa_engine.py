@@ -1,23 +1,25 @@
 """Twin of firmware_sim/core/tdoa_engine.c: the tag's TDoA engine (float64, Python integers for the
-32/40-bit tick arithmetic). Same storage, eviction, bucket rule and matching order as the C, so both
-form the same measurements from the same packets (tests/unit/test_tdoa_engine.py)."""
+32/40-bit tick arithmetic). Same storage slots, expiry in whole ms, bucket rule, matching ("random": the
+rotating start; "youngest") and whole-tick truncation as the C, so both form the same measurements from
+the same packets (tests/unit/test_tdoa_engine.py); both form what a Crazyflie's tag forms (docs/radio.md)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from harness.twin.lps_packets import Packet, Remote
+from harness.twin.lps_packets import TYPE_TDOA2, Packet
 
 STORAGE_COUNT = 16
-TOF_PER_ANCHOR = 8
+REMOTE_COUNT = 16
+TOF_COUNT = 16
+REMOTE_VALID_MS = 30
+TOF_VALID_MS = 2000
 TS_FREQ = 63.8976e9
 SPEED_OF_LIGHT = 299792458.0
 CC_ACCEPTED_NOISE = 0.03e-6
 CC_MAX_DEVIATION = 20e-6
 CC_FILTER = 0.1
 CC_BUCKET_MAX = 4
-REMOTE_VALID_US = 60_000
-TOF_VALID_US = 2_000_000
 MASK32 = 0xFFFFFFFF
 MASK40 = 0xFFFFFFFFFF
 # Modulo rather than a mask: the same for integer ticks (the C), and it also takes the simulator's unrounded
@@ -27,59 +29,74 @@ WRAP40 = 1 << 40
 METRES_PER_TICK = SPEED_OF_LIGHT / TS_FREQ
 
 MEASUREMENT, DROP_NO_REFERENCE, DROP_CLOCK, DROP_EXPIRED, DROP_MALFORMED, DROP_UNKNOWN_TYPE = range(6)
+# protocol enum tdoa_match: AUTO = what a Crazyflie's tag uses (TDoA2 youngest, TDoA3 random)
+MATCH_AUTO, MATCH_RANDOM, MATCH_YOUNGEST = 0, 1, 2
 
 
-@dataclass
-class TofEntry:
-    id: int
-    tof: float      # integer ticks; float only for unrounded analysis stamps (as rx_ts below)
-    t_us: int
+def resolve_match(match: int, packet_type: int) -> int:
+    if match != MATCH_AUTO:
+        return match
+    return MATCH_YOUNGEST if packet_type == TYPE_TDOA2 else MATCH_RANDOM
+
+
+def now_ms(t_us: int) -> int:
+    """Tag time in whole milliseconds (uint32), the clock of every expiry."""
+    return (int(t_us) // 1000) & MASK32
+
+
+class Slots:
+    """n (id, value, end_ms) slots as the C's parallel arrays: unused = id 0, end 0. set() takes the first
+    slot holding id, else the first that expires earliest; get() the first slot holding id if live."""
+
+    def __init__(self, n: int) -> None:
+        self.id = [0] * n
+        self.val: list[tuple] = [()] * n
+        self.end = [0] * n
+
+    def set(self, rid: int, val: tuple, end: int) -> None:
+        k = self.id.index(rid) if rid in self.id else min(range(len(self.id)), key=lambda i: (self.end[i], i))
+        self.id[k], self.val[k], self.end[k] = rid, val, end
+
+    def get(self, rid: int, now: int) -> tuple | None:
+        if rid not in self.id:
+            return None
+        k = self.id.index(rid)
+        return self.val[k] if self.end[k] > now else None
 
 
 @dataclass
 class AnchorCtx:
     id: int
-    has_last: bool = False
     seq: int = 0
     rx_ts: float = 0
     tx_ts: float = 0
-    rx_t_us: int = 0
+    last_ms: int = 0
     cc: float = 0.0
     bucket: int = 0
     packets: int = 0
-    tof: list[TofEntry | None] = field(default_factory=lambda: [None] * TOF_PER_ANCHOR)
+    remote: Slots = field(default_factory=lambda: Slots(REMOTE_COUNT))   # (seq, rx_ts)
+    tof: Slots = field(default_factory=lambda: Slots(TOF_COUNT))         # (tof,)
 
-    def lookup_tof(self, remote: int) -> TofEntry | None:
-        return next((t for t in self.tof if t is not None and t.id == remote), None)
-
-    def tof_slot(self, remote: int) -> int:
-        for k, t in enumerate(self.tof):
-            if t is not None and t.id == remote:
-                return k
-        for k, t in enumerate(self.tof):
-            if t is None:
-                return k
-        return min(range(TOF_PER_ANCHOR), key=lambda k: (self.tof[k].t_us, k))  # type: ignore[union-attr]
+    def tof_of(self, rid: int, now: int) -> float:
+        v = self.tof.get(rid, now)
+        return v[0] if v is not None else 0
 
     def clock_update(self, rx_ts: float, tx_ts: float) -> bool:
         """The bucket rule; True if this sample is reliable."""
-        if not self.has_last:
+        if self.rx_ts == 0 or self.tx_ts == 0:
             return False
         drx = (rx_ts - self.rx_ts) % WRAP32
         dtx = (tx_ts - self.tx_ts) % WRAP32
-        if dtx == 0:
-            return False
-        cand = drx / dtx
+        cand = -1.0 if dtx == 0 else drx / dtx
         dev = cand - self.cc
         if -CC_ACCEPTED_NOISE < dev < CC_ACCEPTED_NOISE:
             self.cc = CC_FILTER * self.cc + (1.0 - CC_FILTER) * cand
             self.bucket = min(self.bucket + 1, CC_BUCKET_MAX)
             return True
-        if self.bucket == 0:
-            if 1.0 - CC_MAX_DEVIATION < cand < 1.0 + CC_MAX_DEVIATION:
-                self.cc = cand
-        else:
+        if self.bucket > 0:
             self.bucket -= 1
+        elif 1.0 - CC_MAX_DEVIATION < cand < 1.0 + CC_MAX_DEVIATION:
+            self.cc = cand
         return False
 
 
@@ -88,79 +105,90 @@ class Measurement:
     anchor_a: int   # reference Ar
     anchor_b: int   # sender An
     diff: float     # d(tag, B) - d(tag, A) [m]
+    ticks: float = 0.0   # the same in ticks (whole ticks unless whole_ticks=False)
 
 
 class TdoaEngine:
-    def __init__(self) -> None:
+    """whole_ticks=False keeps the fraction of the difference (analysis of unrounded stamps only)."""
+
+    def __init__(self, whole_ticks: bool = True) -> None:
         self.slots: list[AnchorCtx | None] = [None] * STORAGE_COUNT
+        self.offset = 0
+        self.whole_ticks = whole_ticks
 
     def anchor(self, anchor_id: int) -> AnchorCtx | None:
         return next((a for a in self.slots if a is not None and a.id == anchor_id), None)
 
-    def _get_or_create(self, anchor_id: int) -> AnchorCtx:
+    def _get_or_create(self, anchor_id: int, now: int) -> tuple[AnchorCtx, bool]:
         a = self.anchor(anchor_id)
         if a is not None:
-            return a
-        free = [k for k, s in enumerate(self.slots) if s is None]
-        if free:
-            k = free[0]
-        else:
-            k = min(range(STORAGE_COUNT), key=lambda i: (self.slots[i].rx_t_us, i))  # type: ignore[union-attr]
+            return a, False
+        victim, oldest = 0, now
+        for i, s in enumerate(self.slots):
+            if s is None:
+                victim = i
+                break
+            if s.last_ms < oldest:
+                victim, oldest = i, s.last_ms
         ctx = AnchorCtx(id=anchor_id)
-        self.slots[k] = ctx
-        return ctx
+        self.slots[victim] = ctx
+        return ctx, True
 
-    def _candidate(self, an: AnchorCtx, r: Remote, t_us: int) -> tuple[int, AnchorCtx | None, TofEntry | None]:
-        ar = self.anchor(r.id)
-        tof = an.lookup_tof(r.id)
-        if ar is None or not ar.has_last or ar.seq != r.seq or tof is None:
-            return DROP_NO_REFERENCE, None, None
-        if _age(t_us, ar.rx_t_us) > REMOTE_VALID_US or _age(t_us, tof.t_us) > TOF_VALID_US:
-            return DROP_EXPIRED, None, None
-        return 0, ar, tof
+    def _reference(self, an: AnchorCtx, k: int, now: int) -> AnchorCtx | None:
+        ar, created = self._get_or_create(an.remote.id[k], now)
+        if created or an.remote.val[k][0] != ar.seq or not an.tof_of(ar.id, now):
+            return None
+        return ar
 
-    def _match(self, an: AnchorCtx, pkt: Packet, t_us: int) -> tuple[int, Remote | None, AnchorCtx | None,
-                                                                       TofEntry | None]:
-        """The candidate the tag heard most recently (first in packet order on ties), TDoA2 and TDoA3."""
-        reason = DROP_NO_REFERENCE
-        best: tuple[Remote, AnchorCtx, TofEntry] | None = None
-        for r in pkt.remote:
-            why, ar, tof = self._candidate(an, r, t_us)
-            if why:
-                if why == DROP_EXPIRED:
-                    reason = why
+    def _match_random(self, an: AnchorCtx, now: int) -> tuple[AnchorCtx | None, int]:
+        self.offset = (self.offset + 1) & 0xFF
+        live = [k for k in range(REMOTE_COUNT) if an.remote.end[k] > now]
+        for i in range(self.offset, self.offset + len(live)):
+            k = live[i % len(live)]
+            ar = self._reference(an, k, now)
+            if ar is not None:
+                return ar, k
+        return None, -1
+
+    def _match_youngest(self, an: AnchorCtx, now: int) -> tuple[AnchorCtx | None, int]:
+        best, entry, youngest = None, -1, 0
+        for k in range(REMOTE_COUNT):
+            if an.remote.end[k] <= now or not an.tof_of(an.remote.id[k], now):
                 continue
-            assert ar is not None and tof is not None
-            if best is None or ar.rx_t_us > best[1].rx_t_us:
-                best = (r, ar, tof)
-        if best is None:
-            return reason, None, None, None
-        return MEASUREMENT, *best
+            ar, created = self._get_or_create(an.remote.id[k], now)
+            if not created and ar.last_ms > youngest and an.remote.val[k][0] == ar.seq:
+                best, entry, youngest = ar, k, ar.last_ms
+        return best, entry
 
-    def process(self, pkt: Packet, sender: int, rx_ts: float, t_us: int) -> tuple[int, Measurement | None]:
+    def _ticks(self, an: AnchorCtx, ar: AnchorCtx, k: int, rx_ts: float, tx_ts: float, now: int) -> float:
+        drx = (rx_ts - ar.rx_ts) % WRAP32
+        dtx = (tx_ts - an.remote.val[k][1]) % WRAP32
+        ticks = float(drx) - (float(an.tof_of(ar.id, now)) + float(dtx)) * an.cc
+        return float(int(ticks)) if self.whole_ticks else ticks
+
+    def process(self, pkt: Packet, sender: int, rx_ts: float, t_us: int,
+                match: int = MATCH_AUTO) -> tuple[int, Measurement | None]:
         """One parsed packet: (MEASUREMENT, measurement) or (DROP_*, None); the state is updated either way.
         Timestamps are integer ticks as on the wire, or float ticks (analysis of unrounded stamps)."""
-        an = self._get_or_create(sender)
+        now = now_ms(t_us)
+        an, _ = self._get_or_create(sender, now)
         rx_ts %= WRAP40
         an.packets = (an.packets + 1) & MASK32
         for r in pkt.remote:
-            if r.has_tof:
-                an.tof[an.tof_slot(r.id)] = TofEntry(r.id, r.tof, t_us)
+            if r.rx_ts != 0:
+                an.remote.set(r.id, (r.seq, r.rx_ts), now + REMOTE_VALID_MS)
+            if r.tof != 0:
+                an.tof.set(r.id, (r.tof,), now + TOF_VALID_MS)
         rc, meas = DROP_CLOCK, None
         if an.clock_update(rx_ts, pkt.tx_ts) and an.cc > 0.0:
-            rc, rm, ar, tof = self._match(an, pkt, t_us)
-            if rc == MEASUREMENT:
-                assert rm is not None and ar is not None and tof is not None
-                drx = (rx_ts - ar.rx_ts) % WRAP32
-                dtx = (pkt.tx_ts - rm.rx_ts) % WRAP32
-                ticks = float(drx) - (float(tof.tof) + float(dtx)) * an.cc
-                meas = Measurement(ar.id, sender, ticks * METRES_PER_TICK)
-        an.has_last, an.seq, an.rx_ts, an.tx_ts, an.rx_t_us = True, pkt.seq, rx_ts, pkt.tx_ts, t_us
+            how = resolve_match(match, pkt.type)
+            ar, k = self._match_youngest(an, now) if how == MATCH_YOUNGEST else self._match_random(an, now)
+            rc = DROP_NO_REFERENCE
+            if ar is not None:
+                ticks = self._ticks(an, ar, k, rx_ts, pkt.tx_ts, now)
+                meas, rc = Measurement(ar.id, sender, SPEED_OF_LIGHT * ticks / TS_FREQ, ticks), MEASUREMENT
+        an.seq, an.rx_ts, an.tx_ts, an.last_ms = pkt.seq, rx_ts, pkt.tx_ts, now
         return rc, meas
-
-
-def _age(now: int, then: int) -> int:
-    return now - then if now >= then else 1 << 64
 
 
 def sender_of(src_addr: int) -> int:
@@ -168,7 +196,8 @@ def sender_of(src_addr: int) -> int:
 
 
 def replay(t_us: list[int], rx_ts: list[int], src_addr: list[int], payloads: list[bytes],
-           engine: TdoaEngine | None = None) -> tuple[TdoaEngine, list[tuple[int, Measurement | None]]]:
+           engine: TdoaEngine | None = None, match: int = MATCH_AUTO
+           ) -> tuple[TdoaEngine, list[tuple[int, Measurement | None]]]:
     """Parse and process a packet sequence as the firmware does: (engine, [(outcome, measurement)]).
     Outcomes are protocol drop_reason values (MEASUREMENT = 0); rx_ts beyond 40 bits is malformed."""
     from harness.twin import lps_packets as lp
@@ -183,5 +212,5 @@ def replay(t_us: list[int], rx_ts: list[int], src_addr: list[int], payloads: lis
         if rc != lp.OK:
             out.append((DROP_UNKNOWN_TYPE if rc == lp.ERR_UNKNOWN_TYPE else DROP_MALFORMED, None))
             continue
-        out.append(eng.process(pkt, sender, int(rx), int(t)))
+        out.append(eng.process(pkt, sender, int(rx), int(t), match))
     return eng, out
