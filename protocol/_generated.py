@@ -431,7 +431,7 @@ class Stats:
     unknown_types: int
     bad_lengths: int
     non_finite: int
-    unknown_anchors: int  # measurements naming an anchor never set, ANCHOR frames with an id out of range
+    unknown_anchors: int  # measurements naming an anchor without a valid position (never set, or received over the radio more than 2 s ago), ANCHOR frames refused (table full)
     time_backwards: int
     bad_configs: int
     dropped_meas: int  # measurements refused for any reason (no RESULT sent)

@@ -51,13 +51,10 @@ static int radio_frame_ok(const uwb_radio_t *r)
     return 1;
 }
 
-/* The drop reason of a measurement the engine formed whose positions are not both known (0: known). */
-static uint8_t position_check(const firmware_t *fw, const tdoa_meas_t *m)
+/* The drop reason of a measurement the engine formed whose positions are not both valid now (0: valid). */
+static uint8_t position_check(const firmware_t *fw, const tdoa_meas_t *m, uint64_t t_us)
 {
-    if (m->anchor_a >= ESTIMATOR_MAX_ANCHORS || m->anchor_b >= ESTIMATOR_MAX_ANCHORS) {
-        return UWB_DROP_REASON_BAD_ANCHOR;
-    }
-    if (!((fw->est.anchor_known >> m->anchor_a) & 1u) || !((fw->est.anchor_known >> m->anchor_b) & 1u)) {
+    if (estimator_anchor(&fw->est, m->anchor_a, t_us) == NULL || estimator_anchor(&fw->est, m->anchor_b, t_us) == NULL) {
         return UWB_DROP_REASON_NO_POSITION;
     }
     return 0;
@@ -88,10 +85,10 @@ void fw_on_radio(firmware_t *fw, const uwb_msg_t *in)
     }
     rc = tdoa_engine_process(&fw->tdoa, &pkt, sender, r->rx_ts, r->t_us, fw->est.cfg.tdoa_match, &meas);
     if (rc == TDOA_MEASUREMENT) {
-        rc = position_check(fw, &meas);
+        rc = position_check(fw, &meas, r->t_us);
     }
-    if (pkt.has_pos && sender < ESTIMATOR_MAX_ANCHORS) {
-        (void)estimator_set_anchor(&fw->est, sender, pkt.pos);
+    if (pkt.has_pos) {
+        (void)estimator_set_radio_anchor(&fw->est, sender, pkt.pos, r->t_us);   /* full table: NO_POSITION */
     }
     if (rc != TDOA_MEASUREMENT) {
         radio_drop(fw, in, (uint8_t)rc);

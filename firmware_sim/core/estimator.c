@@ -53,14 +53,50 @@ void estimator_configure(estimator_t *est, const estimator_config_t *cfg, int re
     }
 }
 
-int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3])
+/* The slot holding id, or -1. */
+static int anchor_slot(const estimator_t *est, uint8_t id)
 {
-    if (id >= ESTIMATOR_MAX_ANCHORS) {
+    int i;
+    for (i = 0; i < (int)ESTIMATOR_MAX_ANCHORS; i++) {
+        if (((est->anchor_known >> i) & 1u) && est->anchor_id[i] == id) {
+            return i;
+        }
+    }
+    return -1;
+}
+
+/* The slot for a new id: the first free one, else the radio position received longest ago, or -1. */
+static int anchor_new_slot(const estimator_t *est)
+{
+    int i, best = -1;
+    for (i = 0; i < (int)ESTIMATOR_MAX_ANCHORS; i++) {
+        if (!((est->anchor_known >> i) & 1u)) {
+            return i;
+        }
+        if (est->anchor_src[i] == EST_ANCHOR_RADIO &&
+            (best < 0 || (int32_t)(est->anchor_ms[i] - est->anchor_ms[best]) < 0)) {
+            best = i;
+        }
+    }
+    return best;
+}
+
+static int store_anchor(estimator_t *est, uint8_t id, const float pos[3], uint8_t src, uint32_t ms)
+{
+    unsigned i, k;
+    int slot = anchor_slot(est, id);
+    if (slot >= 0 && src == EST_ANCHOR_RADIO && est->anchor_src[slot] == EST_ANCHOR_HOST) {
+        return EST_OK; /* positions configured by the host stay */
+    }
+    slot = slot >= 0 ? slot : anchor_new_slot(est);
+    if (slot < 0) {
         return EST_ERR_BAD_ANCHOR_ID;
     }
-    unsigned i, k;
-    memcpy(est->anchors[id], pos, 3 * sizeof pos[0]);
-    est->anchor_known = (uint16_t)(est->anchor_known | (1u << id));
+    memcpy(est->anchors[slot], pos, 3 * sizeof pos[0]);
+    est->anchor_id[slot] = id;
+    est->anchor_src[slot] = src;
+    est->anchor_ms[slot] = ms;
+    est->anchor_known = (uint16_t)(est->anchor_known | (1u << slot));
     /* the supervisor's box, from every known anchor (an anchor may be moved) */
     memcpy(est->box_min, pos, sizeof est->box_min);
     memcpy(est->box_max, pos, sizeof est->box_max);
@@ -73,9 +109,31 @@ int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3])
     return EST_OK;
 }
 
-static int anchor_known(const estimator_t *est, uint8_t id)
+int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3])
 {
-    return id < ESTIMATOR_MAX_ANCHORS && (est->anchor_known >> id) & 1u;
+    return store_anchor(est, id, pos, EST_ANCHOR_HOST, 0u);
+}
+
+int estimator_set_radio_anchor(estimator_t *est, uint8_t id, const float pos[3], uint64_t t_us)
+{
+    return store_anchor(est, id, pos, EST_ANCHOR_RADIO, (uint32_t)(t_us / 1000u));
+}
+
+/* The slot of id if its position is valid at t_us, else -1. */
+static int valid_slot(const estimator_t *est, uint8_t id, uint64_t t_us)
+{
+    const int slot = anchor_slot(est, id);
+    if (slot < 0 || (est->anchor_src[slot] == EST_ANCHOR_RADIO &&
+                     (uint32_t)(t_us / 1000u) - est->anchor_ms[slot] >= ESTIMATOR_RADIO_POS_VALID_MS)) {
+        return -1;
+    }
+    return slot;
+}
+
+const float *estimator_anchor(const estimator_t *est, uint8_t id, uint64_t t_us)
+{
+    const int slot = valid_slot(est, id, t_us);
+    return slot < 0 ? NULL : est->anchors[slot];
 }
 
 int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3])
@@ -316,29 +374,33 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
     est->flags = 0;
 }
 
+/* The per-anchor state (gate, pair monitor, bias states) is kept by slot: the slot index goes down the
+ * pipeline in place of the id. */
 int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float range,
                      estimator_result_t *out)
 {
-    if (!anchor_known(est, anchor)) {
+    const int s = valid_slot(est, anchor, t_us);
+    if (s < 0) {
         return EST_ERR_UNKNOWN_ANCHOR;
     }
     if (est->has_uwb_time && t_us < est->t_uwb_us) {
         return EST_ERR_TIME_BACKWARDS;
     }
-    process(est, t_us, anchor, anchor, est->anchors[anchor], NULL, range, out);
+    process(est, t_us, (uint8_t)s, (uint8_t)s, est->anchors[s], NULL, range, out);
     return EST_OK;
 }
 
 int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t anchor_b, float diff,
                       estimator_result_t *out)
 {
-    if (!anchor_known(est, anchor_a) || !anchor_known(est, anchor_b)) {
+    const int sa = valid_slot(est, anchor_a, t_us), sb = valid_slot(est, anchor_b, t_us);
+    if (sa < 0 || sb < 0) {
         return EST_ERR_UNKNOWN_ANCHOR;
     }
     if (est->has_uwb_time && t_us < est->t_uwb_us) {
         return EST_ERR_TIME_BACKWARDS;
     }
-    process(est, t_us, anchor_a, anchor_b, est->anchors[anchor_a], est->anchors[anchor_b], diff, out);
+    process(est, t_us, (uint8_t)sa, (uint8_t)sb, est->anchors[sa], est->anchors[sb], diff, out);
     return EST_OK;
 }
 

@@ -14,7 +14,11 @@
 #include "nn_monitor.h"
 #include "takeoff.h"
 
-#define ESTIMATOR_MAX_ANCHORS 16
+#define ESTIMATOR_MAX_ANCHORS 16          /* slots of the anchor table: any uint8 id, keyed by id */
+#define ESTIMATOR_RADIO_POS_VALID_MS 2000u /* a position received over the radio (LPP) expires [ms] */
+
+/* Who set a slot's position: the host (ANCHOR: stays) or the radio (LPP: valid 2 s after it was received). */
+enum { EST_ANCHOR_FREE = 0, EST_ANCHOR_HOST = 1, EST_ANCHOR_RADIO = 2 };
 
 /* Return codes (numerically equal to protocol enum error_code). */
 enum {
@@ -79,8 +83,11 @@ typedef struct {
 typedef struct {
     estimator_config_t cfg;
     ekf_t ekf;
-    float anchors[ESTIMATOR_MAX_ANCHORS][3];
-    uint16_t anchor_known;            /* bit i: anchors[i] was set */
+    float anchors[ESTIMATOR_MAX_ANCHORS][3];   /* by slot */
+    uint8_t anchor_id[ESTIMATOR_MAX_ANCHORS];  /* the id a slot holds */
+    uint8_t anchor_src[ESTIMATOR_MAX_ANCHORS]; /* EST_ANCHOR_* */
+    uint32_t anchor_ms[ESTIMATOR_MAX_ANCHORS]; /* radio positions: when received (tag time, ms) */
+    uint16_t anchor_known;            /* bit i: slot i holds an anchor */
     const bias_model_t *model;        /* may be NULL, or have NULL networks */
     uint64_t t_imu_us, t_uwb_us;      /* last accepted IMU / UWB timestamps (time rule) */
     uint8_t has_imu_time, has_uwb_time;
@@ -110,8 +117,17 @@ void estimator_init(estimator_t *est, const bias_model_t *model);
  * the mode should be done with reset. */
 void estimator_configure(estimator_t *est, const estimator_config_t *cfg, int reset);
 
-/* EST_ERR_BAD_ANCHOR_ID if id >= ESTIMATOR_MAX_ANCHORS. */
+/* A position configured by the host (it stays). Any id; a new id takes a free slot, else the radio
+ * position received longest ago; EST_ERR_BAD_ANCHOR_ID if every slot holds a host position. */
 int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3]);
+
+/* A position received over the radio at t_us (LPP): valid ESTIMATOR_RADIO_POS_VALID_MS, refreshed by
+ * every packet. A host position of the same id stays (nothing changes, EST_OK). A new id takes a free
+ * slot, else the radio position received longest ago; EST_ERR_BAD_ANCHOR_ID if none is left. */
+int estimator_set_radio_anchor(estimator_t *est, uint8_t id, const float pos[3], uint64_t t_us);
+
+/* The position of anchor id valid at t_us (host: always; radio: within 2 s), or NULL. */
+const float *estimator_anchor(const estimator_t *est, uint8_t id, uint64_t t_us);
 
 /* Inputs are finite (checked by the caller). EST_ERR_TIME_BACKWARDS (nothing changes) if t_us is
  * before the previous IMU sample. */

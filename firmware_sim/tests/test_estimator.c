@@ -100,16 +100,45 @@ static void test_config_validation(void)
 #undef EXPECT_VALID
 }
 
+/* Positions received over the radio expire 2 s after the last packet that carried them; the host's stay,
+ * and a radio packet does not overwrite them; a new host anchor takes the oldest radio slot of a full table. */
+static void test_radio_positions_expire(void)
+{
+    const float p[3] = {1.0f, 2.0f, 3.0f}, q[3] = {-1.0f, 0.5f, 2.0f};
+    unsigned id;
+    estimator_init(&est, &no_model);
+    CHECK(estimator_set_radio_anchor(&est, 200, p, 1000000u) == EST_OK);
+    CHECK(estimator_set_anchor(&est, 7, p) == EST_OK);
+    CHECK(estimator_set_radio_anchor(&est, 7, q, 1000000u) == EST_OK && estimator_anchor(&est, 7, 0)[0] == 1.0f);
+    CHECK(estimator_anchor(&est, 200, 2999999u) != NULL && estimator_anchor(&est, 200, 3000000u) == NULL);
+    CHECK(estimator_anchor(&est, 7, 90000000u) != NULL);
+    CHECK(estimator_set_radio_anchor(&est, 200, q, 2500000u) == EST_OK);       /* refreshed */
+    CHECK(estimator_anchor(&est, 200, 4400000u) != NULL && estimator_anchor(&est, 200, 4400000u)[0] == -1.0f);
+    for (id = 0; id < ESTIMATOR_MAX_ANCHORS - 2; id++) {
+        CHECK(estimator_set_anchor(&est, (uint8_t)(100 + id), p) == EST_OK);
+    }
+    CHECK(estimator_set_anchor(&est, 99, q) == EST_OK);            /* took the radio slot of 200 */
+    CHECK(estimator_anchor(&est, 200, 2500000u) == NULL && estimator_anchor(&est, 99, 0)[0] == -1.0f);
+}
+
 static void test_anchor_ids_and_unknown_anchors(void)
 {
     estimator_t before;
     estimator_result_t r;
     const float p[3] = {1.0f, 2.0f, 3.0f};
+    unsigned id;
     estimator_init(&est, &no_model);
-    CHECK(estimator_set_anchor(&est, 16, p) == EST_ERR_BAD_ANCHOR_ID);
-    CHECK(estimator_set_anchor(&est, 255, p) == EST_ERR_BAD_ANCHOR_ID);
+    /* any uint8 id, keyed: the table holds ESTIMATOR_MAX_ANCHORS of them */
+    for (id = 0; id < ESTIMATOR_MAX_ANCHORS - 1; id++) {
+        CHECK(estimator_set_anchor(&est, (uint8_t)(240 + id), p) == EST_OK);
+    }
+    CHECK(estimator_set_anchor(&est, 15, p) == EST_OK && est.anchor_known == 0xFFFFu);
+    CHECK(estimator_set_anchor(&est, 240, p) == EST_OK);           /* moved, same slot */
+    CHECK(estimator_set_anchor(&est, 16, p) == EST_ERR_BAD_ANCHOR_ID);   /* full of host positions */
+    CHECK(estimator_set_radio_anchor(&est, 16, p, 0) == EST_ERR_BAD_ANCHOR_ID);
+    CHECK(estimator_anchor(&est, 254, 0) != NULL && estimator_anchor(&est, 255, 0) == NULL);
+    estimator_init(&est, &no_model);
     CHECK(estimator_set_anchor(&est, 15, p) == EST_OK);
-    CHECK(est.anchor_known == 0x8000u);
     memcpy(&before, &est, sizeof est);
     CHECK(estimator_on_twr(&est, 1000, 3, 2.0f, &r) == EST_ERR_UNKNOWN_ANCHOR);
     CHECK(estimator_on_twr(&est, 1000, 200, 2.0f, &r) == EST_ERR_UNKNOWN_ANCHOR);
@@ -744,6 +773,7 @@ int main(void)
     RUN(test_default_config);
     RUN(test_config_validation);
     RUN(test_anchor_ids_and_unknown_anchors);
+    RUN(test_radio_positions_expire);
     RUN(test_time_backwards_refused_without_change);
     RUN(test_static_twr_convergence);
     RUN(test_uwb_only_constant_velocity_tracking);

@@ -82,6 +82,7 @@ static void test_measurement_result_and_refusals(void)
 {
     uwb_msg_t m, r;
     int n;
+    unsigned k;
     reset();
     send((m = anchor(0, 0, 0.0f, 0.0f, 3.0f), &m));
     send((m = twr(1, 1000, 0, 3.0f), &m));
@@ -105,11 +106,14 @@ static void test_measurement_result_and_refusals(void)
     send((m = twr(4, 3000, 0, NAN), &m));
     replies(UWB_MSG_ERROR, &r, &n);
     CHECK(n == 1 && r.u.error.code == UWB_ERROR_CODE_NON_FINITE);
-    /* anchor id out of range */
-    sink.len = 0;
-    send((m = anchor(5, 200, 1.0f, 1.0f, 1.0f), &m));
-    replies(UWB_MSG_ERROR, &r, &n);
-    CHECK(n == 1 && r.u.error.code == UWB_ERROR_CODE_BAD_ANCHOR_ID);
+    /* any 8-bit id until the table is full (one anchor is set above): the 16th new id is refused */
+    for (k = 0; k < ESTIMATOR_MAX_ANCHORS; k++) {
+        sink.len = 0;
+        send((m = anchor((uint16_t)(5 + k), (uint8_t)(200 + k), 1.0f, 1.0f, 1.0f), &m));
+        replies(UWB_MSG_ERROR, &r, &n);
+        CHECK(n == (k + 1 == ESTIMATOR_MAX_ANCHORS ? 1 : 0));
+    }
+    CHECK(r.u.error.code == UWB_ERROR_CODE_BAD_ANCHOR_ID && r.u.error.detail == 215u);
     CHECK(fw.stats.unknown_anchors == 2);   /* the measurement above and this ANCHOR frame */
     CHECK(fw.stats.time_backwards == 1);
     CHECK(fw.stats.non_finite == 1);

@@ -22,7 +22,9 @@ from harness.twin.tdoa_engine import MEASUREMENT, TdoaEngine
 
 MASK32 = 0xFFFFFFFF
 MASK40 = 0xFFFFFFFFFF
-WRAP_ERROR_M = 1.0   # an engine value this far from the modelled one is a 32-bit wrap (docs/radio.md)
+# A reference heard by the tag this many ticks (or more) before the sender's packet may have wrapped the
+# sender's 32-bit gap tx_An - rxAr_by_An (docs/radio.md): 2^32 less 16 us for the flight times.
+WRAP_GAP_TICKS = (1 << 32) - (1 << 20)
 
 
 def _in(t: float, window: tuple[float, float] | None, extra: float = 0.0) -> bool:
@@ -139,8 +141,9 @@ def _flight(flight: Flight, cfg: RadioConfig, clocks: dict[int, DeviceClock], ta
     row_of = {int(a): k for k, a in enumerate(sorted(clocks))}
     engine = TdoaEngine()
     last_event: dict[int, int] = {}
+    last_rx: dict[int, int] = {}
     last_t: dict[int, float] = {}
-    t_us, a_ids, b_ids, err, formed = [], [], [], [], []
+    t_us, a_ids, b_ids, err, formed, wrapped = [], [], [], [], [], []
     for t, rx, sender, payload, e in rows:
         rc, pkt = lp.parse(payload, sender)
         if rc == lp.OK:
@@ -153,7 +156,9 @@ def _flight(flight: Flight, cfg: RadioConfig, clocks: dict[int, DeviceClock], ta
                 b_ids.append(sender)
                 err.append(float(excess[e] - excess[ref] + anchor_err[row_of[sender], ref]) + pair)
                 formed.append(meas.diff)
+                wrapped.append((rx - last_rx[meas.anchor_a]) % (1 << 40) >= WRAP_GAP_TICKS)
         last_event[sender] = e
+        last_rx[sender] = rx
         last_t[sender] = t * 1e-6
     tt = np.array(t_us, dtype=np.int64)
     a_arr, b_arr = np.array(a_ids, dtype=np.int64), np.array(b_ids, dtype=np.int64)
@@ -166,10 +171,10 @@ def _flight(flight: Flight, cfg: RadioConfig, clocks: dict[int, DeviceClock], ta
              for a, t in last_t.items()}
     value = true_value + np.array(err)
     # A reference whose packet the sender heard > 2^32 ticks before transmitting wraps the engine's 32-bit
-    # arithmetic (2^32 (cc - 1) ticks: metres to hundreds; a Crazyflie's engine forms it too): both levels
+    # arithmetic (2^32 (cc - 1) ticks: mm to hundreds of m; a Crazyflie's engine forms it too): both levels
     # carry the value the engine formed, so both see the same wrong measurement.
-    wrapped = np.abs(np.array(formed) - value) > WRAP_ERROR_M
-    value[wrapped] = np.array(formed)[wrapped]
+    wrap = np.array(wrapped, dtype=bool)
+    value[wrap] = np.array(formed)[wrap]
     uwb = UwbStream(kind=KIND_TDOA, t_us=tt, anchor_a=a_arr, anchor_b=b_arr, value=value, true_value=true_value)
     meta = dict(flight.meta)
     meta["radio"] = {"protocol": cfg.protocol, "seed": cfg.seed, "packets": len(rows), "loss": cfg.loss,

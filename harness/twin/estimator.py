@@ -30,7 +30,8 @@ from protocol.messages import ErrorCode, MeasKind, ResultFlag, Status
 if TYPE_CHECKING:
     from harness.flight.data import Flight
 
-MAX_ANCHORS = PROTOCOL_MAX_ANCHORS     # what the estimator holds = what the protocol addresses
+MAX_ANCHORS = PROTOCOL_MAX_ANCHORS     # slots of the estimator's anchor table (any 8-bit id)
+RADIO_POS_VALID_MS = 2000              # a position received over the radio expires (ESTIMATOR_RADIO_POS_VALID_MS)
 #: HEIGHT std bound [m] (estimator.c EST_MAX_HEIGHT_STD): beyond it no information, and R could overflow
 MAX_HEIGHT_STD = 1000.0
 
@@ -136,7 +137,7 @@ class TwinEstimator:
     config : EstimatorConfig
         Validated on construction (the firmware refuses the same values).
     anchors : dict[int, ndarray of shape (3,)]
-        Anchor positions by id (ids < 16).
+        Anchor positions by id (any 8-bit id, at most MAX_ANCHORS).
     model : object, optional
         Bias networks as attributes ``twr`` and ``tdoa`` (either may be missing or None), each
         with ``layout`` and ``predict(features)``.
@@ -147,6 +148,8 @@ class TwinEstimator:
         self.config = config
         self.model = model
         self.anchors: dict[int, np.ndarray] = {}
+        self.slot_ids: list[int | None] = [None] * MAX_ANCHORS   # the table, keyed by id (estimator.c)
+        self.slot_ms: list[int | None] = [None] * MAX_ANCHORS    # radio positions: when received [ms]
         for anchor_id, pos in anchors.items():
             self.set_anchor(anchor_id, pos)
         self.predictions = 0
@@ -182,10 +185,46 @@ class TwinEstimator:
             self._reset_filter()
 
     def set_anchor(self, anchor_id: int, pos: np.ndarray) -> None:
-        """Set an anchor position; TwinError(ERR_BAD_ANCHOR_ID) for ids >= 16."""
-        if not 0 <= int(anchor_id) < MAX_ANCHORS:
+        """A host position (stays), any 8-bit id; TwinError(ERR_BAD_ANCHOR_ID) when all MAX_ANCHORS slots
+        hold host positions (estimator.c store_anchor)."""
+        self._store(int(anchor_id), pos, None)
+
+    def set_radio_anchor(self, anchor_id: int, pos: np.ndarray, t_us: int) -> None:
+        """A position received over the radio (LPP): valid RADIO_POS_VALID_MS; a host position stays."""
+        self._store(int(anchor_id), pos, (int(t_us) // 1000) & 0xFFFFFFFF)
+
+    def _store(self, anchor_id: int, pos: np.ndarray, ms: int | None) -> None:
+        if not 0 <= anchor_id <= 255:
             raise TwinError(ERR_BAD_ANCHOR_ID, f"anchor id {anchor_id} out of range")
-        self.anchors[int(anchor_id)] = np.asarray(pos, dtype=np.float64).reshape(3).copy()
+        slot = self.slot_ids.index(anchor_id) if anchor_id in self.slot_ids else None
+        if slot is not None and ms is not None and self.slot_ms[slot] is None:
+            return   # positions configured by the host stay
+        if slot is None:
+            slot = self._new_slot()
+        self.slot_ids[slot], self.slot_ms[slot] = anchor_id, ms
+        self.anchors[anchor_id] = np.asarray(pos, dtype=np.float64).reshape(3).copy()
+
+    def _new_slot(self) -> int:
+        if None in self.slot_ids:
+            return self.slot_ids.index(None)
+        best: int | None = None   # the radio position received longest ago (32-bit ms arithmetic)
+        for k, ms in enumerate(self.slot_ms):
+            if ms is not None and (best is None or (ms - self.slot_ms[best]) % 2**32 >= 2**31):  # type: ignore[operator]
+                best = k
+        if best is None:
+            raise TwinError(ERR_BAD_ANCHOR_ID, "the anchor table is full")
+        del self.anchors[self.slot_ids[best]]   # type: ignore[index]
+        return best
+
+    def _slot(self, anchor_id: int, t_us: int) -> int:
+        """The slot of a position valid at t_us; TwinError(ERR_UNKNOWN_ANCHOR) otherwise."""
+        aid = int(anchor_id)
+        if aid in self.slot_ids:
+            k = self.slot_ids.index(aid)
+            ms = self.slot_ms[k]
+            if ms is None or ((int(t_us) // 1000) - ms) % 2**32 < RADIO_POS_VALID_MS:
+                return k
+        raise TwinError(ERR_UNKNOWN_ANCHOR, f"unknown anchor {anchor_id}")
 
     # ----------------------------------------------------------------------------------- inputs
     def on_imu(self, t_us: int, acc: np.ndarray, gyro: np.ndarray) -> None:
@@ -207,16 +246,16 @@ class TwinEstimator:
             self._supervise()
 
     def on_twr(self, t_us: int, anchor: int, rng: float) -> TwinResult:
-        """One two-way range to ``anchor``."""
-        a = self._anchor(anchor)
+        """One two-way range to ``anchor``. Per-anchor state (gates, monitor, bias states) is kept by slot."""
+        k = self._slot(anchor, t_us)
         self._check_uwb_time(int(t_us))
-        return self._process(int(t_us), (int(anchor), int(anchor)), a, None, float(rng))
+        return self._process(int(t_us), (k, k), self.anchors[int(anchor)], None, float(rng))
 
     def on_tdoa(self, t_us: int, a: int, b: int, diff: float) -> TwinResult:
         """One TDoA ``diff = d(tag, B) - d(tag, A)``."""
-        pa, pb = self._anchor(a), self._anchor(b)
+        ka, kb = self._slot(a, t_us), self._slot(b, t_us)
         self._check_uwb_time(int(t_us))
-        return self._process(int(t_us), (int(a), int(b)), pa, pb, float(diff))
+        return self._process(int(t_us), (ka, kb), self.anchors[int(a)], self.anchors[int(b)], float(diff))
 
     def state(self) -> TwinState:
         """The current estimate."""
@@ -224,12 +263,6 @@ class TwinEstimator:
         return TwinState(pos=e.x[POS].copy(), vel=e.velocity_world(), quat=e.q.copy(), var=np.diagonal(e.P).copy())
 
     # -------------------------------------------------------------------------------- internals
-    def _anchor(self, anchor_id: int) -> np.ndarray:
-        pos = self.anchors.get(int(anchor_id))
-        if pos is None:
-            raise TwinError(ERR_UNKNOWN_ANCHOR, f"unknown anchor {anchor_id}")
-        return pos
-
     def _check_uwb_time(self, t_us: int) -> None:
         if self.t_uwb_us is not None and t_us < self.t_uwb_us:
             raise TwinError(ERR_TIME_BACKWARDS, f"UWB time {t_us} < {self.t_uwb_us}")

@@ -39,14 +39,16 @@ def _clock_drops_explained(flight) -> tuple[int, int]:  # noqa: ANN001
     return int(drops.sum()), int((drops & ~explained).sum())
 
 
-@pytest.mark.parametrize("protocol", ["tdoa2", "tdoa3"])
-def test_levels_same_measurements_and_clock_drops_from_link_noise(protocol: str) -> None:
+@pytest.mark.parametrize("protocol,level_mm", [("tdoa2", 5.0), ("tdoa3", 12.0)])
+def test_levels_same_measurements_and_clock_drops_from_link_noise(protocol: str, level_mm: float) -> None:
     base = scenario_flight("circle", mode="tdoa", duration_s=10.0, seed=2)
     clean = simulate_radio(base, RadioConfig(protocol=protocol, seed=2), None)
     s = compare_streams(clean)
     assert s.same_pairs and set(s.drops) <= {"clock_unreliable"}
-    # Without link errors the levels differ by the tick and the clock correction only (2.7 / 3.4 mm RMS at 30 s)
-    assert abs(s.diff_mean_m) < 1e-3 and s.diff_rms_m < 5e-3
+    # Without link errors the levels differ by the tick, the clock correction and the tag's motion between the
+    # two receptions only: 2.7 mm RMS (TDoA2, youngest reference); 8.7 mm (TDoA3: a Crazyflie's rotating
+    # reference is ~20 ms old, the youngest ~3 ms: 3.4 mm)
+    assert abs(s.diff_mean_m) < 1e-3 and s.diff_rms_m < level_mm * 1e-3
     # ... and every clock_unreliable drop is an anchor's start (no estimate yet) or a 32-bit wrap of the
     # interval (TDoA3: collisions and the random schedule leave gaps > 67.2 ms)
     n_clean, unexplained = _clock_drops_explained(clean)
@@ -61,8 +63,10 @@ def test_levels_same_measurements_and_clock_drops_from_link_noise(protocol: str)
     assert real.same_pairs and tag_only.same_pairs
     assert real.drops.get("clock_unreliable", 0) - n_clean < 0.015 * real.packets
     assert tag_only.drops["clock_unreliable"] - n_clean > 0.015 * tag_only.packets
-    # The cc estimated from the same noisy stamps takes part of the sender's noise out of the difference
-    assert real.err_rms_radio_m < real.err_rms_meas_m and tag_only.err_rms_radio_m < tag_only.err_rms_meas_m
+    # The cc estimated from the same noisy stamps takes part of the sender's noise out of the difference; the
+    # whole-tick truncation (as a Crazyflie: up to 4.7 mm toward zero) adds some: within 2 % either way
+    for c in (real, tag_only):
+        assert abs(c.err_rms_radio_m / c.err_rms_meas_m - 1.0) < 0.02
 
 
 def test_noise_split_as_in_the_recordings() -> None:

@@ -238,10 +238,22 @@ def run_static(twin: TwinEstimator, truth: np.ndarray, seconds: float) -> None:
             k = (k + 1) % 8
 
 
+def test_radio_positions_expire_host_positions_stay() -> None:
+    twin = TwinEstimator(config(), {0: ANCHORS[0]})
+    twin.set_radio_anchor(200, ANCHORS[1], 1_000_000)
+    twin.set_radio_anchor(0, ANCHORS[2], 1_000_000)          # the host's position stays
+    assert np.array_equal(twin.anchors[0], ANCHORS[0])
+    twin.on_tdoa(2_999_000, 0, 200, 0.1)
+    with pytest.raises(TwinError) as e:
+        twin.on_tdoa(3_000_000, 0, 200, 0.1)                 # 2 s after it was received
+    assert e.value.code == ERR_UNKNOWN_ANCHOR
+
+
 def test_refusals_leave_the_state_unchanged() -> None:
     twin = TwinEstimator(config(init_z=1.0), ANCHORS)
+    full = TwinEstimator(config(), {240 + k: np.zeros(3) for k in range(16)})   # any 8-bit id, 16 slots
     with pytest.raises(TwinError) as e:
-        twin.set_anchor(16, np.zeros(3))
+        full.set_anchor(16, np.zeros(3))
     assert e.value.code == ERR_BAD_ANCHOR_ID
     with pytest.raises(TwinError) as e:
         twin.on_twr(1000, 12, 3.0)

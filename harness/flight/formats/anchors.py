@@ -26,7 +26,8 @@ from harness.flight.formats.yaml_lines import LineList, LineMap, YamlSyntaxError
 from harness.flight.data import Anchors, FlightError
 
 ANCHORS_CSV_COLUMNS = ("constellation", "anchor_id", "x_m", "y_m", "z_m")
-MAX_ANCHOR_ID = 15   # the firmware's ESTIMATOR_MAX_ANCHORS - 1
+MAX_ANCHOR_ID = 255  # 8-bit ids (LPS anchors: low byte of the MAC address)
+MAX_ANCHORS = 16     # the firmware's anchor table (ESTIMATOR_MAX_ANCHORS slots, keyed by id)
 #: an anchor file holds a few lines: a larger file is not one (and would be read whole)
 MAX_ANCHOR_FILE_BYTES = 1 << 20
 
@@ -56,7 +57,9 @@ def load_anchors(path: Path | str, constellation: int | None = None) -> Anchors:
 def _make_anchors(ids: np.ndarray, pos: np.ndarray, quat: np.ndarray | None, path: Path) -> Anchors:
     bad = [int(i) for i in ids if not 0 <= int(i) <= MAX_ANCHOR_ID]
     if bad:
-        raise RecordingError(f"anchor id(s) {bad} outside 0..{MAX_ANCHOR_ID} (the firmware's anchor table)",
+        raise RecordingError(f"anchor id(s) {bad} outside 0..{MAX_ANCHOR_ID} (8-bit anchor ids)", path=path)
+    if len(np.unique(ids)) > MAX_ANCHORS:
+        raise RecordingError(f"{len(np.unique(ids))} anchors: the firmware's anchor table holds {MAX_ANCHORS}",
                              path=path)
     try:
         return Anchors(ids=np.asarray(ids, dtype=np.int64), positions=np.asarray(pos, dtype=np.float64),
