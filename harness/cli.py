@@ -242,6 +242,10 @@ def _add_stage_options(p: argparse.ArgumentParser) -> None:
                    help="LPS radio level: stream the anchor packets the tag's radio receives (simulated by the "
                         "radio simulator, or synthesised from a TDoA recording's differences) and let the "
                         "firmware's TDoA engine form the measurements; the summary gains a radio section")
+    g.add_argument("--radio-trace", metavar="FILE", default=None,
+                   help="LPS radio level from recorded anchor packets: a CSV of t_rx_ticks,sender,packet_hex "
+                        "(docs/radio.md) replayed to the firmware's TDoA engine; the flight (--mode tdoa or a "
+                        "recording) gives anchors, truth and IMU")
     g.add_argument("--radio-loss", type=float, default=0.0, metavar="P",
                    help="with --radio on a simulated flight: probability that the tag misses a packet [0, 1)")
 

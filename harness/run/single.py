@@ -61,7 +61,8 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
     """Stream the flight of `src` through the device and return the run's summary (without a verdict).
     Long simulated flights are built and streamed in slices (not at radio level, nor with heights: those
     need the whole flight)."""
-    plan = None if (src.radio or src.height) else long_simulation(src)
+    radio = bool(src.radio or src.radio_trace)
+    plan = None if (radio or src.height) else long_simulation(src)
     flight = make_run_flight(src) if plan is None else None
     with open_device(spec, expected_model_hash=want_hash) as device:
         ident = device.identity
@@ -87,8 +88,8 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
                     from harness.stream.digest import flight_digest
                     header["flight_digest"] = flight_digest(flight)
                 run = streamer.run(flight, cfg, pacing, results_path=results, progress=update,
-                                   header_extra=header, overwrite=overwrite, radio=bool(src.radio))
-        return summarize_run(run, flight, ident, config=src.stages, radio_streamer=streamer if src.radio else None,
+                                   header_extra=header, overwrite=overwrite, radio=radio)
+        return summarize_run(run, flight, ident, config=src.stages, radio_streamer=streamer if radio else None,
                              connection=device.connection(), flight_above=src.flight_above)
 
 
@@ -108,7 +109,7 @@ def resume_one(path: Path, device_spec: Callable[[RunSource], tuple[DeviceSpec, 
         if not isinstance(header_src, dict):
             raise ResumeError(f"{rec.path}:1: header has no 'source' (not written by `uwb-hil run`): "
                               "cannot rebuild the flight")
-        if header_src.get("radio"):
+        if header_src.get("radio") or header_src.get("radio_trace"):
             raise ResumeError(f"{rec.path}: a radio-level run cannot be resumed (the tag's TDoA engine state "
                               "is not in the results file): run it again")
         # a header edited by hand passes the command line's schema and bounds before anything is built

@@ -34,6 +34,7 @@ class RunSource:
     set: Sequence[str] = field(default_factory=list)
     radio: str | None = None
     radio_loss: float = 0.0
+    radio_trace: str | None = None      # recorded anchor packets (harness/flight/radio_trace.py)
     height: str | None = None
     height_std: float = 0.05
     range_offset: str | None = None     # a range-offset calibration file (harness/flight/range_offset.py)
@@ -58,7 +59,7 @@ class RunSource:
         # a settings file (`--set @FILE.toml`) too; the resume re-reads it (its values are not in the header,
         # but the resume compares the configuration they give with the recorded run's)
         src["set"] = [f"@{Path(item[1:]).resolve()}" if item.startswith("@") else item for item in self.set]
-        for k in ("recording", "anchors", "model", "range_offset"):
+        for k in ("recording", "anchors", "model", "range_offset", "radio_trace"):
             if src[k]:
                 src[k] = str(Path(src[k]).resolve())
         if isinstance(self.lever_arm, str):      # a calibration file (`uwb-hil lever-arm`)
@@ -88,9 +89,15 @@ def make_flight(src: RunSource) -> Flight:
 
 def make_run_flight(src: RunSource) -> Flight:
     """make_flight, at LPS radio level when `radio` names a protocol."""
-    if src.radio and not src.recording and src.mode != "tdoa":
-        raise UsageError("--radio streams TDoA anchor packets: use it with --mode tdoa (or a TDoA recording)")
+    if (src.radio or src.radio_trace) and not src.recording and src.mode != "tdoa":
+        raise UsageError("--radio / --radio-trace stream TDoA anchor packets: use them with --mode tdoa "
+                         "(or a TDoA recording)")
+    if src.radio and src.radio_trace:
+        raise UsageError("--radio simulates the anchor packets, --radio-trace replays recorded ones: one of them")
     flight = make_flight(src)
+    if src.radio_trace:
+        from harness.flight.radio_trace import attach_trace, load_radio_trace
+        return attach_trace(flight, load_radio_trace(src.radio_trace))
     if not src.radio:
         return flight
     from harness.flight.radio import radio_level

@@ -149,3 +149,39 @@ def test_cli_run_radio_json_and_usage_error() -> None:
     assert radio["device_counters"]["radio_meas"] == radio["measurements"]
     bad = _cli("run", "--radio", "tdoa2", "--mode", "twr", "--duration", "4")
     assert bad.returncode == 2 and "uwb-hil: error: --radio" in bad.stderr
+
+
+def _write_trace(path, radio, header: bool = True) -> None:  # noqa: ANN001
+    lines = ["# captured anchor packets", "t_rx_ticks,sender,packet_hex"] if header else []
+    for k in range(len(radio)):
+        lines.append(f"{int(radio.rx_ts[k])},{int(radio.src_addr[k]) & 0xFF},"
+                     f"{bytes(radio.payload[k, :int(radio.length[k])]).hex()}")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_radio_trace_replays_recorded_packets(tmp_path) -> None:  # noqa: ANN001
+    """--radio-trace: the packets of a simulated flight, written as a trace, replayed to the firmware form
+    as many measurements as the engine twin forms from them."""
+    from harness.flight.radio_trace import load_radio_trace
+    base = scenario_flight("circle", mode="tdoa", duration_s=4.0, seed=1)
+    flight = radio_level(base, "tdoa3", seed=1)
+    trace = tmp_path / "trace.csv"
+    _write_trace(trace, flight.radio)
+    loaded = load_radio_trace(trace)
+    assert len(loaded) == len(flight.radio) and np.array_equal(loaded.rx_ts, flight.radio.rx_ts)
+    assert np.all(np.diff(loaded.t_us) >= 0)
+    r = _cli("run", "--mode", "tdoa", "--duration", "4", "--radio-trace", str(trace), "--stages", "outlier", "--json")
+    assert r.returncode == 0, r.stderr
+    radio = json.loads(r.stdout)["radio"]
+    assert radio["protocol"] == "tdoa3" and radio["packets"] == len(flight.radio)
+    assert radio["measurements"] > 0.9 * len(flight.uwb)
+
+
+@pytest.mark.parametrize("line,reason", [("12,3", "expected 3 columns"), ("x,3,3000", "t_rx_ticks 'x'"),
+                                         ("12,3,30zz", "not hexadecimal"), ("12,3,4100", "neither TDoA2"),
+                                         (f"{1 << 40},3,3000", "outside")])
+def test_malformed_radio_trace_exits_2_naming_the_line(tmp_path, line: str, reason: str) -> None:  # noqa: ANN001
+    trace = tmp_path / "bad.csv"
+    trace.write_text("t_rx_ticks,sender,packet_hex\n100,1,30000000000000\n" + line + "\n")
+    r = _cli("run", "--mode", "tdoa", "--duration", "4", "--radio-trace", str(trace))
+    assert r.returncode == 2 and f"{trace}:3: " in r.stderr and reason in r.stderr, r.stderr
