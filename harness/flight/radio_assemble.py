@@ -25,6 +25,7 @@ MASK40 = 0xFFFFFFFFFF
 # A reference heard by the tag this many ticks (or more) before the sender's packet may have wrapped the
 # sender's 32-bit gap tx_An - rxAr_by_An (docs/radio.md): 2^32 less 16 us for the flight times.
 WRAP_GAP_TICKS = (1 << 32) - (1 << 20)
+TDOA2_FRAME_S = (1 << 30) / TS_FREQ   # 8 slots of 2^27 ticks
 
 
 def _in(t: float, window: tuple[float, float] | None, extra: float = 0.0) -> bool:
@@ -67,7 +68,8 @@ def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: di
     hw = hardware_params(sim.antenna, flight.anchors.ids) if sim is not None else None
     arx = _anchor_rx(cfg, ids, clocks, who, t_tx, apos, anchor_err, rng_noise)
     anchor_miss = rng_loss.random((len(who), len(ids))) < cfg.anchor_loss
-    heard: dict[int, dict[int, tuple[int, int, float]]] = {int(a): {} for a in ids}
+    heard: dict[int, dict[int, tuple[int, float, float, int]]] = {int(a): {} for a in ids}   # (seq, rx, t, event)
+    latest_tx: dict[int, int] = {}                       # anchor -> event of its latest transmission
     seq = {int(a): 0 for a in ids}
     restarted = {int(a): False for a in ids}
     rows: list[tuple[int, int, int, bytes, int]] = []   # (t_us, rx_ts, sender, payload, event)
@@ -83,6 +85,9 @@ def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: di
             h = heard[a].get(b)
             if b == a or h is None or (cfg.protocol == "tdoa3" and t - h[2] > cfg.tdoa3_validity_s):
                 continue
+            # TDoA2: a slot holds the latest packet of that anchor, heard in the last frame; missed: zero
+            if cfg.protocol == "tdoa2" and (h[3] != latest_tx.get(b) or t - h[2] > TDOA2_FRAME_S):
+                continue
             tof_unknown = _in(t, silent.get(a), cfg.reboot_tof_s) or _in(t, silent.get(b), cfg.reboot_tof_s)
             tof, tof_x = (0, 0.0) if tof_unknown else _tof(cfg, sim, hw, clocks, apos, a, b, t, rng_noise)
             remotes.append(RemoteInfo(id=b, seq=h[0], rx_ts=int(round(h[1])) & MASK32, tof=tof))
@@ -92,19 +97,19 @@ def assemble(flight: Flight, cfg: RadioConfig, sim: SimConfig | None, clocks: di
         if cfg.protocol == "tdoa2":
             payload = tdoa2_payload(a, seq[a], tx32, remotes, pos)  # type: ignore[arg-type]
         else:
+            # a full entry (with the distance) whenever the anchor has one, as real anchors send
             remotes, remotes_x = remotes[:8], remotes_x[:8]
-            full = [(seq[a] + r.id) % 2 == 0 for r in remotes]
-            payload = tdoa3_payload(seq[a], tx32, remotes, pos, full)  # type: ignore[arg-type]
-            remotes_x = [replace(r, tof=r.tof if f else 0) for r, f in zip(remotes_x, full)]
+            payload = tdoa3_payload(seq[a], tx32, remotes, pos, [r.tof != 0 for r in remotes])  # type: ignore[arg-type]
         for k, b in enumerate(ids):
             b = int(b)
             if b != a and not anchor_miss[e, k] and not collided[e] and not _in(t, silent.get(b)):
-                heard[b][a] = (seq[a], float(arx[b][e]), t)
+                heard[b][a] = (seq[a], float(arx[b][e]), t, e)
         if heard_by_tag[e]:
             rows.append((int(round(t_rx[e] * 1e6)), int(round(rx_ticks[e])) & MASK40, a, payload, e))
             if cfg.exact_stamps:
                 exact[e] = lp.Packet(type=payload[0], seq=seq[a], tx_ts=tx32, remote=remotes_x)
         seq[a] = (seq[a] + 1) & 0x7F
+        latest_tx[a] = e
     rows.sort(key=lambda r: (r[0], r[4]))
     out = _flight(flight, cfg, clocks, tag, rows, excess, anchor_err, sim, hw)
     if cfg.exact_stamps and out.radio is not None:

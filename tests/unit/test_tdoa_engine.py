@@ -303,3 +303,38 @@ def test_no_reference_before_anchors_heard() -> None:
     assert out[0] == DROP_CLOCK
     assert DROP_NO_REFERENCE in out[:40] or DROP_CLOCK in out[:40]
     assert out[-1] == MEASUREMENT
+
+
+def _entries(f: Flight) -> list[tuple[float, int, list[tuple[int, int, bool]]]]:
+    """(t [s], sender, [(remote id, rx stamp, full entry)]) of every packet, from the raw payloads."""
+    r = f.radio
+    assert r is not None
+    out = []
+    for t, src, p in zip(r.t_us.tolist(), r.src_addr.tolist(), _payloads(r)):
+        a = int(src) & 0xFF
+        if p[0] == lp.TYPE_TDOA2:
+            ts = struct.unpack_from("<8I", p, 9)
+            out.append((t * 1e-6, a, [(i, ts[i], True) for i in range(8) if i != a]))
+        else:
+            ent, off = [], 7
+            for _ in range(p[6]):
+                full = bool(p[off + 1] & 0x80)
+                ent.append((p[off], struct.unpack_from("<I", p, off + 2)[0], full))
+                off += 8 if full else 6
+            out.append((t * 1e-6, a, ent))
+    return out
+
+
+def test_simulated_anchors_send_what_real_anchors_send() -> None:
+    """TDoA2: a slot whose packet the anchor missed carries a zero stamp (not the stale one); TDoA3: a full
+    entry (with the distance) whenever the anchor has one: short only while a rebooted anchor re-ranges."""
+    for loss, lo, hi in ((0.0, 0.0, 0.01), (0.2, 0.15, 0.25)):
+        pk = _entries(_radio_flight("tdoa2", duration_s=3.0, anchor_loss=loss))
+        slots = [ts for t, _, ent in pk if t > pk[0][0] + 0.05 for _, ts, _ in ent]
+        assert lo <= sum(ts == 0 for ts in slots) / len(slots) <= hi
+    pk = _entries(_radio_flight("tdoa3", duration_s=4.0))
+    assert all(full for _, _, ent in pk for _, _, full in ent)
+    pk = _entries(_radio_flight("tdoa3", duration_s=4.0, reboots=((2, 1.0),)))
+    t0 = pk[0][0]
+    short = [(t - t0, a, rid) for t, a, ent in pk for rid, _, full in ent if not full]
+    assert short and all(1.0 <= t <= 1.0 + 0.2 + 0.5 + 0.05 and 2 in (a, rid) for t, a, rid in short)
