@@ -53,89 +53,6 @@ void estimator_configure(estimator_t *est, const estimator_config_t *cfg, int re
     }
 }
 
-/* The slot holding id, or -1. */
-static int anchor_slot(const estimator_t *est, uint8_t id)
-{
-    int i;
-    for (i = 0; i < (int)ESTIMATOR_MAX_ANCHORS; i++) {
-        if (((est->anchor_known >> i) & 1u) && est->anchor_id[i] == id) {
-            return i;
-        }
-    }
-    return -1;
-}
-
-/* The slot for a new id: the first free one, else the radio position received longest ago, or -1. */
-static int anchor_new_slot(const estimator_t *est)
-{
-    int i, best = -1;
-    for (i = 0; i < (int)ESTIMATOR_MAX_ANCHORS; i++) {
-        if (!((est->anchor_known >> i) & 1u)) {
-            return i;
-        }
-        if (est->anchor_src[i] == EST_ANCHOR_RADIO &&
-            (best < 0 || (int32_t)(est->anchor_ms[i] - est->anchor_ms[best]) < 0)) {
-            best = i;
-        }
-    }
-    return best;
-}
-
-static int store_anchor(estimator_t *est, uint8_t id, const float pos[3], uint8_t src, uint32_t ms)
-{
-    unsigned i, k;
-    int slot = anchor_slot(est, id);
-    if (slot >= 0 && src == EST_ANCHOR_RADIO && est->anchor_src[slot] == EST_ANCHOR_HOST) {
-        return EST_OK; /* positions configured by the host stay */
-    }
-    slot = slot >= 0 ? slot : anchor_new_slot(est);
-    if (slot < 0) {
-        return EST_ERR_BAD_ANCHOR_ID;
-    }
-    memcpy(est->anchors[slot], pos, 3 * sizeof pos[0]);
-    est->anchor_id[slot] = id;
-    est->anchor_src[slot] = src;
-    est->anchor_ms[slot] = ms;
-    est->anchor_known = (uint16_t)(est->anchor_known | (1u << slot));
-    /* the supervisor's box, from every known anchor (an anchor may be moved) */
-    memcpy(est->box_min, pos, sizeof est->box_min);
-    memcpy(est->box_max, pos, sizeof est->box_max);
-    for (i = 0; i < ESTIMATOR_MAX_ANCHORS; i++) {
-        for (k = 0; (est->anchor_known >> i) & 1u && k < 3; k++) {
-            est->box_min[k] = est->anchors[i][k] < est->box_min[k] ? est->anchors[i][k] : est->box_min[k];
-            est->box_max[k] = est->anchors[i][k] > est->box_max[k] ? est->anchors[i][k] : est->box_max[k];
-        }
-    }
-    return EST_OK;
-}
-
-int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3])
-{
-    return store_anchor(est, id, pos, EST_ANCHOR_HOST, 0u);
-}
-
-int estimator_set_radio_anchor(estimator_t *est, uint8_t id, const float pos[3], uint64_t t_us)
-{
-    return store_anchor(est, id, pos, EST_ANCHOR_RADIO, (uint32_t)(t_us / 1000u));
-}
-
-/* The slot of id if its position is valid at t_us, else -1. */
-static int valid_slot(const estimator_t *est, uint8_t id, uint64_t t_us)
-{
-    const int slot = anchor_slot(est, id);
-    if (slot < 0 || (est->anchor_src[slot] == EST_ANCHOR_RADIO &&
-                     (uint32_t)(t_us / 1000u) - est->anchor_ms[slot] >= ESTIMATOR_RADIO_POS_VALID_MS)) {
-        return -1;
-    }
-    return slot;
-}
-
-const float *estimator_anchor(const estimator_t *est, uint8_t id, uint64_t t_us)
-{
-    const int slot = valid_slot(est, id, t_us);
-    return slot < 0 ? NULL : est->anchors[slot];
-}
-
 int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3])
 {
     uint32_t c0;
@@ -379,7 +296,7 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
 int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float range,
                      estimator_result_t *out)
 {
-    const int s = valid_slot(est, anchor, t_us);
+    const int s = estimator_anchor_slot(est, anchor, t_us);
     if (s < 0) {
         return EST_ERR_UNKNOWN_ANCHOR;
     }
@@ -393,7 +310,7 @@ int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float rang
 int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t anchor_b, float diff,
                       estimator_result_t *out)
 {
-    const int sa = valid_slot(est, anchor_a, t_us), sb = valid_slot(est, anchor_b, t_us);
+    const int sa = estimator_anchor_slot(est, anchor_a, t_us), sb = estimator_anchor_slot(est, anchor_b, t_us);
     if (sa < 0 || sb < 0) {
         return EST_ERR_UNKNOWN_ANCHOR;
     }

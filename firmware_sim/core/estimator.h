@@ -126,8 +126,10 @@ int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3]);
  * slot, else the radio position received longest ago; EST_ERR_BAD_ANCHOR_ID if none is left. */
 int estimator_set_radio_anchor(estimator_t *est, uint8_t id, const float pos[3], uint64_t t_us);
 
-/* The position of anchor id valid at t_us (host: always; radio: within 2 s), or NULL. */
+/* The position of anchor id valid at t_us (host: always; radio: within 2 s), or NULL; its slot, or -1
+ * (the per-anchor state of the gates, the pair monitor and the bias states is kept by slot). */
 const float *estimator_anchor(const estimator_t *est, uint8_t id, uint64_t t_us);
+int estimator_anchor_slot(const estimator_t *est, uint8_t id, uint64_t t_us);
 
 /* Inputs are finite (checked by the caller). EST_ERR_TIME_BACKWARDS (nothing changes) if t_us is
  * before the previous IMU sample. */

@@ -17,6 +17,7 @@ from harness.config import (MODE_IMU_THRUST, MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE
 from harness.errors import InputError
 from harness.flight.data import Source
 from harness.twin import gates, measurements, supervisor
+from harness.twin.anchor_table import AnchorTable
 from harness.twin.bias_states import BiasStates
 from harness.twin.ekf import POS, ErrorStateEkf
 from harness.twin.features import features, ood_fade
@@ -31,7 +32,6 @@ if TYPE_CHECKING:
     from harness.flight.data import Flight
 
 MAX_ANCHORS = PROTOCOL_MAX_ANCHORS     # slots of the estimator's anchor table (any 8-bit id)
-RADIO_POS_VALID_MS = 2000              # a position received over the radio expires (ESTIMATOR_RADIO_POS_VALID_MS)
 #: HEIGHT std bound [m] (estimator.c EST_MAX_HEIGHT_STD): beyond it no information, and R could overflow
 MAX_HEIGHT_STD = 1000.0
 
@@ -44,8 +44,7 @@ FLAG_NN_PAIR_OFF = int(ResultFlag.NN_PAIR_OFF)
 ACCEPTED = int(Status.ACCEPTED)
 REJECTED_KINEMATIC = int(Status.REJECTED_KINEMATIC)
 REJECTED_CHI2 = int(Status.REJECTED_CHI2)
-REJECTED_GEOMETRY = int(Status.REJECTED_GEOMETRY)
-REJECTED_BASELINE = int(Status.REJECTED_BASELINE)
+REJECTED_GEOMETRY, REJECTED_BASELINE = int(Status.REJECTED_GEOMETRY), int(Status.REJECTED_BASELINE)
 
 # protocol enum error_code (what the firmware answers with ERROR)
 ERR_UNKNOWN_ANCHOR = int(ErrorCode.UNKNOWN_ANCHOR)
@@ -121,14 +120,6 @@ class TwinResult:
     flags: int = 0
 
 
-def within_baseline(anchor_a: np.ndarray, anchor_b: np.ndarray, diff: float) -> bool:
-    """|diff| below the distance between the two anchors, in float32 as the firmware (estimator.c): a
-    Crazyflie's TDoA outlier filter discards the others before its update."""
-    d = np.asarray(anchor_a, dtype=np.float32) - np.asarray(anchor_b, dtype=np.float32)
-    f = np.float32(diff)
-    return bool(f * f < d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-
-
 class TwinEstimator:
     """Float64 reference of the firmware estimator.
 
@@ -147,9 +138,8 @@ class TwinEstimator:
         config.validate()
         self.config = config
         self.model = model
-        self.anchors: dict[int, np.ndarray] = {}
-        self.slot_ids: list[int | None] = [None] * MAX_ANCHORS   # the table, keyed by id (estimator.c)
-        self.slot_ms: list[int | None] = [None] * MAX_ANCHORS    # radio positions: when received [ms]
+        self.table = AnchorTable(MAX_ANCHORS)   # keyed by id; per-anchor state by slot; anchors: id -> position
+        self.anchors: dict[int, np.ndarray] = self.table.positions
         for anchor_id, pos in anchors.items():
             self.set_anchor(anchor_id, pos)
         self.predictions = 0
@@ -184,47 +174,17 @@ class TwinEstimator:
         if reset:
             self._reset_filter()
 
-    def set_anchor(self, anchor_id: int, pos: np.ndarray) -> None:
-        """A host position (stays), any 8-bit id; TwinError(ERR_BAD_ANCHOR_ID) when all MAX_ANCHORS slots
-        hold host positions (estimator.c store_anchor)."""
-        self._store(int(anchor_id), pos, None)
-
-    def set_radio_anchor(self, anchor_id: int, pos: np.ndarray, t_us: int) -> None:
-        """A position received over the radio (LPP): valid RADIO_POS_VALID_MS; a host position stays."""
-        self._store(int(anchor_id), pos, (int(t_us) // 1000) & 0xFFFFFFFF)
-
-    def _store(self, anchor_id: int, pos: np.ndarray, ms: int | None) -> None:
-        if not 0 <= anchor_id <= 255:
-            raise TwinError(ERR_BAD_ANCHOR_ID, f"anchor id {anchor_id} out of range")
-        slot = self.slot_ids.index(anchor_id) if anchor_id in self.slot_ids else None
-        if slot is not None and ms is not None and self.slot_ms[slot] is None:
-            return   # positions configured by the host stay
-        if slot is None:
-            slot = self._new_slot()
-        self.slot_ids[slot], self.slot_ms[slot] = anchor_id, ms
-        self.anchors[anchor_id] = np.asarray(pos, dtype=np.float64).reshape(3).copy()
-
-    def _new_slot(self) -> int:
-        if None in self.slot_ids:
-            return self.slot_ids.index(None)
-        best: int | None = None   # the radio position received longest ago (32-bit ms arithmetic)
-        for k, ms in enumerate(self.slot_ms):
-            if ms is not None and (best is None or (ms - self.slot_ms[best]) % 2**32 >= 2**31):  # type: ignore[operator]
-                best = k
-        if best is None:
-            raise TwinError(ERR_BAD_ANCHOR_ID, "the anchor table is full")
-        del self.anchors[self.slot_ids[best]]   # type: ignore[index]
-        return best
+    def set_anchor(self, anchor_id: int, pos: np.ndarray, radio_t_us: int | None = None) -> None:
+        """A host position (stays), or one received over the radio at radio_t_us (LPP: valid 2 s; a host
+        position of the id stays); any 8-bit id. TwinError(ERR_BAD_ANCHOR_ID): no slot left (estimator_anchors.c)."""
+        ms = None if radio_t_us is None else (int(radio_t_us) // 1000) % (1 << 32)
+        if not self.table.store(int(anchor_id), pos, ms):
+            raise TwinError(ERR_BAD_ANCHOR_ID, f"anchor {anchor_id}: not an 8-bit id, or the table is full")
 
     def _slot(self, anchor_id: int, t_us: int) -> int:
-        """The slot of a position valid at t_us; TwinError(ERR_UNKNOWN_ANCHOR) otherwise."""
-        aid = int(anchor_id)
-        if aid in self.slot_ids:
-            k = self.slot_ids.index(aid)
-            ms = self.slot_ms[k]
-            if ms is None or ((int(t_us) // 1000) - ms) % 2**32 < RADIO_POS_VALID_MS:
-                return k
-        raise TwinError(ERR_UNKNOWN_ANCHOR, f"unknown anchor {anchor_id}")
+        if (k := self.table.slot(anchor_id, t_us)) is None:
+            raise TwinError(ERR_UNKNOWN_ANCHOR, f"unknown anchor {anchor_id}")
+        return k
 
     # ----------------------------------------------------------------------------------- inputs
     def on_imu(self, t_us: int, acc: np.ndarray, gyro: np.ndarray) -> None:
@@ -359,7 +319,7 @@ class TwinEstimator:
                  else measurements.twr(ekf.x[POS], anchor_a))
         if model is None:
             return self._result(REJECTED_GEOMETRY, 0.0, 0.0, 0.0, d_max, np.zeros(3), 0.0)
-        if anchor_b is not None and not within_baseline(anchor_a, anchor_b, z):
+        if anchor_b is not None and not measurements.within_baseline(anchor_a, anchor_b, z):
             self.baseline_rejects += 1
             return self._result(REJECTED_BASELINE, 0.0, 0.0, 0.0, d_max, np.zeros(3), 0.0)
         h, H3 = model

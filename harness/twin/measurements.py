@@ -63,3 +63,11 @@ def tdoa(p: np.ndarray, anchor_a: np.ndarray, anchor_b: np.ndarray) -> tuple[flo
     if not (_far_enough(da) and _far_enough(db) and _far_enough(dab)):
         return None
     return db - da, (p - b) / db - (p - a) / da
+
+
+def within_baseline(anchor_a: np.ndarray, anchor_b: np.ndarray, diff: float) -> bool:
+    """|diff| below the distance between the two anchors, in float32 as the firmware (estimator.c): a
+    Crazyflie's TDoA outlier filter discards the others before its update."""
+    d = np.asarray(anchor_a, dtype=np.float32) - np.asarray(anchor_b, dtype=np.float32)
+    f = np.float32(diff)
+    return bool(f * f < d[0] * d[0] + d[1] * d[1] + d[2] * d[2])

@@ -240,8 +240,8 @@ def run_static(twin: TwinEstimator, truth: np.ndarray, seconds: float) -> None:
 
 def test_radio_positions_expire_host_positions_stay() -> None:
     twin = TwinEstimator(config(), {0: ANCHORS[0]})
-    twin.set_radio_anchor(200, ANCHORS[1], 1_000_000)
-    twin.set_radio_anchor(0, ANCHORS[2], 1_000_000)          # the host's position stays
+    twin.set_anchor(200, ANCHORS[1], radio_t_us=1_000_000)
+    twin.set_anchor(0, ANCHORS[2], radio_t_us=1_000_000)         # the host's position stays
     assert np.array_equal(twin.anchors[0], ANCHORS[0])
     twin.on_tdoa(2_999_000, 0, 200, 0.1)
     with pytest.raises(TwinError) as e:
