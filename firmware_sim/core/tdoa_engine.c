@@ -144,59 +144,44 @@ static int clock_update(tdoa_anchor_t *a, uint64_t rx_ts, uint32_t tx_ts)
     return 0;
 }
 
-/* Is the live remote entry k of An a reference? Its anchor must be stored already (looking it up
- * creates it otherwise, as the reference's storage does), the seq An reports must be that of the
- * tag's last packet from it, and An must know a ToF from it. */
-static tdoa_anchor_t *reference(tdoa_engine_t *e, const tdoa_anchor_t *an, unsigned k, uint32_t now_ms)
-{
-    int created;
-    tdoa_anchor_t *ar = get_or_create(e, an->remote.id[k], now_ms, &created);
-    if (created || an->remote.seq[k] != ar->seq || tof_of(an, ar->id, now_ms) == 0) {
-        return NULL;
-    }
-    return ar;
-}
-
-/* "random": the live remote entries in slot order, searched from a start that advances by one per
- * search (an engine-wide 8-bit counter); the first reference wins. */
-static tdoa_anchor_t *match_random(tdoa_engine_t *e, const tdoa_anchor_t *an, uint32_t now_ms, int *entry)
+/* The reference among An's live remote records (slot order). A candidate's anchor must be stored already
+ * (looking it up creates it otherwise, as the reference's storage does), the seq An reports must be that
+ * of the tag's last packet from it, and An must know a live ToF from it.
+ * random: the search starts at an engine-wide 8-bit offset, +1 per search; the first candidate wins.
+ * youngest: the candidate whose anchor the tag heard last (whole ms, > 0, strictly later than the earlier
+ * ones: ties go to the first); its ToF is checked before the lookup (the lookup's side effect follows). */
+static tdoa_anchor_t *find_reference(tdoa_engine_t *e, const tdoa_anchor_t *an, uint32_t now_ms, int youngest,
+                                     int *entry, uint16_t *tof)
 {
     uint8_t live_k[TDOA_REMOTE_COUNT];
-    unsigned n = 0, k, i;
-    e->offset++;
+    tdoa_anchor_t *best = NULL;
+    unsigned n = 0, k, i, start = 0;
     for (k = 0; k < TDOA_REMOTE_COUNT; k++) {
         if (an->remote.end_ms[k] > now_ms) {
             live_k[n++] = (uint8_t)k;
         }
     }
-    for (i = e->offset; i < n + e->offset; i++) {
-        tdoa_anchor_t *ar = reference(e, an, live_k[i % n], now_ms);
-        if (ar != NULL) {
-            *entry = live_k[i % n];
-            return ar;
-        }
+    if (!youngest) {
+        start = ++e->offset;
     }
-    return NULL;
-}
-
-/* "youngest": of the live remote entries with a known ToF, the one whose anchor the tag heard last
- * (in whole ms, strictly later than 0 and than the earlier candidates: ties go to the first). */
-static tdoa_anchor_t *match_youngest(tdoa_engine_t *e, const tdoa_anchor_t *an, uint32_t now_ms, int *entry)
-{
-    tdoa_anchor_t *best = NULL;
-    uint32_t youngest = 0;
-    unsigned k;
-    for (k = 0; k < TDOA_REMOTE_COUNT; k++) {
+    for (i = start; i < start + n; i++) {
+        const unsigned r = live_k[i % n];
+        const uint16_t t = tof_of(an, an->remote.id[r], now_ms);
         tdoa_anchor_t *ar;
         int created;
-        if (an->remote.end_ms[k] <= now_ms || tof_of(an, an->remote.id[k], now_ms) == 0) {
+        if (youngest && t == 0) {
             continue;
         }
-        ar = get_or_create(e, an->remote.id[k], now_ms, &created);
-        if (!created && ar->last_ms > youngest && an->remote.seq[k] == ar->seq) {
-            youngest = ar->last_ms;
-            best = ar;
-            *entry = (int)k;
+        ar = get_or_create(e, an->remote.id[r], now_ms, &created);
+        if (created || t == 0 || an->remote.seq[r] != ar->seq ||
+            (youngest && ar->last_ms <= (best != NULL ? best->last_ms : 0u))) {
+            continue;
+        }
+        best = ar;
+        *entry = (int)r;
+        *tof = t;
+        if (!youngest) {
+            break;
         }
     }
     return best;
@@ -204,11 +189,11 @@ static tdoa_anchor_t *match_youngest(tdoa_engine_t *e, const tdoa_anchor_t *an, 
 
 /* tdoa = trunc32(rx_An - rx_Ar) - (tof + trunc32(tx_An - rx_Ar_by_An)) cc, truncated toward zero. */
 static int64_t tdoa_ticks(const tdoa_anchor_t *an, const tdoa_anchor_t *ar, int entry, uint64_t rx_ts,
-                          uint32_t tx_ts, uint32_t now_ms)
+                          uint32_t tx_ts, uint16_t tof)
 {
     const uint32_t drx = (uint32_t)(rx_ts - ar->rx_ts);
     const uint32_t dtx = tx_ts - an->remote.rx_ts[entry];
-    const int64_t delta = (int64_t)tof_of(an, ar->id, now_ms) + (int64_t)dtx;
+    const int64_t delta = (int64_t)tof + (int64_t)dtx;
     return (int64_t)((double)drx - (double)delta * an->cc);
 }
 
@@ -223,12 +208,13 @@ int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sende
     store_remotes(an, pkt, now_ms);
     if (clock_update(an, rx_ts, pkt->tx_ts) && an->cc > 0.0) {
         const int youngest = match == TDOA_MATCH_YOUNGEST || (match == TDOA_MATCH_AUTO && pkt->type == LPS_TYPE_TDOA2);
-        const tdoa_anchor_t *ar = youngest ? match_youngest(e, an, now_ms, &entry) : match_random(e, an, now_ms, &entry);
+        uint16_t tof = 0;
+        const tdoa_anchor_t *ar = find_reference(e, an, now_ms, youngest, &entry, &tof);
         rc = TDOA_DROP_NO_REFERENCE;
         if (ar != NULL) {
             out->anchor_a = ar->id;
             out->anchor_b = sender;
-            out->ticks = tdoa_ticks(an, ar, entry, rx_ts, pkt->tx_ts, now_ms);
+            out->ticks = tdoa_ticks(an, ar, entry, rx_ts, pkt->tx_ts, tof);
             out->diff = TDOA_SPEED_OF_LIGHT * (double)out->ticks / TDOA_TS_FREQ;
             rc = TDOA_MEASUREMENT;
         }

@@ -129,7 +129,7 @@ def test_validation_names_the_field_and_its_bound() -> None:
 def test_the_message_carries_every_field() -> None:
     cfg = EstimatorConfig(std_twr=0.3, stages=3).with_init(1.0, 2.0, 3.0)
     msg = cfg.to_message(reset=0)
-    assert isinstance(msg, m.Config) and msg.reset == 0 and msg.reserved == 0
+    assert isinstance(msg, m.Config) and msg.reset == 0 and msg.tdoa_match == 0   # AUTO (was the reserved byte)
     assert {k: getattr(msg, k) for k in asdict(cfg)} == asdict(cfg)
 
 
