@@ -8,26 +8,10 @@ static void radio_drop(firmware_t *fw, const uwb_msg_t *in, uint8_t reason)
 {
     uwb_msg_t out;
     fw_stats_t *s = &fw->stats;
-    switch (reason) {
-    case UWB_DROP_REASON_NO_REFERENCE:
-        s->radio_no_reference++;
-        break;
-    case UWB_DROP_REASON_CLOCK_UNRELIABLE:
-        s->radio_clock++;
-        break;
-    case UWB_DROP_REASON_EXPIRED:
-        s->radio_expired++;
-        break;
-    case UWB_DROP_REASON_MALFORMED:
-        s->radio_malformed++;
-        break;
-    case UWB_DROP_REASON_UNKNOWN_TYPE:
-        s->radio_unknown_type++;
-        break;
-    default:
-        s->radio_no_position++;
-        break;
-    }
+    /* one counter per drop_reason; NO_POSITION and BAD_ANCHOR share one (STATS) */
+    uint32_t *const counter[] = {&s->radio_no_position, &s->radio_no_reference, &s->radio_clock, &s->radio_expired,
+                                 &s->radio_malformed, &s->radio_unknown_type};
+    (*counter[reason < sizeof counter / sizeof counter[0] ? reason : 0])++;
     memset(&out, 0, sizeof out);
     out.type = UWB_MSG_RADIO_DROP;
     out.u.radio_drop.meas_seq = in->seq;
