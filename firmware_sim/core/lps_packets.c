@@ -25,19 +25,17 @@ static float rd_f32(const uint8_t *p)
  * ignores LPP data it does not use. */
 static void parse_lpp(const uint8_t *p, size_t n, lps_packet_t *out)
 {
-    float v[3];
     int k;
     if (n < 14 || p[0] != LPS_LPP_SHORT || p[1] != LPS_LPP_POSITION) {
         return;
     }
     for (k = 0; k < 3; k++) {
-        v[k] = rd_f32(p + 2 + 4 * k);
-        /* v != v: NaN; the bound also refuses infinities. */
-        if (v[k] != v[k] || v[k] > LPS_MAX_COORD || v[k] < -LPS_MAX_COORD) {
+        out->pos[k] = rd_f32(p + 2 + 4 * k);
+        /* v != v: NaN; the bound also refuses infinities (has_pos stays 0) */
+        if (out->pos[k] != out->pos[k] || out->pos[k] > LPS_MAX_COORD || out->pos[k] < -LPS_MAX_COORD) {
             return;
         }
     }
-    memcpy(out->pos, v, sizeof v);
     out->has_pos = 1;
 }
 

@@ -48,9 +48,9 @@ class Slots:
     """n (id, value, end_ms) slots as the C's parallel arrays: unused = id 0, end 0. set() takes the first
     slot holding id, else the first that expires earliest; get() the first slot holding id if live."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, empty: tuple) -> None:
         self.id = [0] * n
-        self.val: list[tuple] = [()] * n
+        self.val: list[tuple] = [empty] * n
         self.end = [0] * n
 
     def set(self, rid: int, val: tuple, end: int) -> None:
@@ -74,8 +74,8 @@ class AnchorCtx:
     cc: float = 0.0
     bucket: int = 0
     packets: int = 0
-    remote: Slots = field(default_factory=lambda: Slots(REMOTE_COUNT))   # (seq, rx_ts)
-    tof: Slots = field(default_factory=lambda: Slots(TOF_COUNT))         # (tof,)
+    remote: Slots = field(default_factory=lambda: Slots(REMOTE_COUNT, (0, 0)))   # (seq, rx_ts)
+    tof: Slots = field(default_factory=lambda: Slots(TOF_COUNT, (0,)))           # (tof,)
 
     def tof_of(self, rid: int, now: int) -> float:
         v = self.tof.get(rid, now)
@@ -131,39 +131,44 @@ class TdoaEngine:
             if s.last_ms < oldest:
                 victim, oldest = i, s.last_ms
         ctx = AnchorCtx(id=anchor_id)
-        self.slots[victim] = ctx
-        return ctx, True
+        old = self.slots[victim]
+        if old is None:
+            self.slots[victim] = ctx
+            return ctx, True
+        # re-initialised in place, as the C's (and a Crazyflie's) pointer into the storage sees it: a sender
+        # evicted by a reference lookup goes on writing into the slot now holding the new id
+        old.__dict__.update(ctx.__dict__)
+        return old, True
 
-    def _reference(self, an: AnchorCtx, k: int, now: int) -> AnchorCtx | None:
-        ar, created = self._get_or_create(an.remote.id[k], now)
-        if created or an.remote.val[k][0] != ar.seq or not an.tof_of(ar.id, now):
-            return None
-        return ar
-
-    def _match_random(self, an: AnchorCtx, now: int) -> tuple[AnchorCtx | None, int]:
-        self.offset = (self.offset + 1) & 0xFF
+    def _match(self, an: AnchorCtx, now: int, youngest: bool) -> tuple[AnchorCtx | None, int, float]:
+        """(reference, its remote slot, its ToF) as tdoa_engine.c find_reference: random from a rotating start,
+        the first wins; youngest: the one heard last. Reads An's storage as it is at each step (a lookup may
+        re-initialise An's slot in place when more than 16 anchors are in view)."""
         live = [k for k in range(REMOTE_COUNT) if an.remote.end[k] > now]
-        for i in range(self.offset, self.offset + len(live)):
+        start = 0
+        if not youngest:
+            self.offset = (self.offset + 1) & 0xFF
+            start = self.offset
+        best: tuple[AnchorCtx | None, int, float] = (None, -1, 0)
+        for i in range(start, start + len(live)):
             k = live[i % len(live)]
-            ar = self._reference(an, k, now)
-            if ar is not None:
-                return ar, k
-        return None, -1
-
-    def _match_youngest(self, an: AnchorCtx, now: int) -> tuple[AnchorCtx | None, int]:
-        best, entry, youngest = None, -1, 0
-        for k in range(REMOTE_COUNT):
-            if an.remote.end[k] <= now or not an.tof_of(an.remote.id[k], now):
+            tof = an.tof_of(an.remote.id[k], now)
+            if youngest and not tof:
                 continue
             ar, created = self._get_or_create(an.remote.id[k], now)
-            if not created and ar.last_ms > youngest and an.remote.val[k][0] == ar.seq:
-                best, entry, youngest = ar, k, ar.last_ms
-        return best, entry
+            if created or not tof or an.remote.val[k][0] != ar.seq:
+                continue
+            if youngest and ar.last_ms <= (best[0].last_ms if best[0] is not None else 0):
+                continue
+            best = (ar, k, tof)
+            if not youngest:
+                break
+        return best
 
-    def _ticks(self, an: AnchorCtx, ar: AnchorCtx, k: int, rx_ts: float, tx_ts: float, now: int) -> float:
+    def _ticks(self, an: AnchorCtx, ar: AnchorCtx, k: int, tof: float, rx_ts: float, tx_ts: float) -> float:
         drx = (rx_ts - ar.rx_ts) % WRAP32
         dtx = (tx_ts - an.remote.val[k][1]) % WRAP32
-        ticks = float(drx) - (float(an.tof_of(ar.id, now)) + float(dtx)) * an.cc
+        ticks = float(drx) - (float(tof) + float(dtx)) * an.cc
         return float(int(ticks)) if self.whole_ticks else ticks
 
     def process(self, pkt: Packet, sender: int, rx_ts: float, t_us: int,
@@ -181,11 +186,10 @@ class TdoaEngine:
                 an.tof.set(r.id, (r.tof,), now + TOF_VALID_MS)
         rc, meas = DROP_CLOCK, None
         if an.clock_update(rx_ts, pkt.tx_ts) and an.cc > 0.0:
-            how = resolve_match(match, pkt.type)
-            ar, k = self._match_youngest(an, now) if how == MATCH_YOUNGEST else self._match_random(an, now)
+            ar, k, tof = self._match(an, now, resolve_match(match, pkt.type) == MATCH_YOUNGEST)
             rc = DROP_NO_REFERENCE
             if ar is not None:
-                ticks = self._ticks(an, ar, k, rx_ts, pkt.tx_ts, now)
+                ticks = self._ticks(an, ar, k, tof, rx_ts, pkt.tx_ts)
                 meas, rc = Measurement(ar.id, sender, SPEED_OF_LIGHT * ticks / TS_FREQ, ticks), MEASUREMENT
         an.seq, an.rx_ts, an.tx_ts, an.last_ms = pkt.seq, rx_ts, pkt.tx_ts, now
         return rc, meas

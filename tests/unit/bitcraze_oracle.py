@@ -99,7 +99,10 @@ class Oracle:
             for j, s in enumerate(self.slots):
                 if s is not None and s.updated < oldest:
                     k, oldest = j, s.updated
-        self.slots[k] = Info(aid)
+        if self.slots[k] is None:
+            self.slots[k] = Info(aid)
+        else:   # their storage is an array: whoever holds this slot now sees the new anchor's record
+            self.slots[k].__dict__.update(Info(aid).__dict__)   # type: ignore[union-attr]
         return self.slots[k], False   # type: ignore[return-value]
 
     def _clock(self, an: Info, rx: int, tx: int) -> bool:
