@@ -144,41 +144,46 @@ static int clock_update(tdoa_anchor_t *a, uint64_t rx_ts, uint32_t tx_ts)
     return 0;
 }
 
-/* The reference among An's live remote records (slot order). A candidate's anchor must be stored already
- * (looking it up creates it otherwise, as the reference's storage does), the seq An reports must be that
- * of the tag's last packet from it, and An must know a live ToF from it.
- * random: the search starts at an engine-wide 8-bit offset, +1 per search; the first candidate wins.
- * youngest: the candidate whose anchor the tag heard last (whole ms, > 0, strictly later than the earlier
- * ones: ties go to the first); its ToF is checked before the lookup (the lookup's side effect follows). */
+/* The reference among An's live remote records (slot order), searched in a copy of them (a lookup may
+ * evict An itself when more than 16 anchors are in view: the reference's tag goes on through its copy).
+ * A candidate's anchor must be stored already (looking it up creates it otherwise, as the reference's
+ * storage does), the seq An reports must be that of the tag's last packet from it, and An must know a live
+ * ToF from it. random: the search starts at an engine-wide 8-bit offset, +1 per search; the first
+ * candidate wins. youngest: the candidate whose anchor the tag heard last (whole ms, > 0, strictly later
+ * than the earlier ones: ties go to the first); its ToF is checked before the lookup. *rx: the record's
+ * rx_Ar_by_An, *tof its ToF. */
 static tdoa_anchor_t *find_reference(tdoa_engine_t *e, const tdoa_anchor_t *an, uint32_t now_ms, int youngest,
-                                     int *entry, uint16_t *tof)
+                                     uint32_t *rx, uint16_t *tof)
 {
-    uint8_t live_k[TDOA_REMOTE_COUNT];
+    uint8_t ids[TDOA_REMOTE_COUNT], seqs[TDOA_REMOTE_COUNT];
+    uint32_t rxs[TDOA_REMOTE_COUNT];
     tdoa_anchor_t *best = NULL;
     unsigned n = 0, k, i, start = 0;
     for (k = 0; k < TDOA_REMOTE_COUNT; k++) {
         if (an->remote.end_ms[k] > now_ms) {
-            live_k[n++] = (uint8_t)k;
+            ids[n] = an->remote.id[k];
+            seqs[n] = an->remote.seq[k];
+            rxs[n++] = an->remote.rx_ts[k];
         }
     }
     if (!youngest) {
         start = ++e->offset;
     }
     for (i = start; i < start + n; i++) {
-        const unsigned r = live_k[i % n];
-        const uint16_t t = tof_of(an, an->remote.id[r], now_ms);
+        const unsigned r = i % n;
+        const uint16_t t = tof_of(an, ids[r], now_ms);
         tdoa_anchor_t *ar;
         int created;
         if (youngest && t == 0) {
             continue;
         }
-        ar = get_or_create(e, an->remote.id[r], now_ms, &created);
-        if (created || t == 0 || an->remote.seq[r] != ar->seq ||
+        ar = get_or_create(e, ids[r], now_ms, &created);
+        if (created || t == 0 || seqs[r] != ar->seq ||
             (youngest && ar->last_ms <= (best != NULL ? best->last_ms : 0u))) {
             continue;
         }
         best = ar;
-        *entry = (int)r;
+        *rx = rxs[r];
         *tof = t;
         if (!youngest) {
             break;
@@ -188,11 +193,11 @@ static tdoa_anchor_t *find_reference(tdoa_engine_t *e, const tdoa_anchor_t *an, 
 }
 
 /* tdoa = trunc32(rx_An - rx_Ar) - (tof + trunc32(tx_An - rx_Ar_by_An)) cc, truncated toward zero. */
-static int64_t tdoa_ticks(const tdoa_anchor_t *an, const tdoa_anchor_t *ar, int entry, uint64_t rx_ts,
+static int64_t tdoa_ticks(const tdoa_anchor_t *an, const tdoa_anchor_t *ar, uint32_t rx_ar_by_an, uint64_t rx_ts,
                           uint32_t tx_ts, uint16_t tof)
 {
     const uint32_t drx = (uint32_t)(rx_ts - ar->rx_ts);
-    const uint32_t dtx = tx_ts - an->remote.rx_ts[entry];
+    const uint32_t dtx = tx_ts - rx_ar_by_an;
     const int64_t delta = (int64_t)tof + (int64_t)dtx;
     return (int64_t)((double)drx - (double)delta * an->cc);
 }
@@ -201,7 +206,7 @@ int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sende
                         uint64_t t_us, int match, tdoa_meas_t *out)
 {
     const uint32_t now_ms = tdoa_engine_ms(t_us);
-    int created, entry = -1, rc = TDOA_DROP_CLOCK;
+    int created, rc = TDOA_DROP_CLOCK;
     tdoa_anchor_t *an = get_or_create(e, sender, now_ms, &created);
     rx_ts &= TDOA_MASK40;
     an->packets++;
@@ -209,12 +214,13 @@ int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sende
     if (clock_update(an, rx_ts, pkt->tx_ts) && an->cc > 0.0) {
         const int youngest = match == TDOA_MATCH_YOUNGEST || (match == TDOA_MATCH_AUTO && pkt->type == LPS_TYPE_TDOA2);
         uint16_t tof = 0;
-        const tdoa_anchor_t *ar = find_reference(e, an, now_ms, youngest, &entry, &tof);
+        uint32_t rx_ar = 0;
+        const tdoa_anchor_t *ar = find_reference(e, an, now_ms, youngest, &rx_ar, &tof);
         rc = TDOA_DROP_NO_REFERENCE;
         if (ar != NULL) {
             out->anchor_a = ar->id;
             out->anchor_b = sender;
-            out->ticks = tdoa_ticks(an, ar, entry, rx_ts, pkt->tx_ts, tof);
+            out->ticks = tdoa_ticks(an, ar, rx_ar, rx_ts, pkt->tx_ts, tof);
             out->diff = TDOA_SPEED_OF_LIGHT * (double)out->ticks / TDOA_TS_FREQ;
             rc = TDOA_MEASUREMENT;
         }

@@ -140,34 +140,34 @@ class TdoaEngine:
         old.__dict__.update(ctx.__dict__)
         return old, True
 
-    def _match(self, an: AnchorCtx, now: int, youngest: bool) -> tuple[AnchorCtx | None, int, float]:
-        """(reference, its remote slot, its ToF) as tdoa_engine.c find_reference: random from a rotating start,
-        the first wins; youngest: the one heard last. Reads An's storage as it is at each step (a lookup may
-        re-initialise An's slot in place when more than 16 anchors are in view)."""
-        live = [k for k in range(REMOTE_COUNT) if an.remote.end[k] > now]
+    def _match(self, an: AnchorCtx, now: int, youngest: bool) -> tuple[AnchorCtx | None, float, float]:
+        """(reference, its rx_Ar_by_An, its ToF) as tdoa_engine.c find_reference: a copy of An's live records
+        searched (a lookup may evict An itself when more than 16 anchors are in view), random from a rotating
+        start, the first wins; youngest: the one heard last."""
+        live = [(an.remote.id[k], *an.remote.val[k]) for k in range(REMOTE_COUNT) if an.remote.end[k] > now]
         start = 0
         if not youngest:
             self.offset = (self.offset + 1) & 0xFF
             start = self.offset
-        best: tuple[AnchorCtx | None, int, float] = (None, -1, 0)
+        best: tuple[AnchorCtx | None, float, float] = (None, 0, 0)
         for i in range(start, start + len(live)):
-            k = live[i % len(live)]
-            tof = an.tof_of(an.remote.id[k], now)
+            rid, seq, rx = live[i % len(live)]
+            tof = an.tof_of(rid, now)
             if youngest and not tof:
                 continue
-            ar, created = self._get_or_create(an.remote.id[k], now)
-            if created or not tof or an.remote.val[k][0] != ar.seq:
+            ar, created = self._get_or_create(rid, now)
+            if created or not tof or seq != ar.seq:
                 continue
             if youngest and ar.last_ms <= (best[0].last_ms if best[0] is not None else 0):
                 continue
-            best = (ar, k, tof)
+            best = (ar, rx, tof)
             if not youngest:
                 break
         return best
 
-    def _ticks(self, an: AnchorCtx, ar: AnchorCtx, k: int, tof: float, rx_ts: float, tx_ts: float) -> float:
+    def _ticks(self, an: AnchorCtx, ar: AnchorCtx, rx_ar: float, tof: float, rx_ts: float, tx_ts: float) -> float:
         drx = (rx_ts - ar.rx_ts) % WRAP32
-        dtx = (tx_ts - an.remote.val[k][1]) % WRAP32
+        dtx = (tx_ts - rx_ar) % WRAP32
         ticks = float(drx) - (float(tof) + float(dtx)) * an.cc
         return float(int(ticks)) if self.whole_ticks else ticks
 
@@ -186,10 +186,10 @@ class TdoaEngine:
                 an.tof.set(r.id, (r.tof,), now + TOF_VALID_MS)
         rc, meas = DROP_CLOCK, None
         if an.clock_update(rx_ts, pkt.tx_ts) and an.cc > 0.0:
-            ar, k, tof = self._match(an, now, resolve_match(match, pkt.type) == MATCH_YOUNGEST)
+            ar, rx_ar, tof = self._match(an, now, resolve_match(match, pkt.type) == MATCH_YOUNGEST)
             rc = DROP_NO_REFERENCE
             if ar is not None:
-                ticks = self._ticks(an, ar, k, tof, rx_ts, pkt.tx_ts)
+                ticks = self._ticks(an, ar, rx_ar, tof, rx_ts, pkt.tx_ts)
                 meas, rc = Measurement(ar.id, sender, SPEED_OF_LIGHT * ticks / TS_FREQ, ticks), MEASUREMENT
         an.seq, an.rx_ts, an.tx_ts, an.last_ms = pkt.seq, rx_ts, pkt.tx_ts, now
         return rc, meas

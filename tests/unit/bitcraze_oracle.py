@@ -162,10 +162,9 @@ class Oracle:
         if self._clock(an, rx, tx) and an.cc > 0:
             found = self._random(an, now) if self.algorithm == "random" else self._youngest(an, now)
             if found is not None:
-                other, rec = found
-                tof = _lookup(an.tofs, other.id, now)
-                assert tof is not None
-                ticks = int(((rx - other.rx) & M32) - (tof[1] + ((tx - rec[2]) & M32)) * an.cc)
+                other, _ = found   # their calcTDoA reads ToF and rx_Ar_by_An from the storage as it is now (0 if gone)
+                tof, rem = _lookup(an.tofs, other.id, now), _lookup(an.remote, other.id, now)
+                ticks = int(((rx - other.rx) & M32) - ((tof[1] if tof else 0) + ((tx - (rem[2] if rem else 0)) & M32)) * an.cc)
                 result = (other.id, sender, ticks)
         an.rx, an.tx, an.seq, an.updated = rx, tx, seq, now
         return result
