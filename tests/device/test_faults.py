@@ -269,7 +269,7 @@ BAD_CONFIGS = [
     ("unknown mode", dict(mode=7), BAD),
     ("unknown stage bits", dict(stages=0x88), BAD),   # 0x80: no stage (BIAS_STATES took 0x40)
     ("reset not 0/1", dict(reset=2), BAD),
-    ("reserved set", dict(reserved=1), BAD),
+    ("unknown tdoa_match", dict(tdoa_match=3), BAD),   # the byte that was reserved (protocol 9)
 ]
 
 
