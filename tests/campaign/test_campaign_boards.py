@@ -125,3 +125,28 @@ def test_two_qemu_boards(tmp_path: Path) -> None:
     assert len(runs) == 2 and all(s["status"] == "ok" for s in runs)
     assert {s["board"]["name"] for s in runs} == {"qemu-1", "qemu-2"}
     assert all(s["device"]["target"] == "stm32f4" for s in runs)
+
+
+@pytest.mark.skipif(shutil.which("qemu-system-arm") is None or not DEFAULT_STM32_ELF.exists(),
+                    reason="QEMU or the STM32 build missing (make stm32 installs the ARM toolchain and QEMU)")
+@pytest.mark.slow
+def test_a_qemu_board_killed_mid_campaign_finishes_on_the_other(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Two emulated STM32F405 boards; qemu-2's QEMU is SIGKILLed after the first run: every run completes on
+    qemu-1 and the exit code (3) says a board was lost."""
+    out = tmp_path / "q"
+    killed: list[int] = []
+    watcher = threading.Thread(target=_kill_board_when_running, args=(out, "qemu-2", killed), daemon=True)
+    watcher.start()
+    code = main(["campaign", "--out", str(out), "--seeds", "3", *TINY, "--configs", "outlier", "--timeout", "20",
+                 "--target", "qemu", "--target", "qemu", "--no-report"])
+    watcher.join(5)
+    err = capsys.readouterr()
+    assert killed, "qemu-2 was never killed"
+    assert code == 3, err.err
+    runs = _summaries(out)
+    assert len(runs) == 3 and all(s["status"] == "ok" for s in runs), [s.get("error") for s in runs]
+    assert all(s["device"]["target"] == "stm32f4" for s in runs)
+    taken = json.loads((out / "campaign.json").read_text())["executor"]["taken_out"]
+    assert [t["board"] for t in taken] == ["qemu-2"]
+    assert "board qemu-2 taken out" in err.out
