@@ -234,14 +234,10 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
 
     /* d_max is reported whatever happens next (plots), so compute it first. The velocity norm is
      * frame independent and the CV prediction does not change the velocity. */
-    dt = gate_kinematic_window(&est->kin, t_us, id_a, id_b, t_ref, have_ref, cfg->gate_dt_min);
-    if (cfg->mode == EST_MODE_IMU_THRUST && !est->takeoff.airborne) {
-        /* On the floor before take-off the links to low anchors read metres long for seconds: the gates do
-         * not re-open (no widening, no lock-out guard); the vehicle cannot have moved (takeoff.h). */
-        dt = gate_kinematic_dt(t_us >= t_ref ? (int64_t)(t_us - t_ref) : -(int64_t)(t_ref - t_us), have_ref,
-                               cfg->gate_dt_min);
-        est->kin.rejected_us = 0;
-    }
+    /* On the floor before take-off the links to low anchors read metres long for seconds: the gates do not
+     * re-open there (no widening, no lock-out guard); the vehicle cannot have moved (takeoff.h). */
+    dt = gate_kinematic_window(&est->kin, t_us, id_a, id_b, t_ref, have_ref, cfg->gate_dt_min,
+                               !(cfg->mode == EST_MODE_IMU_THRUST && !est->takeoff.airborne));
     out->d_max = gate_kinematic_dmax(&ekf->x[EKF_PX], dt, tdoa ? cfg->a_max_tdoa : cfg->a_max_twr);
 
     /* 1. measurement model */

@@ -24,7 +24,7 @@ static int64_t anchor_rejected_us(const gate_kinematic_t *g, uint8_t id)
 }
 
 float gate_kinematic_window(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint8_t id_b, uint64_t t_ref,
-                            int have_ref, float dt_min)
+                            int have_ref, float dt_min, int widen)
 {
     int64_t since_us, rej_a = 0, rej_b = 0;
     if (id_a < GATE_KIN_ANCHORS && id_b < GATE_KIN_ANCHORS) {
@@ -37,14 +37,14 @@ float gate_kinematic_window(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, ui
      * outage, a run of outliers) the bound widens, so the filter cannot lock itself out after drifting
      * more than d_max away. At the nominal rate both references are a few ms old. */
     since_us = diff_us(t_us, t_ref);
-    if (have_ref && g->has_fused && diff_us(t_us, g->t_fused_us) > since_us) {
+    if (widen && have_ref && g->has_fused && diff_us(t_us, g->t_fused_us) > since_us) {
         since_us = diff_us(t_us, g->t_fused_us);
     }
     /* It also widens by the time this link's anchors have been rejected while others were fused: with
      * the estimate off along their direction they alone disagree, and the filter-wide reference above,
      * kept fresh by the others, would hold them out for hundreds of seconds (the hour-long flight). An
      * isolated outlier (the anchor's previous measurement fused) meets the nominal bound. */
-    g->rejected_us = rej_a > rej_b ? rej_a : rej_b;
+    g->rejected_us = !widen ? 0 : (rej_a > rej_b ? rej_a : rej_b);
     if (have_ref) {
         since_us += g->rejected_us;
     }

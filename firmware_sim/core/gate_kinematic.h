@@ -27,9 +27,10 @@ void gate_kinematic_reset(gate_kinematic_t *g);
 /* The gate's dt [s] for a measurement at t_us between anchors id_a and id_b (TWR: id_b = id_a; ids <
  * GATE_KIN_ANCHORS): from the filter's reference time t_ref (have_ref = 0: none yet, then dt_min) or the
  * last fusion, whichever is older, plus how long these anchors had been rejected (also left in
- * g->rejected_us); at least dt_min. Marks the anchors as measured at t_us. */
+ * g->rejected_us); at least dt_min. Marks the anchors as measured at t_us. widen = 0: the nominal window only
+ * (no widening, rejected_us = 0, so the chi-square guard does not re-open either): a vehicle on the floor. */
 float gate_kinematic_window(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint8_t id_b, uint64_t t_ref,
-                            int have_ref, float dt_min);
+                            int have_ref, float dt_min, int widen);
 
 /* The measurement at t_us between id_a and id_b was fused into the filter. */
 void gate_kinematic_fused(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint8_t id_b);

@@ -28,23 +28,23 @@ static void test_window_state(void)
 {
     gate_kinematic_t g;
     gate_kinematic_reset(&g);
-    CHECK_NEAR(gate_kinematic_window(&g, 1000, 0, 0, 0, 0, 0.01f), 0.01, 1e-9);          /* no reference */
-    CHECK_NEAR(gate_kinematic_window(&g, 20000, 1, 1, 15000, 1, 0.01f), 0.01, 1e-9);     /* 5 ms, floored */
+    CHECK_NEAR(gate_kinematic_window(&g, 1000, 0, 0, 0, 0, 0.01f, 1), 0.01, 1e-9);          /* no reference */
+    CHECK_NEAR(gate_kinematic_window(&g, 20000, 1, 1, 15000, 1, 0.01f, 1), 0.01, 1e-9);     /* 5 ms, floored */
     gate_kinematic_fused(&g, 20000, 1, 1); /* first fusion: every anchor's clock starts */
     CHECK(g.has_fused && g.t_anchor_fused_us[7] == 20000);
     /* 1 s without fusion: counted from the last fusion, not from the fresh reference */
-    CHECK_NEAR(gate_kinematic_window(&g, 1020000, 1, 1, 1015000, 1, 0.01f), 1.0, 1e-6);
+    CHECK_NEAR(gate_kinematic_window(&g, 1020000, 1, 1, 1015000, 1, 0.01f, 1), 1.0, 1e-6);
     gate_kinematic_fused(&g, 1020000, 2, 2); /* anchor 2 fused, anchor 1 (measured at 1.02 s) was not */
-    CHECK_NEAR(gate_kinematic_window(&g, 1030000, 2, 2, 1025000, 1, 0.01f), 0.01, 1e-9);
+    CHECK_NEAR(gate_kinematic_window(&g, 1030000, 2, 2, 1025000, 1, 0.01f, 1), 0.01, 1e-9);
     CHECK(g.rejected_us == 0);
     /* anchor 1: 20 ms since the last fusion + 1 s its links had been rejected */
-    CHECK_NEAR(gate_kinematic_window(&g, 1040000, 1, 1, 1035000, 1, 0.01f), 1.02, 1e-6);
+    CHECK_NEAR(gate_kinematic_window(&g, 1040000, 1, 1, 1035000, 1, 0.01f, 1), 1.02, 1e-6);
     CHECK(g.rejected_us == 1000000); /* what the chi-square gate's guard sees */
     /* TDoA (2, 1): the longer rejection of the two */
-    CHECK_NEAR(gate_kinematic_window(&g, 1050000, 2, 1, 1045000, 1, 0.01f), 1.05, 1e-6);
+    CHECK_NEAR(gate_kinematic_window(&g, 1050000, 2, 1, 1045000, 1, 0.01f, 1), 1.05, 1e-6);
     gate_kinematic_fused(&g, 1050000, 2, 1);
-    CHECK_NEAR(gate_kinematic_window(&g, 1060000, 1, 1, 1055000, 1, 0.01f), 0.01, 1e-9); /* nominal again */
-    CHECK_NEAR(gate_kinematic_window(&g, 1070000, 200, 3, 1065000, 1, 0.01f), 0.02, 1e-6); /* bad id: no state */
+    CHECK_NEAR(gate_kinematic_window(&g, 1060000, 1, 1, 1055000, 1, 0.01f, 1), 0.01, 1e-9); /* nominal again */
+    CHECK_NEAR(gate_kinematic_window(&g, 1070000, 200, 3, 1065000, 1, 0.01f, 1), 0.02, 1e-6); /* bad id: no state */
     gate_kinematic_reset(&g);
     CHECK(!g.has_fused && g.t_anchor_seen_us[1] == 0 && g.t_anchor_fused_us[1] == 0);
 }

@@ -9,7 +9,7 @@ import argparse
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from harness import options
 from harness.calibrate.compare import calibrate
@@ -110,13 +110,19 @@ def _calibration_flights(args: argparse.Namespace) -> list[Any]:
                            usd=usd) for r in args.recording]
 
 
+def _saved_as_json(args: argparse.Namespace, cal: Any, save: Callable[[Any, Path], object]) -> bool:
+    """Write the calibration to --out; with --json print it whole (True: nothing else to print)."""
+    save(cal, Path(args.out))
+    if args.json:
+        print(json.dumps(cal.as_dict(), indent=2))
+    return bool(args.json)
+
+
 def cmd_range_offset(args: argparse.Namespace) -> int:
     from harness.flight.range_offset import fit_range_offset, save_range_offset
     flights = _calibration_flights(args)
     cal = fit_range_offset(flights, per_anchor=args.per_anchor)
-    save_range_offset(cal, Path(args.out))
-    if args.json:
-        print(json.dumps(cal.as_dict(), indent=2))
+    if _saved_as_json(args, cal, save_range_offset):
         return 0
     print(f"range offset {cal.offset_m:+.4f} m (median range - true range over {cal.measurements} ranges of "
           f"{len(flights)} flight(s): {', '.join(cal.fitted_on)})")
@@ -141,9 +147,7 @@ def cmd_lever_arm(args: argparse.Namespace) -> int:
     from harness.flight.lever_arm import fit_lever_arm, save_lever_arm
     flights = _calibration_flights(args)
     fit = fit_lever_arm(flights, flight_above=args.flight_above)
-    save_lever_arm(fit, Path(args.out))
-    if args.json:
-        print(json.dumps(fit.as_dict(), indent=2))
+    if _saved_as_json(args, fit, save_lever_arm):
         return 0
     vec = ", ".join(f"{v:+.4f}" for v in fit.lever_arm_m)
     print(f"lever arm ({vec}) m, body frame: the assumed one corrected by "

@@ -309,10 +309,8 @@ class TwinEstimator:
         self._predict_cv_to(t_us)  # its supervisor check still sees the previous measurement's time (gap)
         self.t_uwb_us = t_us
         ekf = self.ekf
-        dt = self.kin.window(t_us, ids, t_ref, c.gate_dt_min)
-        if c.mode == MODE_IMU_THRUST and not self.takeoff.airborne:   # on the floor: the gates do not re-open
-            dt = gates.kinematic_dt(None if t_ref is None else t_us - t_ref, c.gate_dt_min)
-            self.kin.rejected_us = 0
+        on_floor = c.mode == MODE_IMU_THRUST and not self.takeoff.airborne   # the gates do not re-open there
+        dt = self.kin.window(t_us, ids, t_ref, c.gate_dt_min, widen=not on_floor)
         d_max = gates.kinematic_dmax(ekf.x[3:6], dt, c.a_max_tdoa if tdoa else c.a_max_twr)
 
         model = (measurements.tdoa(ekf.x[POS], anchor_a, anchor_b) if anchor_b is not None

@@ -31,18 +31,19 @@ class KinematicGate:
         seen, fused = self.t_anchor_seen_us[i], self.t_anchor_fused_us[i]
         return seen - fused if self.t_fused_us is not None and seen > fused else 0
 
-    def window(self, t_us: int, ids: tuple[int, int], t_ref: int | None, dt_min: float) -> float:
+    def window(self, t_us: int, ids: tuple[int, int], t_ref: int | None, dt_min: float, widen: bool = True) -> float:
         """The gate's dt [s] for a measurement at t_us between anchors ids (TWR: the same twice), t_ref the
-        filter's reference time (None: none yet); marks the anchors as measured (gate_kinematic_window)."""
+        filter's reference time (None: none yet); marks the anchors as measured (gate_kinematic_window).
+        widen=False: the nominal window only, rejected_us = 0 (a vehicle on the floor)."""
         valid = all(0 <= i < MAX_ANCHORS for i in ids)
-        rejected = max(self._rejected_us(i) for i in ids) if valid else 0
+        rejected = max(self._rejected_us(i) for i in ids) if (valid and widen) else 0
         self.rejected_us = rejected
         for i in ids if valid else ():
             self.t_anchor_seen_us[i] = t_us
         if t_ref is None:
             return kinematic_dt(None, dt_min)
         since = t_us - t_ref
-        if self.t_fused_us is not None:
+        if widen and self.t_fused_us is not None:
             since = max(since, t_us - self.t_fused_us)  # widens while measurements are rejected
         return kinematic_dt(since + rejected, dt_min)
 
