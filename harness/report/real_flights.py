@@ -14,8 +14,6 @@ the other shelf flight (the vehicle was set up anew on 0426). RMSE is over the f
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
@@ -24,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.paths import REPO_ROOT, shared_data_dir
+from harness.report.replay_all import run_json
 
 EVALUATION = {"0425": ("0425-traj3", "0425-traj8", "0425-traj13", "0425-traj18"),
               "0426": ("0426-traj3", "0426-traj5")}
@@ -88,13 +87,7 @@ def plan(data: Path, fits: dict[str, Path], model: Path | None) -> list[Job]:
 
 
 def run_job(job: Job, timeout_s: float = 900.0) -> Row:
-    cmd = [sys.executable, "-m", "harness.cli", "run", "--recording", *job.args, "--json"]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
-    reason = next((line for line in p.stderr.splitlines() if line.startswith("uwb-hil:")), p.stderr.strip()[-300:])
-    try:
-        return Row(job, p.returncode, json.loads(p.stdout), reason)
-    except ValueError:
-        return Row(job, p.returncode, None, reason)
+    return Row(job, *run_json(job.args, timeout_s))
 
 
 def _f(x: Any, fmt: str = ".3f") -> str:

@@ -21,6 +21,7 @@ import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Sequence
 
 from harness.biasnet.registry import RECORDED_MODELS
 from harness.paths import REPO_ROOT
@@ -95,21 +96,29 @@ def plan(data: Path, only: str | None = None, offsets: dict[str, Path] | None = 
     return jobs
 
 
-def run_job(job: Job, timeout_s: float = 600.0) -> Row:
-    cmd = [sys.executable, "-m", "harness.cli", "run", "--recording", *job.args, "--json", "--max-rmse", str(MAX_RMSE)]
+def run_json(args: Sequence[str], timeout_s: float) -> tuple[int, dict[str, Any] | None, str]:
+    """`uwb-hil run --recording ARGS --json` through the real command line: (exit code, summary or None, the
+    stderr line that names why it exited non-zero)."""
+    cmd = [sys.executable, "-m", "harness.cli", "run", "--recording", *args, "--json"]
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
     reason = next((line for line in p.stderr.splitlines() if line.startswith("uwb-hil:")), p.stderr.strip()[-300:])
     try:
-        out = json.loads(p.stdout)
+        return p.returncode, json.loads(p.stdout), reason
     except ValueError:
-        return Row(job, p.returncode, None, None, None, None, None, reason)
+        return p.returncode, None, reason
+
+
+def run_job(job: Job, timeout_s: float = 600.0) -> Row:
+    code, out, reason = run_json((*job.args, "--max-rmse", str(MAX_RMSE)), timeout_s)
+    if out is None:
+        return Row(job, code, None, None, None, None, None, reason)
     acc, geo = out["accuracy"], out.get("geometry") or {}
     judged = next((c["value"] for c in out["verdict"]["checks"] if c["name"] == "rmse"), None)
     h = out.get("health") or {}
     note = (f"{h['gap_restarts']} restarts after gaps, longest {h.get('longest_gap_s', 0):.1f} s"
             if h.get("gap_restarts") else "")
-    return Row(job, p.returncode, acc["rmse"], acc["rmse_xy"], acc["rmse_z"], geo.get("z_observable"), judged,
-               reason if p.returncode else "", note)
+    return Row(job, code, acc["rmse"], acc["rmse_xy"], acc["rmse_z"], geo.get("z_observable"), judged,
+               reason if code else "", note)
 
 
 def replay_all(data: Path, only: str | None = None, jobs: int = 2, per_anchor: bool = False) -> list[Row]:
