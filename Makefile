@@ -87,6 +87,7 @@ test: test-c test-fuzz stm32 net-tools chromium test-py test-board test-light-in
 bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench
 	$(PY) -m harness.bench.qemu
+	$(PY) -m harness.bench.real_replay
 	$(PY) -m harness.campaign.bench_cluster
 
 # STM32F405 (Crazyflie MCU) build, run under QEMU by tests/mcu/test_qemu.py and harness/bench/qemu.py
