@@ -125,6 +125,30 @@ def cf_usd_shelf_files(data: Path) -> list[Path]:
     return cf_usd_files(data, CF_USD_SHELF)
 
 
+def cf_usd_lever_arms(data: Path) -> dict[str, tuple[float, float, float]]:
+    """The tag's lever arm every shared uSD flight is read with (flight name -> body-frame metres), calibrated
+    as `uwb-hil lever-arm` does on flights other than the evaluated ones: a 0425 flight takes the fit on the
+    0425 training flights (training and evaluation flights alike; the network is trained on that tag point),
+    a shelf flight the fit on the other shelf flight (the vehicle was set up anew on 0426). Empty without
+    the shared data."""
+    from harness.flight.lever_arm import fit_lever_arm
+    train, shelf = cf_usd_train_files(data), cf_usd_shelf_files(data)
+    if not train:
+        return {}
+    day0425 = fit_lever_arm(load_recordings(train)).lever_arm_m
+    out = {p.name: day0425 for p in (*train, *cf_usd_heldout_files(data))}
+    for p in shelf:
+        others = [q for q in shelf if q != p]
+        if others:
+            out[p.name] = fit_lever_arm(load_recordings(others)).lever_arm_m
+    return out
+
+
+def load_cf_usd_calibrated(paths: list[Path], levers: dict[str, tuple[float, float, float]]) -> list[Flight]:
+    """uSD logs read with their calibrated lever arm (cf_usd_lever_arms; UTIL's when a flight has none)."""
+    return [load_recordings([p], usd=UsdOptions.make(lever_arm=levers.get(p.name)))[0] for p in paths]
+
+
 def load_recordings(paths: list[Path], anchors: Path | None = None, check: bool = True,
                     usd: UsdOptions = UsdOptions()) -> list[Flight]:
     """Load recordings; check=False (--force) skips the plausibility checks (harness/flight/plausibility.py);

@@ -10,7 +10,9 @@
 * ``cfusd`` -> firmware_sim/models/cf_tdoa_pose.npz: TDoA pose network (dp_A, dp_B, roll, pitch, yaw) on the
   Crazyflie uSD logs' line-of-sight flights minus the evaluation flights 0425-traj3, 8, 13, 18 (recipes.py);
   distilled from one teacher per training flight (leave-one-flight-out folds); evaluated on those four
-  (each, and pooled) and on the two shelf flights of 0426 (non-line-of-sight, never trained on).
+  (each, and pooled) and on the two shelf flights of 0426 (non-line-of-sight, never trained on). Every log
+  is read with the tag's lever arm calibrated on other flights (recipes.cf_usd_lever_arms), the tag point
+  the replays of docs/real-flights.md are judged on.
 * ``nlos`` -> firmware_sim/models/bias_model_nlos.npz: TWR and TDoA pose networks trained on simulated
   flights in the obstacle arena (profile "nlos", seeds < 1000), for flying there (`uwb-hil fly --profile
   nlos --model ...`): the network learns the space it flies in, as the paper's was. Not compiled in.
@@ -28,7 +30,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from harness.biasnet.dataset import XI_DEFAULT, build_samples
 from harness.biasnet.distill import DistillConfig
@@ -36,12 +38,14 @@ from harness.biasnet.export import DEFAULT_HEADER, DEFAULT_NPZ, export_c
 from harness.biasnet.network import BiasModel, BiasNetwork
 from harness.biasnet.registry import RECORDED_MODELS, SUMMARY, kind_name
 from harness.biasnet.recipes import (FIRST_EVAL_SEED, STD_HEAD_RECIPE, SimRecipe, cf_usd_heldout_files,
-                                     cf_usd_shelf_files, cf_usd_train_files, load_recordings, rcv_heldout_dirs,
+                                     cf_usd_lever_arms, cf_usd_shelf_files, cf_usd_train_files,
+                                     load_cf_usd_calibrated, load_recordings, rcv_heldout_dirs,
                                      rcv_train_dirs, util_heldout_files, util_train_files)
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.uncertainty import StdHeadConfig, with_std_head
 from harness.biasnet.workflow import compare, distill_dict, distill_kind, train_kind
 from harness.errors import UsageError
+from harness.flight.data import Flight
 from harness.paths import REPO_ROOT
 
 MODELS_DIR = DEFAULT_NPZ.parent
@@ -153,12 +157,14 @@ CF_POOLED = "0425-traj3+8+13+18"
 
 def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: list[Path], layout: int,
                     quick: bool, kind: str, teachers: int = RECORDED_TEACHERS,
-                    pooled: tuple[str, list[Path]] | None = None) -> dict[str, Any]:
+                    pooled: tuple[str, list[Path]] | None = None,
+                    load: Callable[[list[Path]], list[Flight]] = load_recordings) -> dict[str, Any]:
     """Train (distilled from `teachers` networks) and evaluate on each of `test_paths`, and on `pooled`'s
-    recordings together (label, paths) when given."""
+    recordings together (label, paths) when given; `load` reads the recordings (the uSD logs: with their
+    calibrated lever arm)."""
     if not train_paths or not test_paths:
         return {"skipped": "the shared recordings are not there"}
-    train = load_recordings(train_paths[:2] if quick else train_paths)
+    train = load(train_paths[:2] if quick else train_paths)
     cfg = _train_cfg(quick, 300)
     extra: dict[str, Any] = {}
     if quick:  # a smoke test: two recordings may be one flight group, too few folds
@@ -178,7 +184,7 @@ def _build_recorded(name: str, data: Path, train_paths: list[Path], test_paths: 
     results = {}
     groups = [(p.name if p.is_file() else p.parent.name + "/" + p.name, [p]) for p in test_paths]
     for label, paths in groups + ([pooled] if pooled and pooled[1] else []):
-        res = compare(model, load_recordings(paths), train)
+        res = compare(model, load(paths), train)
         results[label] = {k: _short(v) for k, v in res["methods"].items()}
         _log(f"{name} on {label}: " + ", ".join(f"{k} {100 * v['reduction']:.1f} %" for k, v in res["methods"].items()))
     model.meta[f"{kind}_heldout"] = results
@@ -208,9 +214,13 @@ def build_shipped_models(data: Path, quick: bool = False, only: str | None = Non
                                             rcv.layout, quick, kind_name(rcv.kind))
     if only in (None, "cfusd"):
         cf, train = RECORDED_MODELS["cf_usd"], cf_usd_train_files(data)
+        levers = cf_usd_lever_arms(data)
         summary[cf.name] = _build_recorded(cf.name, data, train, cf_usd_heldout_files(data) + cf_usd_shelf_files(data),
                                            cf.layout, quick, kind_name(cf.kind), teachers=max(2, len(train)),
-                                           pooled=(CF_POOLED, cf_usd_heldout_files(data)))
+                                           pooled=(CF_POOLED, cf_usd_heldout_files(data)),
+                                           load=lambda paths: load_cf_usd_calibrated(paths, levers))
+        if isinstance(summary[cf.name], dict) and levers:
+            summary[cf.name]["lever_arms_m"] = {k: [round(v, 4) for v in arm] for k, arm in sorted(levers.items())}
     if not quick and write_summary:  # merge: `--only X` refreshes X's entry and keeps the others
         old = json.loads(SUMMARY.read_text()) if SUMMARY.is_file() else {}
         SUMMARY.write_text(json.dumps(old | summary, indent=2, default=float) + "\n")

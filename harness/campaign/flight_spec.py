@@ -22,6 +22,7 @@ class FlightSpec:
     takeoff: bool = True           # simulated: ground wait, take-off and landing inside duration_s
     profile: str = "los"           # simulated: error-model profile of harness/flight/scenarios.py
     radio: str | None = None       # "tdoa2" | "tdoa3": the flight at LPS radio level (harness/flight/radio.py)
+    lever_arm: tuple[float, float, float] | None = None  # uSD log: the tag's calibrated lever arm (None: UTIL's)
 
     @property
     def flight_id(self) -> str:
@@ -34,4 +35,6 @@ class FlightSpec:
         d = asdict(self)
         if d["radio"] is None:
             del d["radio"]       # fingerprints of measurement-level runs stay what they were before radio level
+        if d["lever_arm"] is None:
+            del d["lever_arm"]   # the same for every recording but the uSD logs
         return d

@@ -7,16 +7,19 @@ one (firmware_sim/models/cf_tdoa_pose.npz, `make models`: pose layout, trained o
 of 0425 other than 3, 8, 13, 18). Its configurations run only where they mean something: with the IMU (the
 network takes the firmware's own roll, pitch and yaw; UWB-only has none) and on flights it was not trained
 on (the evaluation flights and the two shelf flights); the training flights give the IMU vs UWB-only
-comparison without it. The report's section is harness/report/usd_section.py.
+comparison without it. Every log is read with the tag's lever arm calibrated on other flights
+(recipes.cf_usd_lever_arms), as the network's training and docs/real-flights.md. The report's section is
+harness/report/usd_section.py.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from harness.biasnet.recipes import CF_USD_EVAL, CF_USD_LOS, CF_USD_SHELF
+from harness.biasnet.recipes import CF_USD_EVAL, CF_USD_LOS, CF_USD_SHELF, cf_usd_lever_arms
 from harness.biasnet.registry import RECORDED_MODELS
 from harness.campaign.flight_spec import FlightSpec
+from harness.errors import InputError
 
 #: models.json key and file of the real-flight network
 CF_MODEL_KEY = RECORDED_MODELS["cf_usd"].name
@@ -50,6 +53,11 @@ def usd_flights(data_dir: Path, with_models: bool = True
     if not any((data_dir / r).is_file() for r in rels):
         return flights, notes, models            # no uSD data here at all: not a campaign about it
     model = str(CF_MODEL) if with_models and CF_MODEL.is_file() else None
+    try:
+        levers = cf_usd_lever_arms(data_dir)     # the tag point the network is trained and judged on
+    except InputError as e:
+        levers = {}
+        notes.append(f"Crazyflie uSD flights read with UTIL's lever arm: no calibration ({e})")
     if with_models and model is None:
         notes.append(f"{CF_MODEL} not found (`make models` builds it): Crazyflie flights run on the firmware's "
                      "default network")
@@ -60,7 +68,8 @@ def usd_flights(data_dir: Path, with_models: bool = True
             continue
         for uwb_only in (False, True):
             label = LABEL_PREFIX + path.name + (UWB_ONLY_SUFFIX if uwb_only else "")
-            f = FlightSpec(source="recorded", mode="tdoa", trajectory=label, path=str(path), uwb_only=uwb_only)
+            f = FlightSpec(source="recorded", mode="tdoa", trajectory=label, path=str(path), uwb_only=uwb_only,
+                           lever_arm=levers.get(path.name))
             flights.append(f)
             models[f.flight_id] = model
     notes.append(f"Crazyflie uSD flights: {len(flights) // 2} logs, each with the IMU and UWB-only; the network's "

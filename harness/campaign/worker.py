@@ -86,7 +86,9 @@ def _base_flight(spec: FlightSpec) -> Flight:
         from harness.flight.loaders import load_recording
         if spec.path is None:
             raise InputError(f"{spec.flight_id}: a recorded flight needs a path")
-        return load_recording(Path(spec.path), anchors=Path(spec.anchors) if spec.anchors else None)
+        from harness.flight.formats.cf_usd_flight import UsdOptions
+        return load_recording(Path(spec.path), anchors=Path(spec.anchors) if spec.anchors else None,
+                              usd=UsdOptions.make(lever_arm=spec.lever_arm))
     raise InputError(f"unknown flight source {spec.source!r}")
 
 

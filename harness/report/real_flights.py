@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +25,6 @@ from harness.report.replay_all import run_json
 
 EVALUATION = {"0425": ("0425-traj3", "0425-traj8", "0425-traj13", "0425-traj18"),
               "0426": ("0426-traj3", "0426-traj5")}
-TRAINING_0425 = tuple(f"0425-traj{i}" for i in (1, 2, 4, 5, 6, 7, 14, 15, 16, 17))
 SHELF = ("0426-traj3", "0426-traj5")
 DEFAULT_MODEL = REPO_ROOT / "firmware_sim" / "models" / "cf_tdoa_pose.npz"
 
@@ -54,35 +52,26 @@ def log_path(data: Path, flight: str) -> Path:
     return data / "cf_usd" / flight.split("-")[0] / flight
 
 
-def lever_arms(data: Path, out_dir: Path) -> dict[str, Path]:
-    """A lever-arm calibration per evaluation flight, fitted on flights it is not (docstring above)."""
-    from harness.flight.lever_arm import fit_lever_arm, save_lever_arm
-    from harness.flight.loaders import load_recording
-    fits: dict[str, Path] = {}
-    day0425 = save_lever_arm(fit_lever_arm([load_recording(log_path(data, f)) for f in TRAINING_0425]),
-                             out_dir / "lever_arm_0425.json")
-    for flight in EVALUATION["0425"]:
-        fits[flight] = day0425
-    for flight in SHELF:
-        other = next(f for f in SHELF if f != flight)
-        fits[flight] = save_lever_arm(fit_lever_arm([load_recording(log_path(data, other))]),
-                                      out_dir / f"lever_arm_without_{flight}.json")
-    return fits
+def lever_arms(data: Path) -> dict[str, str]:
+    """The `--lever-arm X,Y,Z` of each evaluation flight, fitted on flights it is not (recipes.cf_usd_lever_arms:
+    the tag point the real-flight network is trained on too)."""
+    from harness.biasnet.recipes import cf_usd_lever_arms
+    return {name: ",".join(f"{v:.6f}" for v in arm) for name, arm in cf_usd_lever_arms(data).items()}
 
 
-def plan(data: Path, fits: dict[str, Path], model: Path | None) -> list[Job]:
+def plan(data: Path, fits: dict[str, str], model: Path | None) -> list[Job]:
     jobs: list[Job] = []
     for flights in EVALUATION.values():
         for flight in flights:
             rec = str(log_path(data, flight))
-            lever = ("--lever-arm", str(fits[flight]))
+            lever = ("--lever-arm", fits[flight])
             jobs += [Job(flight, "UWB-only, outlier", (rec, "--stages", "outlier", "--uwb-only", *lever)),
                      Job(flight, "IMU, outlier, UTIL lever arm", (rec, "--stages", "outlier")),
                      Job(flight, "IMU, outlier", (rec, "--stages", "outlier", *lever)),
                      Job(flight, "IMU, none", (rec, "--stages", "none", *lever))]
             if model is not None:
-                jobs.append(Job(flight, "IMU, outlier+nn", (rec, "--stages", "outlier+nn", "--model", str(model),
-                                                            *lever)))
+                jobs += [Job(flight, f"IMU, {stages}", (rec, "--stages", stages, "--model", str(model), *lever))
+                         for stages in ("outlier+nn", "outlier+nn+monitor")]
     return jobs
 
 
@@ -134,10 +123,9 @@ def main(argv: list[str] | None = None) -> int:
     if model is None:
         print(f"real_flights: {args.model} not built (`uwb-hil models --only cfusd`): no outlier+nn rows",
               file=sys.stderr)
-    with tempfile.TemporaryDirectory(prefix="real_flights_") as tmp:
-        fits = lever_arms(data, Path(tmp))
-        with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-            rows = list(pool.map(run_job, plan(data, fits, model)))
+    fits = lever_arms(data)
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        rows = list(pool.map(run_job, plan(data, fits, model)))
     print(markdown(rows))
     print()
     for label, flights in (("line of sight (0425-traj3, 8, 13, 18)", EVALUATION["0425"]), ("shelf", SHELF)):

@@ -57,6 +57,8 @@ def test_campaign_replays_every_log_with_imu_and_uwb_only_and_the_network_only_w
     assert len(cf) == 16 * 2 * 2 + 6
     assert {r.flight.uwb_only for r in cf if r.config == "outlier"} == {True, False}
     assert any("was trained on it" in n for n in notes)
+    # stand-in logs cannot be calibrated: read with UTIL's lever arm, and the campaign says so
+    assert all(r.flight.lever_arm is None for r in cf) and any("UTIL's lever arm" in n for n in notes)
     assert recorded_usd.usd_role("cf-0425-traj13-uwb") == "held-out"
     assert recorded_usd.usd_role("cf-0426-traj5") == "shelf" and recorded_usd.usd_role("cf-0425-traj1") == "training"
     assert len({r.run_id for r in runs}) == len(runs)
