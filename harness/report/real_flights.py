@@ -71,7 +71,7 @@ def plan(data: Path, fits: dict[str, str], model: Path | None) -> list[Job]:
                      Job(flight, "IMU, none", (rec, "--stages", "none", *lever))]
             if model is not None:
                 jobs += [Job(flight, f"IMU, {stages}", (rec, "--stages", stages, "--model", str(model), *lever))
-                         for stages in ("outlier+nn", "outlier+nn+monitor")]
+                         for stages in ("outlier+nn", "outlier+nn+monitor", "outlier+nn+states")]
     return jobs
 
 
