@@ -158,6 +158,9 @@ KINDS: Mapping[int, MeasurementKind] = {k.code: k for k in (
                     (int(Layout.TDOA_POSE), int(Layout.TDOA_POS))),
 )}
 
+#: the kinds' keys, in table order (summaries and reports keyed by kind)
+KIND_KEYS: tuple[str, ...] = tuple(k.key for k in KINDS.values())
+
 
 class UnknownKindError(InputError):
     """A measurement kind the table has no row for."""

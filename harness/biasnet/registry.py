@@ -72,8 +72,8 @@ def check_network_inputs(flight: Flight, cfg: EstimatorConfig, layouts: tuple[in
     `layouts` = the device's (TWR, TDoA) network layouts from HELLO."""
     if not cfg.stages & STAGE_BIAS_NN or cfg.mode != MODE_UWB_ONLY:
         return
-    kind = kinds.kind_of(flight.uwb.kind)
-    layout = dict(zip(("twr", "tdoa"), layouts)).get(kind.network or "", 0)
+    kind = flight.uwb.kind
+    layout = dict(zip(("twr", "tdoa"), layouts)).get(kinds.kind_of(kind).network or "", 0)
     if not takes_attitude(layout):
         return
     why = "has no IMU" if not flight.has_imu else "is replayed with --uwb-only"

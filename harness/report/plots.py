@@ -212,8 +212,7 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
         k = int(np.nanargmax(np.abs(mean_err)))
         sel = np.zeros_like(ok)
         sel[np.nonzero(ok)[0][inv == k]] = True
-        name = (f"anchor {int(keys[k])}" if kind.n_anchors == 1
-                else f"anchors {int(keys[k]) // 1000}->{int(keys[k]) % 1000}")
+        name = f"anchors {int(keys[k]) // 1000}->{int(keys[k]) % 1000}" if kind.n_anchors > 1 else f"anchor {keys[k]}"
         ax2.scatter(t[sel], err[sel], s=4, color="#b0b0b0", label=f"measurement error, {name}", rasterized=True)
         e_s = err[sel]
         win = max(1, min(51, e_s.size // 20))
