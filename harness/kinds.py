@@ -92,6 +92,13 @@ def _tdoa_model(x: MeasInput) -> ModelOut:
     return out
 
 
+def _twr_arm_model(x: MeasInput) -> ModelOut:
+    """TWR from an antenna at lever arm l (config lever_x/y/z, body frame) of the body origin p the state
+    estimates: h = |p + R l - a| (mm_twr_arm.c)."""
+    lever = np.array([x.config.lever_x, x.config.lever_y, x.config.lever_z], dtype=np.float64)
+    return _outcome(twr(np.asarray(x.p) + np.asarray(x.R) @ lever, x.a))
+
+
 @dataclass(frozen=True)
 class MeasurementKind:
     """One kind of measurement (a row of the table; its C twin is the row in core/mm_<key>.c)."""
@@ -156,6 +163,8 @@ KINDS: Mapping[int, MeasurementKind] = {k.code: k for k in (
     MeasurementKind(int(MeasKind.TDOA), "tdoa", "TDoA", m.Tdoa, ("anchor_a", "anchor_b"), "diff", "TDoA",
                     "std_tdoa", "chi2_tdoa", "a_max_tdoa", 2.0, _tdoa_model, "tdoa",
                     (int(Layout.TDOA_POSE), int(Layout.TDOA_POS))),
+    MeasurementKind(int(MeasKind.TWR_ARM), "twr_arm", "TWR (lever arm)", m.TwrArm, ("anchor_id",), "range",
+                    "range", "std_twr", "chi2_twr", "a_max_twr", 1.0, _twr_arm_model),
 )}
 
 #: the kinds' keys, in table order (summaries and reports keyed by kind)

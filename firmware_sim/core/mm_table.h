@@ -7,9 +7,10 @@
 enum {
     MM_KIND_TWR = 1,
     MM_KIND_TDOA = 2,
+    MM_KIND_TWR_ARM = 3,
 };
-#define MM_KIND_END 3 /* every kind code is below it */
+#define MM_KIND_END 4 /* every kind code is below it */
 
-#define MM_KIND_ROWS(X) X(twr) X(tdoa)
+#define MM_KIND_ROWS(X) X(twr) X(tdoa) X(twr_arm)
 
 #endif

@@ -22,6 +22,13 @@ int uwb_meas_decode(const uwb_msg_t *msg, uwb_meas_t *out)
         out->t_us = msg->u.tdoa.t_us;
         out->value = msg->u.tdoa.diff;
         return 1;
+    case UWB_MSG_TWR_ARM:
+        out->kind = UWB_MEAS_KIND_TWR_ARM;
+        out->n_anchors = 1;
+        out->anchor[0] = msg->u.twr_arm.anchor_id;
+        out->t_us = msg->u.twr_arm.t_us;
+        out->value = msg->u.twr_arm.range;
+        return 1;
     default:
         return 0;
     }
