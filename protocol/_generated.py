@@ -8,7 +8,7 @@ from typing import ClassVar
 
 from protocol.config_check import ConfigError, ConfigField, check_field  # noqa: F401
 
-PROTOCOL_VERSION = 9
+PROTOCOL_VERSION = 10
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -41,6 +41,7 @@ class MeasKind(enum.IntEnum):
 
     TWR = 1
     TDOA = 2
+    TWR_ARM = 3
 
 
 class Status(enum.IntEnum):
@@ -156,9 +157,9 @@ class Config:
     MSG_ID: ClassVar[int] = 0x02
     NAME: ClassVar[str] = 'CONFIG'
     DIRECTION: ClassVar[str] = 'to_device'
-    FORMAT: ClassVar[str] = '<BBBBfffffffffffffffffff'
-    SIZE: ClassVar[int] = 80
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('tdoa_match', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'))
+    FORMAT: ClassVar[str] = '<BBBBffffffffffffffffffffff'
+    SIZE: ClassVar[int] = 92
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('tdoa_match', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'), ('lever_x', 'f32'), ('lever_y', 'f32'), ('lever_z', 'f32'))
 
     mode: int  # estimator mode
     stages: int  # pipeline stages on
@@ -183,6 +184,9 @@ class Config:
     sup_margin: float  # supervisor: the position must stay inside the anchors' bounding box widened by this
     sup_max_speed: float  # supervisor: speed bound (as the Crazyflie's maxVel)
     sup_max_var: float  # supervisor: bound on each position variance (the covariance clamp is 100)
+    lever_x: float  # TWR_ARM: the antenna's position in the body frame, from the body origin
+    lever_y: float
+    lever_z: float
 
 
 @dataclass(frozen=True)
@@ -253,6 +257,22 @@ class Tdoa:
     anchor_a: int
     anchor_b: int
     diff: float  # m
+
+
+@dataclass(frozen=True)
+class TwrArm:
+    """One two-way range measured by an antenna at CONFIG's lever arm from the body origin. Answered by RESULT (or ERROR)."""
+
+    MSG_ID: ClassVar[int] = 0x0c
+    NAME: ClassVar[str] = 'TWR_ARM'
+    DIRECTION: ClassVar[str] = 'to_device'
+    FORMAT: ClassVar[str] = '<QBf'
+    SIZE: ClassVar[int] = 13
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('t_us', 'u64'), ('anchor_id', 'u8'), ('range', 'f32'))
+
+    t_us: int
+    anchor_id: int
+    range: float  # m
 
 
 @dataclass(frozen=True)
@@ -540,7 +560,7 @@ class Control:
     compute: int  # device cost of the control step (cost_unit)
 
 
-MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, StatsReq, Radio, ClockReq, Height, Setpoint, HelloReply, Result, Stats, Error, RadioDrop, Clock, Control,)
+MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, TwrArm, StatsReq, Radio, ClockReq, Height, Setpoint, HelloReply, Result, Stats, Error, RadioDrop, Clock, Control,)
 MESSAGES_BY_ID: dict[int, type] = {cls.MSG_ID: cls for cls in MESSAGE_TYPES}
 
 
@@ -568,6 +588,9 @@ CONFIG_FIELDS: tuple[ConfigField, ...] = (
     ConfigField('sup_margin', 'f32', 10.0, unit='m', doc="supervisor: the position must stay inside the anchors' bounding box widened by this", ge=0.0),
     ConfigField('sup_max_speed', 'f32', 10.0, unit='m/s', doc="supervisor: speed bound (as the Crazyflie's maxVel)", gt=0.0),
     ConfigField('sup_max_var', 'f32', 50.0, unit='m^2', doc='supervisor: bound on each position variance (the covariance clamp is 100)', gt=0.0),
+    ConfigField('lever_x', 'f32', 0.0, unit='m', doc="TWR_ARM: the antenna's position in the body frame, from the body origin"),
+    ConfigField('lever_y', 'f32', 0.0, unit='m'),
+    ConfigField('lever_z', 'f32', 0.0, unit='m'),
     ConfigField('reset', 'u8', 1, doc='1: re-initialise the filter at init_pos', le=1.0, control=True),
 )
 
@@ -599,6 +622,9 @@ class EstimatorConfigBase:
     sup_margin: float = 10.0  # supervisor: the position must stay inside the anchors' bounding box widened by this [m], >= 0
     sup_max_speed: float = 10.0  # supervisor: speed bound (as the Crazyflie's maxVel) [m/s], > 0
     sup_max_var: float = 50.0  # supervisor: bound on each position variance (the covariance clamp is 100) [m^2], > 0
+    lever_x: float = 0.0  # TWR_ARM: the antenna's position in the body frame, from the body origin [m]
+    lever_y: float = 0.0  # [m]
+    lever_z: float = 0.0  # [m]
 
     def validate(self) -> None:
         """Raise ConfigError naming the first invalid field (the device refuses the same values)."""
@@ -632,4 +658,7 @@ class EstimatorConfigBase:
             sup_margin=self.sup_margin,
             sup_max_speed=self.sup_max_speed,
             sup_max_var=self.sup_max_var,
+            lever_x=self.lever_x,
+            lever_y=self.lever_y,
+            lever_z=self.lever_z,
         )

@@ -20,6 +20,7 @@ from typing import Any
 from protocol import messages as m
 from protocol.framing import decode_body, encode_frame
 from protocol.cobs import cobs_decode
+from protocol.spec import load_spec
 
 VECTORS_PATH = Path(__file__).with_name("golden") / "vectors.txt"
 NAN = float("nan")
@@ -111,7 +112,21 @@ def _vectors() -> list[tuple[str, int, Any]]:
                                            rate_x=-6.0, rate_y=6.0, rate_z=-1.0, px=-3.0, py=4.0, pz=0.0,
                                            vx=0.0, vy=0.0, vz=-0.5, qw=0.5, qx=0.5, qy=-0.5, qz=0.5,
                                            compute=0)),
-    ]
+    ] + _measurement_vectors()
+
+
+def _measurement_vectors() -> list[tuple[str, int, Any]]:
+    """One vector for each measurement message of a kind added since TWR and TDoA (messages.toml
+    `meas_kind`), so a new kind needs no edit here (docs/ARCHITECTURE.md "Adding a measurement kind")."""
+    out = []
+    for spec in load_spec().messages:
+        if spec.meas_kind is None or spec.meas_kind in ("TWR", "TDOA"):
+            continue
+        cls = m.MESSAGES_BY_ID[spec.msg_id]
+        ids = {f.name: 1 + k for k, f in enumerate(spec.fields[1:-1])}
+        msg = cls(t_us=9000 + spec.msg_id, **ids, **{spec.fields[-1].name: 1.5})
+        out.append((spec.name.lower(), 100 + spec.msg_id, msg))
+    return out
 
 
 def format_fields(msg: Any) -> str:

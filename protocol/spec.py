@@ -80,6 +80,7 @@ class MessageSpec:
     direction: str     # "to_device" | "to_host"
     doc: str
     fields: tuple[FieldSpec, ...]
+    meas_kind: str | None = None   # a measurement message: its member of enum meas_kind (answered by RESULT)
 
     @property
     def class_name(self) -> str:
@@ -193,6 +194,18 @@ def _check_config(msg: MessageSpec, enums: dict[str, EnumSpec]) -> None:
             raise SpecError(f"{msg.name}.{f.name}: default {d} is not a value of its enum")
 
 
+def _check_measurement(msg: MessageSpec, enums: dict[str, EnumSpec]) -> None:
+    """A measurement message: `meas_kind` names a member of enum meas_kind; its fields are t_us (u64), one or
+    two anchor ids (u8), then the measured value (f32) - the shape the generated uwb_meas_decode() reads."""
+    if msg.meas_kind not in dict(enums["meas_kind"].values):
+        raise SpecError(f"{msg.name}: meas_kind {msg.meas_kind!r} is not a member of enum meas_kind")
+    wires = [f.wire for f in msg.fields]
+    if (msg.direction != "to_device" or len(wires) not in (2, 3, 4) or msg.fields[0].name != "t_us"
+            or wires[0] != "u64" or wires[-1] != "f32" or any(w != "u8" for w in wires[1:-1])):
+        raise SpecError(f"{msg.name}: a measurement message is to_device with fields t_us (u64), 0-2 anchor ids "
+                        "(u8), value (f32)")
+
+
 def load_spec(path: Path = SPEC_PATH) -> ProtocolSpec:
     """Parse and check the definition: unique ids and names, known types, frames fit max_body."""
     with open(path, "rb") as fh:
@@ -208,7 +221,9 @@ def load_spec(path: Path = SPEC_PATH) -> ProtocolSpec:
     seen_names: set[str] = set()
     for m in raw["message"]:
         fields = [_field(m["name"], entry, enums_by_name) for entry in m["fields"]]
-        spec = MessageSpec(m["name"], int(m["id"]), m["dir"], m.get("doc", ""), tuple(fields))
+        spec = MessageSpec(m["name"], int(m["id"]), m["dir"], m.get("doc", ""), tuple(fields), m.get("meas_kind"))
+        if spec.meas_kind is not None:
+            _check_measurement(spec, enums_by_name)
         if spec.msg_id in seen_ids or spec.name in seen_names:
             raise SpecError(f"duplicate message id or name: {spec.name} {spec.msg_id:#x}")
         if spec.direction not in ("to_device", "to_host"):

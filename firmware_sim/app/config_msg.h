@@ -31,6 +31,9 @@ static inline void config_from_msg(const uwb_config_t *m, estimator_config_t *cf
     cfg->sup_margin = m->sup_margin;
     cfg->sup_max_speed = m->sup_max_speed;
     cfg->sup_max_var = m->sup_max_var;
+    cfg->lever_x = m->lever_x;
+    cfg->lever_y = m->lever_y;
+    cfg->lever_z = m->lever_z;
 }
 
 /* 1 if the message's own fields (reset) are valid. */

@@ -7,6 +7,7 @@
 #include "fw_internal.h"
 #include "platform.h"
 #include "proto_checks.h"
+#include "uwb_meas.h"
 
 #ifndef UWB_BUILD_ID
 #define UWB_BUILD_ID "dev"
@@ -103,8 +104,8 @@ static void on_stats_req(firmware_t *fw)
     msg.u.stats.bad_configs = s->bad_configs;
     msg.u.stats.dropped_meas = s->dropped_meas;
     msg.u.stats.imu_samples = s->imu_samples;
-    msg.u.stats.twr_meas = s->twr_meas;
-    msg.u.stats.tdoa_meas = s->tdoa_meas;
+    msg.u.stats.twr_meas = s->meas[MM_KIND_TWR];
+    msg.u.stats.tdoa_meas = s->meas[MM_KIND_TDOA];
     msg.u.stats.results = s->results;
     msg.u.stats.predictions = estimator_prediction_count(&fw->est);
     msg.u.stats.seq_gaps = s->seq_gaps;
@@ -208,30 +209,22 @@ void fw_refuse_measurement(firmware_t *fw, const uwb_msg_t *in, int rc, uint32_t
     fw_send_error(fw, (uint8_t)rc, in, detail);
 }
 
-static void on_measurement(firmware_t *fw, const uwb_msg_t *in)
+/* A measurement frame of any kind (uwb_meas.h, generated): through the estimator, answered by RESULT. */
+static void on_measurement(firmware_t *fw, const uwb_msg_t *in, const uwb_meas_t *meas)
 {
     estimator_result_t er;
     uint32_t t0, t1;
     int rc;
     memset(&er, 0, sizeof er);
     t0 = platform_cost_now();
-    if (in->type == UWB_MSG_TWR) {
-        fw->stats.twr_meas++;
-        rc = estimator_on_twr(&fw->est, in->u.twr.t_us, in->u.twr.anchor_id, in->u.twr.range, &er);
-    } else {
-        fw->stats.tdoa_meas++;
-        rc = estimator_on_tdoa(&fw->est, in->u.tdoa.t_us, in->u.tdoa.anchor_a, in->u.tdoa.anchor_b,
-                               in->u.tdoa.diff, &er);
-    }
+    fw->stats.meas[meas->kind < MM_KIND_END ? meas->kind : 0]++;
+    rc = estimator_on_meas(&fw->est, meas->kind, meas->t_us, meas->anchor, meas->value, &er);
     t1 = platform_cost_now();
     if (rc != EST_OK) {
-        uint32_t detail = in->type == UWB_MSG_TWR ? in->u.twr.anchor_id
-                                                  : ((uint32_t)in->u.tdoa.anchor_a | ((uint32_t)in->u.tdoa.anchor_b << 8));
-        fw_refuse_measurement(fw, in, rc, detail);
+        fw_refuse_measurement(fw, in, rc, (uint32_t)meas->anchor[0] | ((uint32_t)meas->anchor[1] << 8));
         return;
     }
-    fw_send_result(fw, in, in->type == UWB_MSG_TWR ? UWB_MEAS_KIND_TWR : UWB_MEAS_KIND_TDOA,
-                   in->type == UWB_MSG_TWR ? in->u.twr.t_us : in->u.tdoa.t_us, &er, t1 - t0);
+    fw_send_result(fw, in, meas->kind, meas->t_us, &er, t1 - t0);
 }
 
 static void track_seq(firmware_t *fw, uint16_t seq)
@@ -247,15 +240,59 @@ static void track_seq(firmware_t *fw, uint16_t seq)
     fw->rx_seq_valid = 1;
 }
 
+static void on_anchor(firmware_t *fw, const uwb_msg_t *in)
+{
+    const float pos[3] = {in->u.anchor.x, in->u.anchor.y, in->u.anchor.z};
+    const int rc = estimator_set_anchor(&fw->est, in->u.anchor.anchor_id, pos);
+    if (rc != EST_OK) {
+        /* STATS accounts for every frame not used: an anchor the device cannot hold is unknown. */
+        fw->stats.unknown_anchors++;
+        fw_send_error(fw, (uint8_t)rc, in, in->u.anchor.anchor_id);
+    }
+}
+
+static void on_imu(firmware_t *fw, const uwb_msg_t *in)
+{
+    const float acc[3] = {in->u.imu.ax, in->u.imu.ay, in->u.imu.az};
+    const float gyro[3] = {in->u.imu.gx, in->u.imu.gy, in->u.imu.gz};
+    const int rc = estimator_on_imu(&fw->est, in->u.imu.t_us, acc, gyro);
+    if (rc == EST_OK) {
+        fw->stats.imu_samples++;
+    } else {
+        fw->stats.time_backwards += rc == EST_ERR_TIME_BACKWARDS;
+        fw_send_error(fw, (uint8_t)rc, in, 0);
+    }
+}
+
+static void on_height(firmware_t *fw, const uwb_msg_t *in)
+{
+    const int rc = estimator_on_height(&fw->est, in->u.height.t_us, in->u.height.z, in->u.height.std);
+    if (rc != EST_OK) {
+        fw->stats.time_backwards += rc == EST_ERR_TIME_BACKWARDS;
+        fw->stats.bad_values += rc == EST_ERR_BAD_VALUE;
+        fw_send_error(fw, (uint8_t)rc, in, 0);
+    }
+}
+
+/* Every other frame: a measurement of any kind, or a device -> host type arriving at the device. */
+static void on_other(firmware_t *fw, const uwb_msg_t *in)
+{
+    uwb_meas_t meas;
+    if (uwb_meas_decode(in, &meas)) {
+        on_measurement(fw, in, &meas);
+        return;
+    }
+    fw->stats.unknown_types++;
+    fw_send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, in, 0);
+}
+
 static void dispatch(firmware_t *fw, const uwb_msg_t *in)
 {
-    int rc;
+    uwb_meas_t meas;
     const uint32_t divergences = fw->est.divergences;
     if (!uwb_msg_finite(in)) {
         fw->stats.non_finite++;
-        if (in->type == UWB_MSG_TWR || in->type == UWB_MSG_TDOA) {
-            fw->stats.dropped_meas++;
-        }
+        fw->stats.dropped_meas += (uint32_t)uwb_meas_decode(in, &meas);
         fw_send_error(fw, UWB_ERROR_CODE_NON_FINITE, in, 0);
         return;
     }
@@ -266,39 +303,14 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
     case UWB_MSG_CONFIG:
         on_config(fw, in);
         break;
-    case UWB_MSG_ANCHOR: {
-        const float pos[3] = {in->u.anchor.x, in->u.anchor.y, in->u.anchor.z};
-        rc = estimator_set_anchor(&fw->est, in->u.anchor.anchor_id, pos);
-        if (rc != EST_OK) {
-            /* STATS accounts for every frame not used: an anchor the device cannot hold is unknown. */
-            fw->stats.unknown_anchors++;
-            fw_send_error(fw, (uint8_t)rc, in, in->u.anchor.anchor_id);
-        }
+    case UWB_MSG_ANCHOR:
+        on_anchor(fw, in);
         break;
-    }
-    case UWB_MSG_IMU: {
-        const float acc[3] = {in->u.imu.ax, in->u.imu.ay, in->u.imu.az};
-        const float gyro[3] = {in->u.imu.gx, in->u.imu.gy, in->u.imu.gz};
-        rc = estimator_on_imu(&fw->est, in->u.imu.t_us, acc, gyro);
-        if (rc == EST_OK) {
-            fw->stats.imu_samples++;
-        } else {
-            fw->stats.time_backwards += rc == EST_ERR_TIME_BACKWARDS;
-            fw_send_error(fw, (uint8_t)rc, in, 0);
-        }
-        break;
-    }
-    case UWB_MSG_TWR:
-    case UWB_MSG_TDOA:
-        on_measurement(fw, in);
+    case UWB_MSG_IMU:
+        on_imu(fw, in);
         break;
     case UWB_MSG_HEIGHT:
-        rc = estimator_on_height(&fw->est, in->u.height.t_us, in->u.height.z, in->u.height.std);
-        if (rc != EST_OK) {
-            fw->stats.time_backwards += rc == EST_ERR_TIME_BACKWARDS;
-            fw->stats.bad_values += rc == EST_ERR_BAD_VALUE;
-            fw_send_error(fw, (uint8_t)rc, in, 0);
-        }
+        on_height(fw, in);
         break;
     case UWB_MSG_STATS_REQ:
         on_stats_req(fw);
@@ -313,9 +325,7 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
         fw_on_clock_req(fw, in);
         break;
     default:
-        /* A device -> host type arriving at the device. */
-        fw->stats.unknown_types++;
-        fw_send_error(fw, UWB_ERROR_CODE_UNKNOWN_TYPE, in, 0);
+        on_other(fw, in);
         break;
     }
     /* The supervisor re-initialised the filter: say so (after the frame's RESULT) rather than carry on

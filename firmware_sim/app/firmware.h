@@ -9,6 +9,7 @@
 #include "controller.h"
 #include "estimator.h"
 #include "frame_rx.h"
+#include "mm_table.h"
 #include "tdoa_engine.h"
 #include "uwb_msgs.h"
 
@@ -21,8 +22,9 @@ typedef void (*fw_write_fn)(void *ctx, const uint8_t *data, size_t n);
 /* Every received byte or frame that was not used is counted in exactly one of these. */
 typedef struct {
     uint32_t frames_ok, crc_errors, framing_errors, unknown_types, bad_lengths, non_finite,
-        unknown_anchors, time_backwards, bad_configs, dropped_meas, imu_samples, twr_meas, tdoa_meas,
-        results, predictions, seq_gaps, bad_values;
+        unknown_anchors, time_backwards, bad_configs, dropped_meas, imu_samples, results, predictions, seq_gaps,
+        bad_values;
+    uint32_t meas[MM_KIND_END]; /* measurement frames by kind (enum meas_kind; 0: none) */
     /* RADIO frames: handed to the engine, measurements formed, and every packet that formed none by
      * reason (protocol enum drop_reason; no_position also counts BAD_ANCHOR). */
     uint32_t radio_packets, radio_meas, radio_no_reference, radio_clock, radio_expired, radio_malformed,

@@ -6,8 +6,7 @@
 
 #include "gate_chi2.h"
 #include "gate_kinematic.h"
-#include "mm_tdoa.h"
-#include "mm_twr.h"
+#include "mm_kinds.h"
 #include "platform.h"
 #include "robust_update.h"
 #include "supervisor.h"
@@ -144,20 +143,20 @@ static void predict_cv_to(estimator_t *est, uint64_t t_us)
 /* The network's bias correction of a measurement (0 without a network, stage or pair), and in `std` the
  * standard deviation to fuse it with: the configured one, or with NN_STD the network's own std of what it
  * leaves when it predicts one. */
-static float corrected_bias(estimator_t *est, int tdoa, uint8_t id_a, uint8_t id_b, const float *anchor_a,
-                            const float *anchor_b, float *std)
+static float corrected_bias(estimator_t *est, const mm_kind_t *kind, const uint8_t ids[2],
+                            const float *const anchors[2], float *std)
 {
     const estimator_config_t *cfg = &est->cfg;
     const bias_nn_t *net = NULL;
     float bias, std_nn;
-    if (est->model != NULL) {
-        net = tdoa ? est->model->tdoa : est->model->twr;
+    if (est->model != NULL && kind->net != MM_NO_NET) {
+        memcpy(&net, (const char *)est->model + kind->net, sizeof net);
     }
-    *std = tdoa ? cfg->std_tdoa : cfg->std_twr;
-    if ((cfg->stages & EST_STAGE_NN_MONITOR) && !nn_monitor_enabled(&est->nnmon, id_a, id_b)) {
+    *std = mm_cfg(cfg, kind->std_off);
+    if ((cfg->stages & EST_STAGE_NN_MONITOR) && !nn_monitor_enabled(&est->nnmon, ids[0], ids[1])) {
         net = NULL; /* the monitor switched this pair's correction off */
     }
-    bias = nn_bias(est, net, anchor_a, tdoa ? anchor_b : anchor_a, *std, &std_nn);
+    bias = nn_bias(est, net, anchors[0], anchors[1], *std, &std_nn);
     if ((cfg->stages & EST_STAGE_NN_STD) && std_nn > 0.0f) {
         *std = std_nn;
     }
@@ -166,13 +165,13 @@ static float corrected_bias(estimator_t *est, int tdoa, uint8_t id_a, uint8_t id
 
 /* The gates' verdict on innovation y (variance S): kinematic first, then chi-square, which lets a link
  * through whose anchors have been rejected for longer than GATE_CHI2_REOPEN_US (rejected_us). */
-static uint8_t gate_status(const estimator_config_t *cfg, float y, float d_max, float S, int tdoa,
+static uint8_t gate_status(const estimator_config_t *cfg, const mm_kind_t *kind, float y, float d_max, float S,
                            int64_t rejected_us)
 {
-    if ((cfg->stages & EST_STAGE_KINEMATIC_GATE) && !gate_kinematic_pass(y, d_max, tdoa ? 2.0f : 1.0f)) {
+    if ((cfg->stages & EST_STAGE_KINEMATIC_GATE) && !gate_kinematic_pass(y, d_max, kind->gate_factor)) {
         return EST_REJECTED_KINEMATIC;
     }
-    if ((cfg->stages & EST_STAGE_CHI2_GATE) && !gate_chi2_pass(y, S, tdoa ? cfg->chi2_tdoa : cfg->chi2_twr) &&
+    if ((cfg->stages & EST_STAGE_CHI2_GATE) && !gate_chi2_pass(y, S, mm_cfg(cfg, kind->chi2_off)) &&
         !gate_chi2_reopened(rejected_us)) {
         return EST_REJECTED_CHI2;
     }
@@ -181,8 +180,8 @@ static uint8_t gate_status(const estimator_config_t *cfg, float y, float d_max, 
 
 /* Fuse an accepted measurement; the robust stage inflates R by its M-estimation weight first (the gates
  * saw the nominal S); the bias states learn from the innovation. */
-static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, uint64_t t_us, uint8_t id_a,
-                 uint8_t id_b, estimator_result_t *out)
+static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, uint64_t t_us, const uint8_t ids[2],
+                 estimator_result_t *out)
 {
     ekf_t *ekf = &est->ekf;
     if (est->cfg.stages & EST_STAGE_ROBUST_UPDATE) {
@@ -194,88 +193,84 @@ static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, u
     ekf_scalar_apply(ekf, m);
     ekf_finalize(ekf);
     if (est->cfg.stages & EST_STAGE_BIAS_STATES) {
-        bias_states_update(&est->bstates, id_a, id_b, y, m->S);
+        bias_states_update(&est->bstates, ids[0], ids[1], y, m->S);
     }
-    gate_kinematic_fused(&est->kin, t_us, id_a, id_b);
+    gate_kinematic_fused(&est->kin, t_us, ids[0], ids[1]);
     estimator_supervise(est);
     out->gain[0] = m->K[EKF_X];
     out->gain[1] = m->K[EKF_Y];
     out->gain[2] = m->K[EKF_Z];
 }
 
-/* A TDoA's |diff| must be below the distance between its two anchors (a Crazyflie's outlier filter
- * discards the others before its update: physically impossible, most likely a measurement error). */
-static int within_baseline(const float *a, const float *b, float diff)
+/* The start of every measurement: the CV prediction, the time rule's reference, and d_max, reported
+ * whatever happens next (plots). The velocity norm is frame independent and the CV prediction does not
+ * change the velocity. On the floor before take-off the links to low anchors read metres long for seconds:
+ * the gates do not re-open there (no widening, no lock-out guard); the vehicle cannot have moved. */
+static void begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, const uint8_t ids[2],
+                              estimator_result_t *out)
 {
-    const float dx = a[0] - b[0], dy = a[1] - b[1], dz = a[2] - b[2];
-    return diff * diff < dx * dx + dy * dy + dz * dz;
-}
-
-/* The pipeline for one measurement z. anchor_b == NULL means TWR to anchor_a (then id_b == id_a). */
-static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b, const float *anchor_a,
-                    const float *anchor_b, float z, estimator_result_t *out)
-{
-    ekf_t *ekf = &est->ekf;
     const estimator_config_t *cfg = &est->cfg;
-    const int tdoa = anchor_b != NULL;
-    const uint64_t t_ref = ekf->t_us;
-    const int have_ref = ekf->has_time;
-    float h, H[3], dt, y, bias, std, b_st = 0.0f, var_st = 0.0f;
-    ekf_scalar_t m;
-    uint32_t c0, c1, c2, c3;
-    int rc;
-
+    const uint64_t t_ref = est->ekf.t_us;
+    const int have_ref = est->ekf.has_time;
+    float dt;
     memset(out, 0, sizeof *out);
     predict_cv_to(est, t_us); /* its supervisor check still sees the previous measurement's time (gap) */
     est->t_uwb_us = t_us;
     est->has_uwb_time = 1;
     out->cost_predict = est->cost_predict;
     est->cost_predict = 0;
-
-    /* d_max is reported whatever happens next (plots), so compute it first. The velocity norm is
-     * frame independent and the CV prediction does not change the velocity. */
-    /* On the floor before take-off the links to low anchors read metres long for seconds: the gates do not
-     * re-open there (no widening, no lock-out guard); the vehicle cannot have moved (takeoff.h). */
-    dt = gate_kinematic_window(&est->kin, t_us, id_a, id_b, t_ref, have_ref, cfg->gate_dt_min,
+    dt = gate_kinematic_window(&est->kin, t_us, ids[0], ids[1], t_ref, have_ref, cfg->gate_dt_min,
                                !(cfg->mode == EST_MODE_IMU_THRUST && !est->takeoff.airborne));
-    out->d_max = gate_kinematic_dmax(&ekf->x[EKF_PX], dt, tdoa ? cfg->a_max_tdoa : cfg->a_max_twr);
+    out->d_max = gate_kinematic_dmax(&est->ekf.x[EKF_PX], dt, mm_cfg(cfg, kind->a_max_off));
+}
 
+/* The pipeline for one measurement z of a kind; ids and anchors: the kind's anchors' slots and positions
+ * (a one-anchor kind repeats A). */
+static void process(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, const uint8_t ids[2],
+                    const float *const anchors[2], float z, estimator_result_t *out)
+{
+    ekf_t *ekf = &est->ekf;
+    const estimator_config_t *cfg = &est->cfg;
+    const mm_input_t in = {&ekf->x[EKF_X], (const float(*)[3])ekf->R, anchors[0],
+                           kind->n_anchors > 1 ? anchors[1] : NULL, z, cfg};
+    float h, H[3], y, bias, std, b_st = 0.0f, var_st = 0.0f;
+    ekf_scalar_t m;
+    uint32_t c0, c1, c2, c3;
+    int rc;
+
+    begin_measurement(est, kind, t_us, ids, out);
     /* 1. measurement model */
     c0 = platform_cost_now();
-    rc = tdoa ? mm_tdoa(&ekf->x[EKF_X], anchor_a, anchor_b, &h, H) : mm_twr(&ekf->x[EKF_X], anchor_a, &h, H);
+    rc = kind->model(&in, &h, H);
     c1 = platform_cost_now();
-    out->status = rc != MM_OK ? EST_REJECTED_GEOMETRY
-                  : (tdoa && !within_baseline(anchor_a, anchor_b, z)) ? EST_REJECTED_BASELINE : EST_ACCEPTED;
-    if (out->status != EST_ACCEPTED) {
-        est->baseline_rejects += out->status == EST_REJECTED_BASELINE;
+    if (rc != MM_OK) {
+        out->status = rc == MM_OUT_OF_BASELINE ? EST_REJECTED_BASELINE : EST_REJECTED_GEOMETRY;
+        est->baseline_rejects += rc == MM_OUT_OF_BASELINE;
         out->cost_update = c1 - c0;
         out->flags = est->flags;
         est->flags = 0;
         return;
     }
-
     /* 2. bias: the network's, and with BIAS_STATES the slowly varying rest, from the innovations of
      * earlier measurements */
-    bias = corrected_bias(est, tdoa, id_a, id_b, anchor_a, anchor_b, &std);
+    bias = corrected_bias(est, kind, ids, anchors, &std);
     if (cfg->stages & EST_STAGE_BIAS_STATES) {
-        bias_states_predict(&est->bstates, t_us, id_a, id_b, &b_st, &var_st);
+        bias_states_predict(&est->bstates, t_us, ids[0], ids[1], &b_st, &var_st);
     }
     y = (z - bias - b_st) - h;
     c2 = platform_cost_now();
-
     /* 3./4. gates (S is needed by the chi-square gate and reported in every case) */
     ekf_scalar_prepare(ekf, &m, H, y, std * std + var_st);
-    out->status = gate_status(cfg, y, out->d_max, m.S, tdoa, est->kin.rejected_us);
+    out->status = gate_status(cfg, kind, y, out->d_max, m.S, est->kin.rejected_us);
     /* the monitor compares what the filter sees with and without the correction, whatever the gates said */
     if ((cfg->stages & EST_STAGE_NN_MONITOR) && bias != 0.0f &&
-        nn_monitor_observe(&est->nnmon, id_a, id_b, y, bias, m.S)) {
+        nn_monitor_observe(&est->nnmon, ids[0], ids[1], y, bias, m.S)) {
         est->flags = (uint8_t)(est->flags | EST_FLAG_NN_PAIR_OFF);
     }
     c3 = platform_cost_now();
-
     /* 5. update */
     if (out->status == EST_ACCEPTED) {
-        fuse(est, &m, H, y, t_us, id_a, id_b, out);
+        fuse(est, &m, H, y, t_us, ids, out);
     }
     out->innovation = y;
     out->innovation_var = m.S;
@@ -289,32 +284,43 @@ static void process(estimator_t *est, uint64_t t_us, uint8_t id_a, uint8_t id_b,
 
 /* The per-anchor state (gate, pair monitor, bias states) is kept by slot: the slot index goes down the
  * pipeline in place of the id. */
-int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float range,
-                     estimator_result_t *out)
+int estimator_on_meas(estimator_t *est, uint8_t kind, uint64_t t_us, const uint8_t anchor_ids[2], float z,
+                      estimator_result_t *out)
 {
-    const int s = estimator_anchor_slot(est, anchor, t_us);
-    if (s < 0) {
-        return EST_ERR_UNKNOWN_ANCHOR;
+    const mm_kind_t *row = mm_kind(kind);
+    uint8_t slots[2];
+    const float *anchors[2];
+    int k;
+    if (row == NULL) {
+        return EST_ERR_UNKNOWN_KIND;
+    }
+    for (k = 0; k < 2; k++) {
+        const int s = estimator_anchor_slot(est, anchor_ids[k < row->n_anchors ? k : 0], t_us);
+        if (s < 0) {
+            return EST_ERR_UNKNOWN_ANCHOR;
+        }
+        slots[k] = (uint8_t)s;
+        anchors[k] = est->anchors[s];
     }
     if (est->has_uwb_time && t_us < est->t_uwb_us) {
         return EST_ERR_TIME_BACKWARDS;
     }
-    process(est, t_us, (uint8_t)s, (uint8_t)s, est->anchors[s], NULL, range, out);
+    process(est, row, t_us, slots, anchors, z, out);
     return EST_OK;
+}
+
+int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float range,
+                     estimator_result_t *out)
+{
+    const uint8_t ids[2] = {anchor, anchor};
+    return estimator_on_meas(est, MM_KIND_TWR, t_us, ids, range, out);
 }
 
 int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t anchor_b, float diff,
                       estimator_result_t *out)
 {
-    const int sa = estimator_anchor_slot(est, anchor_a, t_us), sb = estimator_anchor_slot(est, anchor_b, t_us);
-    if (sa < 0 || sb < 0) {
-        return EST_ERR_UNKNOWN_ANCHOR;
-    }
-    if (est->has_uwb_time && t_us < est->t_uwb_us) {
-        return EST_ERR_TIME_BACKWARDS;
-    }
-    process(est, t_us, (uint8_t)sa, (uint8_t)sb, est->anchors[sa], est->anchors[sb], diff, out);
-    return EST_OK;
+    const uint8_t ids[2] = {anchor_a, anchor_b};
+    return estimator_on_meas(est, MM_KIND_TDOA, t_us, ids, diff, out);
 }
 
 /* Beyond this std [m] a height carries no information, and its square (R) could overflow. */

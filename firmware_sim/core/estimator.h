@@ -23,6 +23,7 @@ enum { EST_ANCHOR_FREE = 0, EST_ANCHOR_HOST = 1, EST_ANCHOR_RADIO = 2 };
 /* Return codes (numerically equal to protocol enum error_code). */
 enum {
     EST_OK = 0,
+    EST_ERR_UNKNOWN_KIND = 1,  /* no row in the kinds table (mm_kinds.h); error_code UNKNOWN_TYPE */
     EST_ERR_UNKNOWN_ANCHOR = 4,
     EST_ERR_TIME_BACKWARDS = 5,
     EST_ERR_BAD_ANCHOR_ID = 7,
@@ -135,9 +136,13 @@ int estimator_anchor_slot(const estimator_t *est, uint8_t id, uint64_t t_us);
  * before the previous IMU sample. */
 int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3]);
 
-/* One measurement through the pipeline; *out is filled when EST_OK is returned.
- * EST_ERR_UNKNOWN_ANCHOR / EST_ERR_TIME_BACKWARDS (before the previous UWB measurement): nothing
- * changes. TDoA: diff = d(tag, B) - d(tag, A). */
+/* One measurement of any kind (enum meas_kind, a row of mm_kinds.h) through the pipeline: anchor_ids holds
+ * as many ids as the kind names (A, B); *out is filled when EST_OK is returned. EST_ERR_UNKNOWN_KIND,
+ * EST_ERR_UNKNOWN_ANCHOR / EST_ERR_TIME_BACKWARDS (before the previous measurement): nothing changes. */
+int estimator_on_meas(estimator_t *est, uint8_t kind, uint64_t t_us, const uint8_t anchor_ids[2], float z,
+                      estimator_result_t *out);
+
+/* The same for a TWR range and a TDoA difference diff = d(tag, B) - d(tag, A). */
 int estimator_on_twr(estimator_t *est, uint64_t t_us, uint8_t anchor, float range,
                      estimator_result_t *out);
 int estimator_on_tdoa(estimator_t *est, uint64_t t_us, uint8_t anchor_a, uint8_t anchor_b, float diff,

@@ -28,6 +28,9 @@ static const estimator_config_t defaults = {
     .sup_margin = 10.0f,
     .sup_max_speed = 10.0f,
     .sup_max_var = 50.0f,
+    .lever_x = 0.0f,
+    .lever_y = 0.0f,
+    .lever_z = 0.0f,
 };
 
 void estimator_default_config(estimator_config_t *cfg)
@@ -70,10 +73,11 @@ int estimator_config_valid(const estimator_config_t *cfg)
         }
     }
     {
-        const float v[4] = {
+        const float v[7] = {
             cfg->init_x, cfg->init_y, cfg->init_z, cfg->nn_min_z,
+            cfg->lever_x, cfg->lever_y, cfg->lever_z,
         };
-        for (i = 0; i < 4u; i++) {
+        for (i = 0; i < 7u; i++) {
             if (!(isfinite(v[i]))) {
                 return 0;
             }
@@ -105,4 +109,7 @@ const estimator_config_field_t estimator_config_fields[ESTIMATOR_CONFIG_N_FIELDS
     {"sup_margin", (uint16_t)offsetof(estimator_config_t, sup_margin), 1},
     {"sup_max_speed", (uint16_t)offsetof(estimator_config_t, sup_max_speed), 1},
     {"sup_max_var", (uint16_t)offsetof(estimator_config_t, sup_max_var), 1},
+    {"lever_x", (uint16_t)offsetof(estimator_config_t, lever_x), 1},
+    {"lever_y", (uint16_t)offsetof(estimator_config_t, lever_y), 1},
+    {"lever_z", (uint16_t)offsetof(estimator_config_t, lever_z), 1},
 };

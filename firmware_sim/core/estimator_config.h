@@ -29,9 +29,12 @@ typedef struct {
     float sup_margin; /* supervisor: the position must stay inside the anchors' bounding box widened by this [m], >= 0 */
     float sup_max_speed; /* supervisor: speed bound (as the Crazyflie's maxVel) [m/s], > 0 */
     float sup_max_var; /* supervisor: bound on each position variance (the covariance clamp is 100) [m^2], > 0 */
+    float lever_x; /* TWR_ARM: the antenna's position in the body frame, from the body origin [m] */
+    float lever_y; /* [m] */
+    float lever_z; /* [m] */
 } estimator_config_t;
 
-#define ESTIMATOR_CONFIG_N_FIELDS 22u
+#define ESTIMATOR_CONFIG_N_FIELDS 25u
 
 /* The power-up values (harness/config.py EstimatorConfig's defaults). */
 void estimator_default_config(estimator_config_t *cfg);

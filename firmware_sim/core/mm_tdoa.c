@@ -1,7 +1,9 @@
-/* TDoA measurement model (ARCHITECTURE.md, pipeline step 1). */
+/* TDoA measurement model (ARCHITECTURE.md, pipeline step 1) and the TDoA row of the kinds table. */
 #include "mm_tdoa.h"
 
 #include <math.h>
+
+#include "bias_nn.h"
 
 int mm_tdoa(const float p[3], const float anchor_a[3], const float anchor_b[3], float *h, float H[3])
 {
@@ -26,3 +28,21 @@ int mm_tdoa(const float p[3], const float anchor_a[3], const float anchor_b[3], 
     H[2] = bz / db - az / da;
     return MM_OK;
 }
+
+/* A TDoA's |diff| must be below the distance between its two anchors (a Crazyflie's outlier filter
+ * discards the others before its update: physically impossible, most likely a measurement error). */
+static int within_baseline(const float *a, const float *b, float diff)
+{
+    const float dx = a[0] - b[0], dy = a[1] - b[1], dz = a[2] - b[2];
+    return diff * diff < dx * dx + dy * dy + dz * dz;
+}
+
+static int model(const mm_input_t *in, float *h, float H[3])
+{
+    const int rc = mm_tdoa(in->p, in->a, in->b, h, H);
+    return rc == MM_OK && !within_baseline(in->a, in->b, in->z) ? MM_OUT_OF_BASELINE : rc;
+}
+
+const mm_kind_t mm_kind_tdoa = {MM_KIND_TDOA, 2, model, offsetof(estimator_config_t, std_tdoa),
+                                offsetof(estimator_config_t, chi2_tdoa), offsetof(estimator_config_t, a_max_tdoa),
+                                2.0f, offsetof(bias_model_t, tdoa)};

@@ -3,7 +3,7 @@
 #ifndef UWB_MM_TDOA_H
 #define UWB_MM_TDOA_H
 
-#include "mm_twr.h"
+#include "mm_kinds.h"
 
 /* Predicted distance difference *h and the nonzero part H[0..2] of the Jacobian.
  * Returns MM_OK, or MM_DEGENERATE if the tag is on either anchor or the two anchors coincide

@@ -1,7 +1,9 @@
-/* TWR measurement model (ARCHITECTURE.md, pipeline step 1). */
+/* TWR measurement model (ARCHITECTURE.md, pipeline step 1) and the TWR row of the kinds table. */
 #include "mm_twr.h"
 
 #include <math.h>
+
+#include "bias_nn.h"
 
 int mm_twr(const float p[3], const float anchor[3], float *h, float H[3])
 {
@@ -20,3 +22,12 @@ int mm_twr(const float p[3], const float anchor[3], float *h, float H[3])
     H[2] = dz / d;
     return MM_OK;
 }
+
+static int model(const mm_input_t *in, float *h, float H[3])
+{
+    return mm_twr(in->p, in->a, h, H);
+}
+
+const mm_kind_t mm_kind_twr = {MM_KIND_TWR, 1, model, offsetof(estimator_config_t, std_twr),
+                               offsetof(estimator_config_t, chi2_twr), offsetof(estimator_config_t, a_max_twr),
+                               1.0f, offsetof(bias_model_t, twr)};

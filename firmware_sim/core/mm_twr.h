@@ -2,10 +2,7 @@
 #ifndef UWB_MM_TWR_H
 #define UWB_MM_TWR_H
 
-/* Below this tag-anchor distance [m] the direction (p - a)/h is undefined. */
-#define MM_MIN_DISTANCE 1e-6f
-
-enum { MM_OK = 0, MM_DEGENERATE = 1 };
+#include "mm_kinds.h"
 
 /* Predicted range *h and the nonzero part H[0..2] of the Jacobian for tag position p and anchor a.
  * Returns MM_OK, or MM_DEGENERATE (tag on the anchor; *h and H are then 0). */

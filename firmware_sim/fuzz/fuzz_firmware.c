@@ -76,6 +76,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     size_t i, chunk;
     const fw_stats_t *s;
+    size_t counted, k;
     if (size == 0) {
         return 0;
     }
@@ -108,11 +109,15 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     if (s->results != sink_a.check.results) {
         fuzz_fail("stats.results differs from the RESULT frames sent");
     }
-    /* Finite measurements are counted in twr/tdoa_meas (or radio_meas: formed by the TDoA engine) and
+    /* Finite measurements are counted by kind in meas (or radio_meas: formed by the TDoA engine) and
      * end in a RESULT or a drop; non-finite ones are dropped before being counted (and also counted in
      * non_finite). */
-    if ((size_t)s->results + s->dropped_meas < (size_t)s->twr_meas + s->tdoa_meas + s->radio_meas ||
-        (size_t)s->results + s->dropped_meas - s->twr_meas - s->tdoa_meas - s->radio_meas > s->non_finite) {
+    counted = s->radio_meas;
+    for (k = 0; k < MM_KIND_END; k++) {
+        counted += s->meas[k];
+    }
+    if ((size_t)s->results + s->dropped_meas < counted ||
+        (size_t)s->results + s->dropped_meas - counted > s->non_finite) {
         fuzz_fail("measurement accounting");
     }
     /* Every radio packet formed a measurement or was dropped for one counted reason. */

@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 9u
+#define UWB_PROTO_VERSION 10u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -34,6 +34,7 @@ enum {
 enum {
     UWB_MEAS_KIND_TWR = 1,
     UWB_MEAS_KIND_TDOA = 2,
+    UWB_MEAS_KIND_TWR_ARM = 3,
 };
 
 /* What happened to a measurement (RESULT.status) */
@@ -128,7 +129,7 @@ typedef struct {
 
 /* CONFIG (to_device): Estimator configuration. Refused as a whole (ERROR BAD_CONFIG) if any value is invalid. */
 #define UWB_MSG_CONFIG 0x02u
-#define UWB_MSG_CONFIG_LEN 80u
+#define UWB_MSG_CONFIG_LEN 92u
 typedef struct {
     uint8_t mode;
     uint8_t stages;
@@ -153,6 +154,9 @@ typedef struct {
     float sup_margin;
     float sup_max_speed;
     float sup_max_var;
+    float lever_x;
+    float lever_y;
+    float lever_z;
 } uwb_config_t;
 
 /* ANCHOR (to_device): Anchor position, as the LPP short packet ANCHOR_POSITION (id + 3 x float32). */
@@ -196,6 +200,15 @@ typedef struct {
     uint8_t anchor_b;
     float diff;
 } uwb_tdoa_t;
+
+/* TWR_ARM (to_device): One two-way range measured by an antenna at CONFIG's lever arm from the body origin. Answered by RESULT (or ERROR). */
+#define UWB_MSG_TWR_ARM 0x0Cu
+#define UWB_MSG_TWR_ARM_LEN 13u
+typedef struct {
+    uint64_t t_us;
+    uint8_t anchor_id;
+    float range;
+} uwb_twr_arm_t;
 
 /* STATS_REQ (to_device): Ask for the counters. Answered by STATS. */
 #define UWB_MSG_STATS_REQ 0x07u
@@ -408,6 +421,7 @@ typedef struct {
         uwb_imu_t imu;
         uwb_twr_t twr;
         uwb_tdoa_t tdoa;
+        uwb_twr_arm_t twr_arm;
         uwb_radio_t radio;
         uwb_clock_req_t clock_req;
         uwb_height_t height;

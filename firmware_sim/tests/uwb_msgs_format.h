@@ -61,6 +61,9 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_f32(out + w, cap - w, "sup_margin", msg->u.config.sup_margin);
         w += fmt_f32(out + w, cap - w, "sup_max_speed", msg->u.config.sup_max_speed);
         w += fmt_f32(out + w, cap - w, "sup_max_var", msg->u.config.sup_max_var);
+        w += fmt_f32(out + w, cap - w, "lever_x", msg->u.config.lever_x);
+        w += fmt_f32(out + w, cap - w, "lever_y", msg->u.config.lever_y);
+        w += fmt_f32(out + w, cap - w, "lever_z", msg->u.config.lever_z);
         break;
     case UWB_MSG_ANCHOR:
         w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.anchor.anchor_id);
@@ -87,6 +90,11 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_u64(out + w, cap - w, "anchor_a", (unsigned long long)msg->u.tdoa.anchor_a);
         w += fmt_u64(out + w, cap - w, "anchor_b", (unsigned long long)msg->u.tdoa.anchor_b);
         w += fmt_f32(out + w, cap - w, "diff", msg->u.tdoa.diff);
+        break;
+    case UWB_MSG_TWR_ARM:
+        w += fmt_u64(out + w, cap - w, "t_us", (unsigned long long)msg->u.twr_arm.t_us);
+        w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.twr_arm.anchor_id);
+        w += fmt_f32(out + w, cap - w, "range", msg->u.twr_arm.range);
         break;
     case UWB_MSG_STATS_REQ:
         break;

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig
-from harness.flight.data import KIND_TWR, Source
+from harness.flight.data import Source
 from harness.report.metrics import latency_summary
 from harness.device.registry import DeviceSpec, open_device
 from harness.flight.run_config import config_for
@@ -43,10 +43,7 @@ def _twin_cost_us(flight: Any, cfg: EstimatorConfig, model: Any) -> np.ndarray:
             twin.on_imu(t, flight.imu.acc[i], flight.imu.gyro[i])
             continue
         t0 = time.perf_counter_ns()
-        if u.kind == KIND_TWR:
-            twin.on_twr(t, int(u.anchor_a[i]), float(u.value[i]))
-        else:
-            twin.on_tdoa(t, int(u.anchor_a[i]), int(u.anchor_b[i]), float(u.value[i]))
+        twin.on_meas(u.kind, t, (int(u.anchor_a[i]), int(u.anchor_b[i])), float(u.value[i]))
         out.append((time.perf_counter_ns() - t0) / 1e3)
     return np.asarray(out)
 

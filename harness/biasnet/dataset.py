@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.errors import InputError
-from harness.flight.data import KIND_TDOA, KIND_TWR, Flight, FlightError
-from harness.twin.features import (LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE,
-                                   layout_inputs)
+from harness.flight.data import Flight, FlightError
+from harness.kinds import kind_of
+from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE, layout_inputs
 
 XI_DEFAULT = 0.7
 
@@ -94,10 +94,11 @@ def true_attitude(flight: Flight, t_us: np.ndarray) -> np.ndarray | None:
 
 def default_layout(flight: Flight) -> int:
     """The pose layout when the flight has attitude truth, else the position-only one."""
-    pose = flight.truth.quat is not None
-    if flight.uwb.kind == KIND_TWR:
-        return LAYOUT_TWR_POSE if pose else LAYOUT_TWR_POS
-    return LAYOUT_TDOA_POSE if pose else LAYOUT_TDOA_POS
+    kind = kind_of(flight.uwb.kind)
+    if not kind.layouts:
+        raise InputError(f"{flight.name}: no bias network corrects {kind.label} measurements")
+    pose, pos = kind.layouts
+    return pose if flight.truth.quat is not None else pos
 
 
 def geometric_value(flight: Flight, pos: np.ndarray) -> np.ndarray:
@@ -106,7 +107,7 @@ def geometric_value(flight: Flight, pos: np.ndarray) -> np.ndarray:
     amap = flight.anchors.as_dict()
     pa = np.array([amap[int(i)] for i in u.anchor_a]).reshape(-1, 3)
     da = np.linalg.norm(pa - pos, axis=1)
-    if u.kind == KIND_TWR:
+    if kind_of(u.kind).n_anchors == 1:
         return da
     pb = np.array([amap[int(i)] for i in u.anchor_b]).reshape(-1, 3)
     return np.linalg.norm(pb - pos, axis=1) - da
@@ -120,10 +121,10 @@ def flight_samples(flight: Flight, layout: int | None = None, xi: float = XI_DEF
     n_in = layout_inputs(layout)
     if n_in == 0:
         raise InputError(f"unknown input layout {layout}")
-    tdoa_layout = layout in (LAYOUT_TDOA_POSE, LAYOUT_TDOA_POS)
-    if tdoa_layout != (u.kind == KIND_TDOA):
-        raise InputError(f"{flight.name}: layout {layout} does not fit its {'TDoA' if u.kind == KIND_TDOA else 'TWR'} "
-                         "measurements")
+    kind = kind_of(u.kind)
+    if layout not in kind.layouts:
+        raise InputError(f"{flight.name}: layout {layout} does not fit its {kind.label} measurements")
+    pair_layout = kind.n_anchors == 2
     pos = flight.truth.position_at(u.t_us)
     rpy = None
     if layout in (LAYOUT_TWR_POSE, LAYOUT_TDOA_POSE):
@@ -135,7 +136,7 @@ def flight_samples(flight: Flight, layout: int | None = None, xi: float = XI_DEF
     amap = flight.anchors.as_dict()
     pa = np.array([amap[int(i)] for i in u.anchor_a]).reshape(-1, 3)
     cols = [pa - pos]
-    if tdoa_layout:
+    if pair_layout:
         cols.append(np.array([amap[int(i)] for i in u.anchor_b]).reshape(-1, 3) - pos)
     if rpy is not None:
         cols.append(rpy)
@@ -144,7 +145,7 @@ def flight_samples(flight: Flight, layout: int | None = None, xi: float = XI_DEF
     # Samples before the truth starts or after it ends would be labelled with a clamped position.
     keep &= (u.t_us >= flight.truth.t_us[0]) & (u.t_us <= flight.truth.t_us[-1])
     pair = np.stack([u.anchor_a, u.anchor_b], axis=1).astype(np.int64)
-    pb = (np.array([amap[int(i)] for i in u.anchor_b]).reshape(-1, 3) if tdoa_layout
+    pb = (np.array([amap[int(i)] for i in u.anchor_b]).reshape(-1, 3) if pair_layout
           else np.full((len(u), 3), np.nan))
     anchor_pos = np.concatenate([pa, pb], axis=1)
     return Samples(layout, x[keep], bias[keep], np.full(int(keep.sum()), index, dtype=np.int64), pair[keep],
@@ -161,7 +162,7 @@ def build_samples(flights: list[Flight], layout: int | None = None, xi: float = 
         raise InputError("all flights of one data set must have the same measurement kind")
     if layout is None:
         layouts = {default_layout(f) for f in flights}
-        layout = min(layouts) if len(layouts) == 1 else (LAYOUT_TWR_POS if KIND_TWR in kinds else LAYOUT_TDOA_POS)
+        layout = min(layouts) if len(layouts) == 1 else kind_of(kinds.pop()).layouts[1]   # its position-only one
     return Samples.concat([flight_samples(f, layout, xi) for f in flights])  # concat numbers the flights
 
 

@@ -240,11 +240,11 @@ class BiasModel:
     def network(self, kind: str) -> BiasNetwork | None:
         if kind not in _KINDS:
             raise ValueError(f"kind must be 'twr' or 'tdoa', got {kind!r}")
-        return self.twr if kind == "twr" else self.tdoa
+        return getattr(self, kind)
 
     def replace(self, kind: str, net: BiasNetwork | None) -> "BiasModel":
-        return BiasModel(twr=net if kind == "twr" else self.twr, tdoa=net if kind == "tdoa" else self.tdoa,
-                         name=self.name, meta=dict(self.meta))
+        nets = {k: net if k == kind else getattr(self, k) for k in _KINDS}
+        return BiasModel(twr=nets["twr"], tdoa=nets["tdoa"], name=self.name, meta=dict(self.meta))
 
     # ------------------------------------------------------------------------------------------ files
     def save(self, path: Path) -> Path:

@@ -12,7 +12,8 @@ import numpy as np
 from harness.biasnet.dataset import XI_DEFAULT, flight_samples
 from harness.biasnet.network import BiasModel
 from harness.errors import InputError
-from harness.flight.data import KIND_TWR, Flight
+from harness.flight.data import Flight
+from harness.kinds import kind_of
 
 
 def _rotate_world_to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -26,7 +27,7 @@ def _rotate_world_to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def azimuth_series(model: BiasModel, flight: Flight) -> dict[str, np.ndarray | str]:
     """For the most measured anchor (pair): azimuth [deg], measured error and predicted bias [m]."""
-    kind = "twr" if flight.uwb.kind == KIND_TWR else "tdoa"
+    kind = kind_of(flight.uwb.kind).key
     net = model.network(kind)
     if net is None:
         raise InputError(f"the model has no {kind} network")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from harness.config import MODE_UWB_ONLY, STAGE_BIAS_NN, EstimatorConfig
 from harness.errors import InputError
+from harness import kinds
 from harness.flight.data import KIND_TDOA, KIND_TWR, Flight
 from harness.paths import MODELS_DIR, REPO_ROOT
 from harness.twin.features import LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POSE
@@ -43,7 +44,7 @@ RECORDED_MODELS: dict[str, ShippedModel] = {
 
 
 def kind_name(kind: int) -> str:
-    return {KIND_TWR: "twr", KIND_TDOA: "tdoa"}[kind]
+    return kinds.kind_of(kind).key
 
 
 def takes_attitude(layout: int) -> bool:
@@ -72,7 +73,7 @@ def check_network_inputs(flight: Flight, cfg: EstimatorConfig, layouts: tuple[in
     if not cfg.stages & STAGE_BIAS_NN or cfg.mode != MODE_UWB_ONLY:
         return
     kind = flight.uwb.kind
-    layout = layouts[0] if kind == KIND_TWR else layouts[1]
+    layout = dict(zip(("twr", "tdoa"), layouts)).get(kinds.kind_of(kind).network or "", 0)
     if not takes_attitude(layout):
         return
     why = "has no IMU" if not flight.has_imu else "is replayed with --uwb-only"

@@ -124,5 +124,4 @@ def with_std_head(model: "BiasModel", kind: str, samples: Samples,
     meta[f"{kind}_std_head"] = {"fitted_on": list(samples.names), "std_min": cfg.std_min, "std_max": cfg.std_max,
                                 "constant": cfg.constant, "inflate": cfg.inflate,
                                 "calibration": calibration(fitted, samples)}
-    return BiasModel(twr=fitted if kind == "twr" else model.twr, tdoa=fitted if kind == "tdoa" else model.tdoa,
-                     name=model.name, meta=meta)
+    return replace(model.replace(kind, fitted), meta=meta)

@@ -6,7 +6,7 @@ baselines on held-out flights, fit a std head."""
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -20,7 +20,8 @@ from harness.biasnet.train import TrainConfig, TrainReport, train_network
 from harness.biasnet.recipes import SimRecipe, load_recordings
 from harness.biasnet.uncertainty import StdHeadConfig, calibration, with_std_head
 from harness.errors import InputError, InputFileNotFound
-from harness.flight.data import KIND_TWR, Flight
+from harness import kinds
+from harness.flight.data import Flight
 from harness.flight.formats.cf_usd_flight import UsdOptions
 from harness.paths import SHARED_DATA
 from harness.biasnet.registry import position_only_hint
@@ -91,7 +92,7 @@ def compare(model: BiasModel, test: list[Flight], train: list[Flight], xi: float
     """The network and the two baselines (fitted on ``train``) on the measurements of ``test``, each with
     the floor and its share of the ceiling (ceiling.py, moving average over +-half_window_s), literal and
     unbiased."""
-    kind = "twr" if test[0].uwb.kind == KIND_TWR else "tdoa"
+    kind = kinds.kind_of(test[0].uwb.kind).key
     net = model.network(kind)
     if net is None:
         raise InputError(f"the model has no {kind} network")
@@ -126,10 +127,10 @@ LAYOUTS = {("twr", "pose"): LAYOUT_TWR_POSE, ("twr", "pos"): LAYOUT_TWR_POS,
 
 def kind_of(flights: list[Flight], what: str) -> str:
     """"twr" or "tdoa": the one measurement kind of `flights` (ValueError naming `what` if they mix)."""
-    kinds = {f.uwb.kind for f in flights}
-    if len(kinds) != 1:
+    codes = {f.uwb.kind for f in flights}
+    if len(codes) != 1:
         raise InputError(f"all {what} must have the same measurement kind")
-    return "twr" if kinds.pop() == KIND_TWR else "tdoa"
+    return kinds.kind_of(codes.pop()).key
 
 
 def flights_for(recordings: list[Path] | None, anchors: Path | None, check: bool, recipe: SimRecipe,
@@ -168,8 +169,7 @@ def train_into_model(flights: list[Flight], kind: str, sources: list[str], layou
     meta[f"{kind}_trained_on"] = sources
     meta[f"{kind}_training"] = report_dict(report) | {"layout": samples.layout, "optimizer": cfg.optimizer,
                                                        "seed": cfg.seed, "xi": xi} | extra
-    model = BiasModel(twr=net if kind == "twr" else base.twr, tdoa=net if kind == "tdoa" else base.tdoa,
-                      name=name or base.name, meta=meta)
+    model = replace(base.replace(kind, net), name=name or base.name, meta=meta)
     return model, report, samples
 
 

@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 
 from harness.errors import InputError
-from harness.flight.data import KIND_TDOA, Flight
+from harness.flight.data import Flight
+from harness.kinds import kind_of
 from harness.stream.results_file import COLUMNS, column_dtype, read_run
 
 STATUS_OK = "ok"
@@ -161,7 +162,7 @@ def geometric_values(flight: Flight) -> np.ndarray:
     pos = flight.anchors.positions[order]
     a = pos[np.searchsorted(ids[order], u.anchor_a.astype(np.int64))]
     da = np.linalg.norm(p - a, axis=1)
-    if u.kind == KIND_TDOA:
+    if kind_of(u.kind).n_anchors == 2:
         b = pos[np.searchsorted(ids[order], u.anchor_b.astype(np.int64))]
         return np.linalg.norm(p - b, axis=1) - da
     return da

@@ -12,6 +12,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from harness.errors import InputError
+from harness.kinds import kind_of
 from protocol.messages import MeasKind
 
 KIND_TWR = int(MeasKind.TWR)     # protocol enum meas_kind, as plain ints
@@ -97,7 +98,7 @@ class ImuStream:
 class UwbStream:
     """TWR: anchor_a = anchor, anchor_b = -1, value = range. TDoA: value = d(tag, B) - d(tag, A)."""
 
-    kind: int           # KIND_TWR or KIND_TDOA
+    kind: int           # protocol enum meas_kind: a row of harness/kinds.py (KIND_TWR, KIND_TDOA, ...)
     t_us: np.ndarray    # (M,) int64, non-decreasing
     anchor_a: np.ndarray  # (M,) int
     anchor_b: np.ndarray  # (M,) int (-1 for TWR)
@@ -213,9 +214,7 @@ class Flight:
         if m and np.any(np.diff(u.t_us) < 0):
             raise FlightError(f"{self.name}: UWB timestamps go backwards")
         known = set(int(i) for i in self.anchors.ids)
-        used = set(int(i) for i in np.unique(u.anchor_a))
-        if u.kind == KIND_TDOA:
-            used |= set(int(i) for i in np.unique(u.anchor_b))
+        used = set(int(i) for ids in kind_of(u.kind).anchor_ids(u) for i in np.unique(ids))
         missing = used - known
         if missing:
             raise FlightError(f"{self.name}: measurements name unknown anchors {sorted(missing)}")

@@ -21,7 +21,8 @@ from typing import Sequence
 import numpy as np
 
 from harness.errors import InputError
-from harness.flight.data import KIND_TDOA, Flight
+from harness.flight.data import Flight
+from harness.kinds import kind_of
 from harness.flight.formats.common import quat_to_rotmat
 
 #: flight phase: truth above this height [m] (below, the tag sits in the floor's NLOS)
@@ -58,7 +59,7 @@ def _rows(flight: Flight, flight_above: float, xi: float) -> tuple[np.ndarray, n
     pos = flight.anchors.as_dict()
     a = np.array([pos[int(i)] for i in u.anchor_a[keep]])
     da = (p - a) / np.linalg.norm(p - a, axis=1, keepdims=True)
-    if u.kind == KIND_TDOA:
+    if kind_of(u.kind).n_anchors == 2:
         b = np.array([pos[int(i)] for i in u.anchor_b[keep]])
         grad = (p - b) / np.linalg.norm(p - b, axis=1, keepdims=True) - da
     else:

@@ -28,7 +28,8 @@ from harness.flight.formats.common import RecordingError, bounded_lines, quote
 from harness.flight.formats.rcv_twr import (RANGE_COLUMNS, FROM_DATA_README, GT_COLUMNS, is_rcv_twr_dir,
                                             load_rcv_twr)
 from harness.flight.formats.util import constellation_from_name, load_util_csv, util_layout
-from harness.flight.data import KIND_TWR, Anchors, Flight, FlightError
+from harness.flight.data import Anchors, Flight, FlightError
+from harness.kinds import kind_of
 from harness.flight.native import is_native, load_flight, save_flight
 from harness.flight.plausibility import ImplausibleRecording, check_recording
 
@@ -207,12 +208,13 @@ def error_summary(flight: Flight, core_m: float = 1.0) -> dict[str, object]:
     if u.true_value is None:
         raise InputError(f"{flight.name}: no true_value, no error statistics")
     e = u.value - u.true_value
-    keys = u.anchor_a if u.kind == KIND_TWR else u.anchor_a * 1000 + u.anchor_b
+    kind = kind_of(u.kind)
+    keys = kind.link_keys(u.anchor_a, u.anchor_b)
     groups = []
     for k in np.unique(keys):
         m = keys == k
         c = e[m][np.abs(e[m]) < core_m]
-        name = str(int(k)) if u.kind == KIND_TWR else f"{int(k) // 1000}-{int(k) % 1000}"
+        name = str(int(k)) if kind.n_anchors == 1 else f"{int(k) // 1000}-{int(k) % 1000}"
         groups.append({"group": name, "n": int(m.sum()), "median": float(np.median(c)) if c.size else float("nan"),
                        "std": float(c.std()) if c.size else float("nan"),
                        "gross": int(np.count_nonzero(np.abs(e[m]) >= core_m))})
@@ -249,8 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     except (RecordingError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    kind = "TWR" if flight.uwb.kind == KIND_TWR else "TDoA"
-    print(f"{flight.name}: {len(flight.uwb)} {kind} measurements over {flight.duration_s:.1f} s "
+    kind = kind_of(flight.uwb.kind)
+    print(f"{flight.name}: {len(flight.uwb)} {kind.label} measurements over {flight.duration_s:.1f} s "
           f"({len(flight.uwb) / max(flight.duration_s, 1e-9):.0f} Hz), {len(flight.truth.t_us)} truth samples, "
           f"IMU {len(flight.imu) if flight.imu is not None else 0}; dropped {flight.meta.get('dropped', {})}")
     from harness.flight.plausibility import figures
@@ -261,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
           .format(**fig, off_line_mm=1000 * fig["anchor_off_line_m"], gross=100 * fig.get("gross_share", float("nan"))))
     s = error_summary(flight)
     print(f"error (|e| < 1 m): median {s['median']:+.3f} m, std {s['std']:.3f} m, rms {s['rms']:.3f} m; "
-          f"gross {s['gross']}; per-{'anchor' if kind == 'TWR' else 'pair'} medians {s['group_median_min']:+.3f}"
+          f"gross {s['gross']}; per-{kind.link} medians {s['group_median_min']:+.3f}"
           f"..{s['group_median_max']:+.3f} m (spread {s['group_median_spread']:.3f}), within std "
           f"{s['within_group_std_median']:.3f} m")
     for g in s["groups"]:  # type: ignore[attr-defined]

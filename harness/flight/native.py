@@ -26,7 +26,8 @@ import numpy as np
 
 from harness.errors import InputFileNotFound
 from harness.flight.formats.common import RecordingError
-from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
+from harness.flight.data import Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
+from harness.kinds import KINDS
 
 FORMAT_NAME = "uwb-hil-flight"
 FORMAT_VERSION = 1
@@ -101,6 +102,14 @@ def is_native(path: Path) -> bool:
         return False
 
 
+def _known_kind(kind: object, path: Path) -> int:
+    """The header's uwb_kind: a kind of harness/kinds.py."""
+    if not isinstance(kind, int) or kind not in KINDS:
+        known = " or ".join(f"{k.code} ({k.label})" for k in KINDS.values())
+        raise RecordingError(f"uwb_kind must be {known}, got {kind!r}", path=path, field="uwb_kind")
+    return kind
+
+
 def load_flight(path: Path | str) -> Flight:
     """Read a native recording; every malformation is a RecordingError naming the file and the member."""
     path = Path(path)
@@ -124,10 +133,7 @@ def load_flight(path: Path | str) -> Flight:
     if version != FORMAT_VERSION:
         raise RecordingError(f"unsupported format version {version!r} (this harness reads version "
                              f"{FORMAT_VERSION})", path=path, field="version")
-    kind = header.get("uwb_kind")
-    if kind not in (KIND_TWR, KIND_TDOA):
-        raise RecordingError(f"uwb_kind must be {KIND_TWR} (TWR) or {KIND_TDOA} (TDoA), got {kind!r}", path=path,
-                             field="uwb_kind")
+    kind = _known_kind(header.get("uwb_kind"), path)
     if not isinstance(header.get("meta", {}), dict):
         raise RecordingError("meta must be a JSON object", path=path, field="meta")
     unknown = sorted(set(data) - set(_MEMBERS) - {HEADER_KEY})

@@ -18,6 +18,7 @@ import numpy as np
 
 from harness.flight.formats.common import RecordingError
 from harness.flight.data import KIND_TWR, Flight
+from harness.kinds import kind_of
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,7 @@ def _measurement_findings(flight: Flight, lim: Limits) -> list[str]:
         return []
     med = float(np.median(np.abs(u.value)))
     if med > lim.max_measurement_m:
-        what = "range" if u.kind == KIND_TWR else "TDoA"
+        what = kind_of(u.kind).value_name
         return [f"median |{what}| is {med:.1f} m (more than {lim.max_measurement_m:g} m): "
                 f"{_looks_mm(med, lim.max_measurement_m)}"]
     if u.true_value is None or len(u) < lim.min_samples:

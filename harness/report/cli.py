@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.errors import UsageError
+from harness.kinds import KIND_KEYS
 from harness.report import jsonsafe
 
 
@@ -38,7 +39,7 @@ def _print_headline(summary: dict[str, Any]) -> None:
     def f(x: Any) -> str:
         return "-" if x is None else f"{x:.3f}"
 
-    for mode in ("twr", "tdoa"):
+    for mode in KIND_KEYS:
         m = summary.get(mode)
         if m:
             red = m.get("reduction_pct")
@@ -46,7 +47,7 @@ def _print_headline(summary: dict[str, Any]) -> None:
                   f"outlier+nn {f(m.get('rmse_outlier_nn'))}; NN vs outlier: "
                   f"{'-' if red is None else f'{-red:+.1f} %'} (paper {-m['paper']['reduction_pct']:+.1f} %)")
     for mode, m in (summary.get("recorded") or {}).items():
-        if mode in ("twr", "tdoa"):
+        if mode in KIND_KEYS:
             red = m.get("reduction_pct")
             print(f"recorded {mode.upper():5s}: none {f(m.get('rmse_raw'))}, outlier {f(m.get('rmse_outlier'))}, "
                   f"outlier+nn {f(m.get('rmse_outlier_nn'))}; NN vs outlier: "

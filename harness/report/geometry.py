@@ -26,7 +26,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from harness.flight.data import KIND_TDOA, Flight
+from harness.flight.data import Flight
+from harness.kinds import kind_of
 
 EPOCH_S = 0.5
 WINDOW_S = 1.0
@@ -69,7 +70,7 @@ def _epoch_links(flight: Flight, epoch_s: float, window_s: float) -> tuple[np.nd
         epochs = np.array([int(t[-1])], dtype=np.int64)
     lo = np.searchsorted(t, epochs - int(window_s * 1e6), side="left")
     hi = np.searchsorted(t, epochs, side="right")
-    b_all = u.anchor_b if u.kind == KIND_TDOA else u.anchor_a
+    b_all = kind_of(u.kind).anchor_ids(u)[-1]   # B, or A again for a one-anchor kind
     links = [set(zip(u.anchor_a[lo[k]:hi[k]].tolist(), b_all[lo[k]:hi[k]].tolist())) for k in range(len(epochs))]
     return epochs, links
 
@@ -82,7 +83,7 @@ def dop_series(flight: Flight, epoch_s: float = EPOCH_S, window_s: float = WINDO
     truth = flight.truth.position_at(epochs) if len(epochs) else np.zeros((0, 3))
     hdop = np.full(len(epochs), np.inf)
     vdop = np.full(len(epochs), np.inf)
-    tdoa = flight.uwb.kind == KIND_TDOA
+    pair = kind_of(flight.uwb.kind).n_anchors == 2
     for k in range(len(epochs)):
         if len(links[k]) < 3:
             continue
@@ -90,7 +91,7 @@ def dop_series(flight: Flight, epoch_s: float = EPOCH_S, window_s: float = WINDO
         rows = []
         for ia, ib in links[k]:
             ua = _unit(p - pos[index[int(ia)]])
-            rows.append(_unit(p - pos[index[int(ib)]]) - ua if tdoa else ua)
+            rows.append(_unit(p - pos[index[int(ib)]]) - ua if pair else ua)
         if flight.height is not None and len(flight.height):
             rows.append(np.array([0.0, 0.0, 1.0]))   # planar mode: the HEIGHT pseudo-measurement
         G = np.array(rows)

@@ -10,7 +10,8 @@ import numpy as np
 from harness.flight.data import Flight
 from harness.stream.results_file import OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_RESULT
 from harness.stream.streamer import RunResult
-from protocol.messages import CostUnit, ErrorCode, MeasKind, ResultFlag, Stage, Status
+from harness.kinds import KINDS
+from protocol.messages import CostUnit, ErrorCode, ResultFlag, Stage, Status
 
 DEFAULT_BUDGET_S = 5e-3  # one UWB slot at 200 Hz, the paper's rate
 
@@ -124,7 +125,9 @@ def health_summary(run: RunResult) -> dict[str, object]:
     var = np.stack([res[f"var_{k}"] for k in ("x", "y", "z", "vx", "vy", "vz", "d0", "d1", "d2")], axis=1)
     est = np.stack([res[k] for k in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")], axis=1)
     finite = np.all(np.isfinite(est), axis=1) & np.all(np.isfinite(var), axis=1)
-    r_var = np.where(res["kind"] == MeasKind.TWR, run.config.std_twr ** 2, run.config.std_tdoa ** 2)
+    r_var = np.zeros(len(res))
+    for kind in KINDS.values():
+        r_var[res["kind"] == kind.code] = kind.std(run.config) ** 2
     if run.config.stages & Stage.NN_STD:   # R is the network's std, unknown here; S > 0 is still required
         r_var = np.zeros(len(res))
     # geometry and baseline rejections are answered before the model: they carry S = 0

@@ -11,7 +11,8 @@ from matplotlib.figure import Figure
 
 from harness.report.data import CampaignData, RunMetrics
 from harness.stream.results_file import OUTCOME_RESULT
-from protocol.messages import MeasKind, Status
+from harness.kinds import KINDS, kind_named
+from protocol.messages import Status
 
 COLORS = {"none": "#8c8c8c", "outlier": "#ff7f0e", "outlier+nn": "#1f77b4", "outlier+nn+std": "#2ca02c"}
 LABELS = {"none": "no rejection", "outlier": "outlier rejection", "outlier+nn": "outlier rejection + NN",
@@ -197,21 +198,21 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
         pad = 0.25 * (hi - lo + 1e-3)
         ax.set_ylim(lo - pad, hi + pad)
         ax2.set_ylim(lo - pad, hi + pad)
-    ax.set_title(f"{mode.upper()} measurement stream: {nn.flight_id} ({nn.config}), every anchor"
-                 f"{' pair' if mode == 'tdoa' else ''}; y-axis clipped to the 0.5-99.5 % range", fontsize=9)
+    kind = kind_named(mode)
+    ax.set_title(f"{kind.label} measurement stream: {nn.flight_id} ({nn.config}), every {kind.link}"
+                 f"; y-axis clipped to the 0.5-99.5 % range", fontsize=9)
     ax.set_ylabel("[m]")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, markerscale=3, loc="upper right")
     # One anchor (pair): the one with the largest mean error, where a bias the network should follow shows.
-    key = flight.anchor_a[idx] * 1000 + (flight.anchor_b[idx] if mode == "tdoa" else 0)
+    key = kind.link_keys(flight.anchor_a[idx], flight.anchor_b[idx])
     keys, inv = np.unique(key[ok], return_inverse=True)
     if keys.size:
         mean_err = np.array([np.nanmean(err[ok][inv == k]) for k in range(keys.size)])
         k = int(np.nanargmax(np.abs(mean_err)))
         sel = np.zeros_like(ok)
         sel[np.nonzero(ok)[0][inv == k]] = True
-        a, b = int(keys[k] // 1000), int(keys[k] % 1000)
-        name = f"anchors {a}->{b}" if mode == "tdoa" else f"anchor {a}"
+        name = f"anchors {int(keys[k]) // 1000}->{int(keys[k]) % 1000}" if kind.n_anchors > 1 else f"anchor {keys[k]}"
         ax2.scatter(t[sel], err[sel], s=4, color="#b0b0b0", label=f"measurement error, {name}", rasterized=True)
         e_s = err[sel]
         win = max(1, min(51, e_s.size // 20))
@@ -229,8 +230,7 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
 
 def latency_histograms(data: CampaignData, budget_us: float) -> Figure | None:
     """Device compute time and end-to-end latency per message type, log-spaced bins, 5 ms budget marked."""
-    kinds = [(MeasKind.TWR, "TWR"), (MeasKind.TDOA, "TDoA")]
-    present = [(k, n) for k, n in kinds if any(r.kind == k for r in data.measurement_runs)]
+    present = [(k.code, k.label) for k in KINDS.values() if any(r.kind == k.code for r in data.measurement_runs)]
     if not present:
         return None
     fig = Figure(figsize=(11, 3.4 * len(present)), layout="constrained")

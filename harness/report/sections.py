@@ -9,6 +9,7 @@ import math
 import platform
 from typing import Any
 
+from harness.kinds import KIND_KEYS
 from harness.report import plots
 from harness.report.context import ReportContext, SectionFn
 from harness.report.data import TIME_BIN_S
@@ -36,7 +37,7 @@ def headline(ctx: ReportContext) -> Section | None:
     s = ctx.summary
     sec = Section("summary", "Accuracy: the paper's table")
     rows = []
-    for mode in ("twr", "tdoa"):
+    for mode in KIND_KEYS:
         m = s.get(mode)
         if not m:
             continue
@@ -47,7 +48,7 @@ def headline(ctx: ReportContext) -> Section | None:
     if not rows:
         sec.paragraphs.append("Note: no simulated run completed; nothing to tabulate.")
         return sec
-    seeds = sorted({x for mode in ("twr", "tdoa") for x in (s.get(mode) or {}).get("seeds", [])})
+    seeds = sorted({x for mode in KIND_KEYS for x in (s.get(mode) or {}).get("seeds", [])})
     sec.paragraphs.append(
         "Position RMSE [m] of simulated flights, mean ± std over flights (seeds x trajectories), through the "
         f"firmware over the serial link. Seeds {seeds[0] if seeds else '-'}..{seeds[-1] if seeds else '-'} are "
@@ -58,15 +59,15 @@ def headline(ctx: ReportContext) -> Section | None:
                              "change (means)", "change (per flight)", "paper (+NN, change)"], rows,
                             "Simulated campaign"))
     traj_rows = []
-    for mode in ("twr", "tdoa"):
+    for mode in KIND_KEYS:
         for traj, m in ((s.get(mode) or {}).get("by_trajectory") or {}).items():
             traj_rows.append([f"{mode.upper()} {traj}", _ms(m, "raw"), _ms(m, "outlier"), _ms(m, "outlier_nn"),
                               _pct(-m["reduction_pct"])])
     if traj_rows:
         sec.tables.append(Table(["flight set", "no rejection", "outlier rejection", "outlier rejection + NN",
                                  "change (means)"], traj_rows, "Per trajectory"))
-    _other_configs_table(sec, {mode: s[mode] for mode in ("twr", "tdoa") if mode in s}, "simulated")
-    sec.data = {mode: s[mode] for mode in ("twr", "tdoa") if mode in s}
+    _other_configs_table(sec, {mode: s[mode] for mode in KIND_KEYS if mode in s}, "simulated")
+    sec.data = {mode: s[mode] for mode in KIND_KEYS if mode in s}
     return sec
 
 
@@ -103,7 +104,7 @@ def paths(ctx: ReportContext) -> Section | None:
 
 def measurement_streams(ctx: ReportContext) -> Section | None:
     figs: list[FigureRef] = []
-    for mode in ("twr", "tdoa"):
+    for mode in KIND_KEYS:
         figs += ctx.figure(plots.measurement_stream(ctx.data, mode), f"stream_{mode}",
                            f"{mode.upper()}: measurement error, the bias the firmware's network subtracted "
                            "(RESULT.bias) and the measurements each gate rejected (paper Fig. 4).")
@@ -126,7 +127,7 @@ def recorded(ctx: ReportContext) -> Section | None:
                              + (f"; {m['diverged_' + k]} diverged" if m.get("diverged_" + k) else "")
                              for k in ("raw", "outlier", "outlier_nn")],
              _pct(-m["reduction_pct"]), _pct(-m["reduction_paired_pct"])]
-            for mode, m in rec.items() if mode in ("twr", "tdoa")]
+            for mode, m in rec.items() if mode in KIND_KEYS]
     sec.tables.append(Table(["mode", "no rejection", "outlier rejection", "outlier rejection + NN",
                              "change (means)", "change (per flight)"], rows, "Over recorded flights"))
     frows = [[f["flight_id"], _f(f.get("rmse_raw")), _f(f.get("rmse_outlier")), _f(f.get("rmse_outlier_nn")),
@@ -141,7 +142,7 @@ def recorded(ctx: ReportContext) -> Section | None:
     phases = phase_table(rec.get("flights", []))
     if phases is not None:
         sec.tables.append(phases)
-    _other_configs_table(sec, {m: v for m, v in rec.items() if m in ("twr", "tdoa")}, "recorded")
+    _other_configs_table(sec, {m: v for m, v in rec.items() if m in KIND_KEYS}, "recorded")
     sec.figures += ctx.figure(plots.recorded_bars(ctx.data), "recorded_rmse", "RMSE per recorded flight.")
     sec.data = rec
     return sec
@@ -159,7 +160,7 @@ def latency(ctx: ReportContext) -> Section | None:
         f"Deadline misses count samples above the {budget / 1e3:.0f} ms budget (one UWB slot at 200 Hz). "
         "Jitter is the p99 of |x - median|. Lost: measurements without a RESULT or ERROR.")
     rows = []
-    for name in ("twr", "tdoa"):
+    for name in KIND_KEYS:
         k = lat.get(name)
         if not k:
             continue
@@ -171,7 +172,7 @@ def latency(ctx: ReportContext) -> Section | None:
                              "deadline misses"], rows, "Per message type"))
     counters = lat.get("device_counters", {})
     loss_rows = [[name.upper(), str(lat[name]["measurements"]), str(lat[name]["results"]), str(lat[name]["lost"]),
-                  str(lat[name]["refused"])] for name in ("twr", "tdoa") if name in lat]
+                  str(lat[name]["refused"])] for name in KIND_KEYS if name in lat]
     sec.tables.append(Table(["message type", "measurements sent", "RESULTs", "lost", "refused"], loss_rows,
                             "Frames"))
     sec.paragraphs.append("Device counters summed over runs: " + ", ".join(f"{k} {v}" for k, v in counters.items())

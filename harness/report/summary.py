@@ -15,7 +15,8 @@ from harness.report.data import CampaignData, RunMetrics
 from harness.report.metrics import DEFAULT_BUDGET_S, latency_summary
 from harness.report.radio_level import radio_level_summary
 from harness.report.recorded_phases import phase_figures
-from protocol.messages import CostUnit, MeasKind
+from harness.kinds import KINDS
+from protocol.messages import CostUnit
 
 #: Configuration -> JSON key suffix (rmse_raw, rmse_outlier, rmse_outlier_nn).
 CONFIG_KEYS = {"none": "raw", "outlier": "outlier", "outlier+nn": "outlier_nn"}
@@ -23,7 +24,6 @@ CONFIG_KEYS = {"none": "raw", "outlier": "outlier", "outlier+nn": "outlier_nn"}
 #: versus outlier rejection alone.
 PAPER = {"twr": {"rmse_outlier_nn": 0.19, "reduction_pct": 18.5},
          "tdoa": {"rmse_outlier_nn": 0.21, "reduction_pct": 48.0}}
-KIND_NAMES = {int(MeasKind.TWR): "twr", int(MeasKind.TDOA): "tdoa"}
 #: A run whose RMSE exceeds this left the arena (the filter diverged); counted apart, never hidden.
 DIVERGED_RMSE_M = 10.0
 
@@ -113,7 +113,7 @@ def latency_section(data: CampaignData, budget_s: float = DEFAULT_BUDGET_S) -> d
     """Per message type: device compute and end-to-end (host send -> RESULT received) percentiles, jitter,
     deadline misses against the budget; lost and refused measurements; device-side counters."""
     out: dict[str, Any] = {"budget_us": budget_s * 1e6}
-    for kind, name in KIND_NAMES.items():
+    for kind, name in ((k.code, k.key) for k in KINDS.values()):
         runs = [r for r in data.measurement_runs if r.kind == kind]
         if not runs:
             continue

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.errors import InputError
-from harness.flight.data import KIND_TWR, Flight, Source, merge_order
+from harness.flight.data import Flight, Source, merge_order
+from harness.kinds import kind_of
 from protocol.batch import encode_rows
 from protocol import messages as m
 
@@ -71,12 +72,9 @@ def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = F
 
     if radio:
         uwb_rows = _radio_rows(flight, seqs[uwb_rows_of])
-    elif u.kind == KIND_TWR:
-        uwb_rows = encode_rows(m.Twr, {"t_us": u.t_us, "anchor_id": u.anchor_a, "range": u.value},
-                               seqs[uwb_rows_of])
     else:
-        uwb_rows = encode_rows(m.Tdoa, {"t_us": u.t_us, "anchor_a": u.anchor_a, "anchor_b": u.anchor_b,
-                                        "diff": u.value}, seqs[uwb_rows_of])
+        kind = kind_of(u.kind)
+        uwb_rows = encode_rows(kind.message, kind.wire_columns(u), seqs[uwb_rows_of])
     parts = [(uwb_rows_of, uwb_rows)]
     if imu is not None:
         parts.append((imu_rows_of, encode_rows(m.Imu, {

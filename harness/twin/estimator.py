@@ -16,7 +16,8 @@ from harness.config import (MODE_IMU_THRUST, MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE
                             STAGE_NN_MONITOR, STAGE_NN_STD, STAGE_ROBUST_UPDATE, EstimatorConfig)
 from harness.errors import InputError
 from harness.flight.data import Source
-from harness.twin import gates, measurements, supervisor
+from harness.kinds import MeasInput, MeasurementKind, kind_of
+from harness.twin import gates, supervisor
 from harness.twin.anchor_table import AnchorTable
 from harness.twin.bias_states import BiasStates
 from harness.twin.ekf import POS, ErrorStateEkf
@@ -205,17 +206,23 @@ class TwinEstimator:
             self.predictions += 1
             self._supervise()
 
-    def on_twr(self, t_us: int, anchor: int, rng: float) -> TwinResult:
-        """One two-way range to ``anchor``. Per-anchor state (gates, monitor, bias states) is kept by slot."""
-        k = self._slot(anchor, t_us)
+    def on_meas(self, kind: int, t_us: int, ids: tuple[int, ...], z: float) -> TwinResult:
+        """One measurement of any kind (harness/kinds.py) naming anchors ``ids`` (A, or A and B), as
+        estimator_on_meas(). Per-anchor state (gates, monitor, bias states) is kept by slot."""
+        row = kind_of(kind)
+        ids = tuple(int(i) for i in ids[:row.n_anchors]) * (2 if row.n_anchors == 1 else 1)
+        slots = (self._slot(ids[0], t_us), self._slot(ids[1], t_us))
         self._check_uwb_time(int(t_us))
-        return self._process(int(t_us), (k, k), self.anchors[int(anchor)], None, float(rng))
+        b = self.anchors[ids[1]] if row.n_anchors > 1 else None
+        return self._process(row, int(t_us), slots, self.anchors[ids[0]], b, float(z))
+
+    def on_twr(self, t_us: int, anchor: int, rng: float) -> TwinResult:
+        """One two-way range to ``anchor``."""
+        return self.on_meas(int(MeasKind.TWR), t_us, (anchor,), rng)
 
     def on_tdoa(self, t_us: int, a: int, b: int, diff: float) -> TwinResult:
         """One TDoA ``diff = d(tag, B) - d(tag, A)``."""
-        ka, kb = self._slot(a, t_us), self._slot(b, t_us)
-        self._check_uwb_time(int(t_us))
-        return self._process(int(t_us), (ka, kb), self.anchors[int(a)], self.anchors[int(b)], float(diff))
+        return self.on_meas(int(MeasKind.TDOA), t_us, (a, b), diff)
 
     def state(self) -> TwinState:
         """The current estimate."""
@@ -301,39 +308,34 @@ class TwinEstimator:
             std = fade * std + (1.0 - fade) * cfg_std
         return fade * float(bias), float(std)
 
-    def _process(self, t_us: int, ids: tuple[int, int], anchor_a: np.ndarray, anchor_b: np.ndarray | None,
-                 z: float) -> TwinResult:
+    def _process(self, kind: MeasurementKind, t_us: int, ids: tuple[int, int], anchor_a: np.ndarray,
+                 anchor_b: np.ndarray | None, z: float) -> TwinResult:
         c, ekf = self.config, self.ekf
-        tdoa = anchor_b is not None
         t_ref = ekf.t_us  # IMU mode: last prediction; UWB-only: state time before this prediction
         self._predict_cv_to(t_us)  # its supervisor check still sees the previous measurement's time (gap)
         self.t_uwb_us = t_us
         ekf = self.ekf
         on_floor = c.mode == MODE_IMU_THRUST and not self.takeoff.airborne   # the gates do not re-open there
         dt = self.kin.window(t_us, ids, t_ref, c.gate_dt_min, widen=not on_floor)
-        d_max = gates.kinematic_dmax(ekf.x[3:6], dt, c.a_max_tdoa if tdoa else c.a_max_twr)
+        d_max = gates.kinematic_dmax(ekf.x[3:6], dt, kind.a_max(c))
 
-        model = (measurements.tdoa(ekf.x[POS], anchor_a, anchor_b) if anchor_b is not None
-                 else measurements.twr(ekf.x[POS], anchor_a))
-        if model is None:
-            return self._result(REJECTED_GEOMETRY, 0.0, 0.0, 0.0, d_max, np.zeros(3), 0.0)
-        if anchor_b is not None and not measurements.within_baseline(anchor_a, anchor_b, z):
-            self.baseline_rejects += 1
-            return self._result(REJECTED_BASELINE, 0.0, 0.0, 0.0, d_max, np.zeros(3), 0.0)
-        h, H3 = model
+        status, h, H3 = kind.model(MeasInput(ekf.x[POS], ekf.R, anchor_a, anchor_b, z, c))
+        if status != ACCEPTED:
+            self.baseline_rejects += status == REJECTED_BASELINE
+            return self._result(status, 0.0, 0.0, 0.0, d_max, np.zeros(3), 0.0)
 
-        net = getattr(self.model, "tdoa" if tdoa else "twr", None) if self.model is not None else None
+        net = kind.net(self.model)
         if c.stages & STAGE_NN_MONITOR and not self.nnmon.enabled(*ids):
             net = None  # the monitor switched this pair's correction off
-        bias, std_nn = self._bias(net, anchor_a, anchor_b, c.std_tdoa if tdoa else c.std_twr)
+        bias, std_nn = self._bias(net, anchor_a, anchor_b, kind.std(c))
         # BIAS_STATES: the slowly varying rest, from the innovations of earlier measurements
         b_st, var_st = self.bstates.predict(t_us, *ids) if c.stages & STAGE_BIAS_STATES else (0.0, 0.0)
         y = (z - bias - b_st) - h
 
         # NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std
-        std = std_nn if (c.stages & STAGE_NN_STD and std_nn > 0.0) else (c.std_tdoa if tdoa else c.std_twr)
+        std = std_nn if (c.stages & STAGE_NN_STD and std_nn > 0.0) else kind.std(c)
         upd = ekf.prepare(H3, y, std * std + var_st)
-        status = self._gate_status(y, d_max, upd.S, tdoa)
+        status = self._gate_status(kind, y, d_max, upd.S)
         # the monitor compares what the filter sees with and without the correction, whatever the gates said
         if c.stages & STAGE_NN_MONITOR and bias != 0.0 and self.nnmon.observe(ids[0], ids[1], y, bias, upd.S):
             self.flags |= FLAG_NN_PAIR_OFF
@@ -353,13 +355,13 @@ class TwinEstimator:
             self._supervise()
         return self._result(status, y, upd.S, bias + b_st, d_max, gain, upd.mahalanobis)
 
-    def _gate_status(self, y: float, d_max: float, S: float, tdoa: bool) -> int:
+    def _gate_status(self, kind: MeasurementKind, y: float, d_max: float, S: float) -> int:
         """The gates' verdict on innovation y (variance S): kinematic first, then chi-square, open for a link
         whose anchors had been rejected for long (estimator.c gate_status)."""
         c = self.config
-        if c.stages & STAGE_KINEMATIC_GATE and not gates.kinematic_pass(y, d_max, 2.0 if tdoa else 1.0):
+        if c.stages & STAGE_KINEMATIC_GATE and not gates.kinematic_pass(y, d_max, kind.gate_factor):
             return REJECTED_KINEMATIC
-        if (c.stages & STAGE_CHI2_GATE and not gates.chi2_pass(y, S, c.chi2_tdoa if tdoa else c.chi2_twr)
+        if (c.stages & STAGE_CHI2_GATE and not gates.chi2_pass(y, S, kind.chi2(c))
                 and not self._chi2_reopened()):
             return REJECTED_CHI2
         return ACCEPTED
@@ -381,6 +383,7 @@ def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None =
     """Feed ``flight.events()`` through a fresh twin; one TwinResult per UWB measurement."""
     twin = TwinEstimator(config, flight.anchors.as_dict(), model)
     u = flight.uwb
+    ids = np.stack([u.anchor_a, u.anchor_b], axis=1)
     imu = flight.imu
     hgt = flight.height
     out: list[TwinResult] = []
@@ -391,8 +394,6 @@ def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None =
         elif source == Source.HEIGHT:
             assert hgt is not None
             twin.on_height(t_us, float(hgt.z[i]), float(hgt.std))
-        elif u.kind == MeasKind.TWR:
-            out.append(twin.on_twr(t_us, int(u.anchor_a[i]), float(u.value[i])))
         else:
-            out.append(twin.on_tdoa(t_us, int(u.anchor_a[i]), int(u.anchor_b[i]), float(u.value[i])))
+            out.append(twin.on_meas(u.kind, t_us, tuple(ids[i]), float(u.value[i])))
     return out

@@ -170,7 +170,7 @@ def test_only_harness_paths_knows_the_repository_root() -> None:
 # ------------------------------------------------------------------------- the folder table of the docs
 ARCHITECTURE = ROOT / "docs" / "ARCHITECTURE.md"
 #: the modules that make up the `base` row (beside them, harness/ holds single-module rows like robustness.py)
-BASE = {"harness.config", "harness.errors", "harness.optional", "harness.options", "harness.paths",
+BASE = {"harness.config", "harness.errors", "harness.kinds", "harness.optional", "harness.options", "harness.paths",
         "harness.flight.data"}
 
 

@@ -10,7 +10,8 @@ import pytest
 from harness.config import (MODE_IMU, MODE_UWB_ONLY, STAGE_BIAS_NN, STAGE_CHI2_GATE, STAGE_KINEMATIC_GATE,
                             EstimatorConfig, ConfigError)
 from harness.flight.data import KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
-from harness.twin import gates, measurements
+from harness import kinds as measurements
+from harness.twin import gates
 from harness.twin.ekf import GRAVITY, INIT_STD_ATT, INIT_STD_VEL, P_MAX, P_MIN, ErrorStateEkf, quat_to_rpy, sym_clamp
 from harness.twin.estimator import (ACCEPTED, ERR_BAD_ANCHOR_ID, ERR_TIME_BACKWARDS, ERR_UNKNOWN_ANCHOR,
                                     REJECTED_CHI2, REJECTED_GEOMETRY, REJECTED_KINEMATIC, TwinError, TwinEstimator,

@@ -49,7 +49,7 @@ TWIN_OF = {
     "LPS_MAX_REMOTE": ("lps_packets", "MAX_REMOTE"),
     "LPS_SEQ_MASK": ("lps_packets", "SEQ_MASK"),
     "LPS_MAX_COORD": ("lps_packets", "MAX_COORD"),
-    "MM_MIN_DISTANCE": ("measurements", "MIN_DISTANCE"),
+    "MM_MIN_DISTANCE": ("harness.kinds", "MIN_DISTANCE"),
     "NN_MON_ANCHORS": ("nn_monitor", "ANCHORS"),
     "NN_MON_ALPHA": ("nn_monitor", "ALPHA"),
     "NN_MON_MIN_SAMPLES": ("nn_monitor", "MIN_SAMPLES"),
@@ -102,7 +102,7 @@ def test_twin_restates_the_core_constant(c_name: str) -> None:
     defines = core_defines()
     assert c_name in defines, f"{c_name} is no longer defined in firmware_sim/core: update TWIN_OF"
     module, attr = TWIN_OF[c_name]
-    twin = getattr(importlib.import_module(f"harness.twin.{module}"), attr)
+    twin = getattr(importlib.import_module(module if "." in module else f"harness.twin.{module}"), attr)
     c_value = _value(defines[c_name])
     # float constants are float32 in C ('f' suffix): equal to within its rounding
     assert twin == pytest.approx(c_value, rel=1e-7, abs=0.0), \
