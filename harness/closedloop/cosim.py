@@ -164,6 +164,36 @@ class ClosedLoop:
                 f_sum = [0.0] * 6
         return chunks
 
+    def _control_period(self, k: int, t_us: int, plan: MissionPlan, craft: tuple[Vehicle, Sensors],
+                        command: tuple[float, tuple[float, float, float]],
+                        seen: tuple[dict[str, int], list[m.Error]], wall0: float) -> tuple[m.Control | None, bool]:
+        """Control period k ending at t_us: the period's sensor frames and the k-th setpoint sent (at its wall
+        time when pacing in real time), the device's CONTROL for it read back (None: refused), and whether it
+        came later than the period's end. The statuses and ERRORs read on the way are added to `seen`."""
+        lp = self.loop
+        veh, sens = craft
+        statuses, errors = seen
+        if k == 0:
+            acc, gyr = sens.imu(veh.specific_force, veh.gyro)
+            chunks = [self.channel.frame(_imu(0, acc, gyr))[0]]
+        else:
+            chunks = self._advance(veh, sens, t_us, command[0], command[1])
+        frame, seq = self.channel.frame(_setpoint(plan, k, t_us))
+        chunks.append(frame)
+        if lp.pacing == "realtime":
+            due = wall0 + (t_us * 1e-6) / lp.speed
+            wait = due - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+        self.channel.write(b"".join(chunks))
+        ctl = self._await_control(seq, statuses, errors)
+        late = lp.pacing == "realtime" and time.perf_counter() > wall0 + (t_us * 1e-6 + lp.control_dt) / lp.speed
+        if k == 0:
+            refused = [e for e in errors if e.msg_type in (m.Config.MSG_ID, m.Anchor.MSG_ID)]
+            if refused:
+                raise DeviceError(f"device refused the flight setup: {refused[0]}")
+        return ctl, late
+
     # ------------------------------------------------------------------------------------ flight
     def fly(self, plan: MissionPlan, est_cfg: EstimatorConfig, sensors_cfg: SensorConfig, sim: SimConfig,
             arena: Arena, vehicle: VehicleParams = VehicleParams(), seed: int = 1,
@@ -190,26 +220,9 @@ class ClosedLoop:
         last = n
         for k in range(n):
             t_us = k * ctrl_us
-            if k == 0:
-                acc, gyr = sens.imu(veh.specific_force, veh.gyro)
-                chunks = [self.channel.frame(_imu(0, acc, gyr))[0]]
-            else:
-                chunks = self._advance(veh, sens, t_us, thrust, rates)
-            frame, seq = self.channel.frame(_setpoint(plan, k, t_us))
-            chunks.append(frame)
-            if lp.pacing == "realtime":
-                due = wall0 + (t_us * 1e-6) / lp.speed
-                wait = due - time.perf_counter()
-                if wait > 0:
-                    time.sleep(wait)
-            self.channel.write(b"".join(chunks))
-            ctl = self._await_control(seq, statuses, errors)
-            if lp.pacing == "realtime" and time.perf_counter() > wall0 + (t_us * 1e-6 + lp.control_dt) / lp.speed:
-                late += 1
-            if k == 0:
-                refused = [e for e in errors if e.msg_type in (m.Config.MSG_ID, m.Anchor.MSG_ID)]
-                if refused:
-                    raise DeviceError(f"device refused the flight setup: {refused[0]}")
+            ctl, was_late = self._control_period(k, t_us, plan, (veh, sens), (thrust, rates), (statuses, errors),
+                                                 wall0)
+            late += was_late
             s = veh.state
             _record(log, k, plan, s, ctl)
             if ctl is None:
