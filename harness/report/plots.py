@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from harness.report.data import CampaignData, RunMetrics
@@ -160,6 +161,30 @@ def paths_3d(data: CampaignData, max_points: int = 3000) -> Figure | None:
     return fig
 
 
+_REJECTIONS = ((Status.REJECTED_KINEMATIC, "rejected: kinematic gate", "#ff7f0e"),
+               (Status.REJECTED_CHI2, "rejected: chi-square gate", "#d62728"),
+               (Status.REJECTED_GEOMETRY, "rejected: geometry", "#9467bd"),
+               (Status.REJECTED_BASELINE, "rejected: beyond the anchors' distance", "#8c564b"))
+
+
+def _scatter_rejections(ax: Axes, t: np.ndarray, err: np.ndarray, ok: np.ndarray, status: np.ndarray) -> None:
+    """The measurements each gate rejected, one colour per gate, their count in the legend."""
+    for code, name, color in _REJECTIONS:
+        sel = ok & (status == code)
+        if np.any(sel):
+            ax.scatter(t[sel], err[sel], s=9, marker="x", color=color, label=f"{name} ({int(sel.sum())})")
+
+
+def _clip_ylim(axes: tuple[Axes, ...], err: np.ndarray) -> None:
+    """Every axis's y range: the 0.5-99.5 % range of the finite errors, padded by a quarter."""
+    finite = err[np.isfinite(err)]
+    if finite.size:
+        lo, hi = np.percentile(finite, [0.5, 99.5])
+        pad = 0.25 * (hi - lo + 1e-3)
+        for ax in axes:
+            ax.set_ylim(lo - pad, hi + pad)
+
+
 def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
     """Paper Fig. 4: one flight's measurement errors, the network's predicted bias (RESULT.bias of the
     outlier+nn run) and the measurements each gate rejected, coloured by gate."""
@@ -184,19 +209,8 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
     if has_nn:
         ax.scatter(t[ok], c["bias"][ok], s=2, color=COLORS["outlier+nn"], label="predicted bias (NN)",
                    rasterized=True)
-    for status, name, color in ((Status.REJECTED_KINEMATIC, "rejected: kinematic gate", "#ff7f0e"),
-                                (Status.REJECTED_CHI2, "rejected: chi-square gate", "#d62728"),
-                                (Status.REJECTED_GEOMETRY, "rejected: geometry", "#9467bd"),
-                                (Status.REJECTED_BASELINE, "rejected: beyond the anchors' distance", "#8c564b")):
-        sel = ok & (c["status"] == status)
-        if np.any(sel):
-            ax.scatter(t[sel], err[sel], s=9, marker="x", color=color, label=f"{name} ({int(sel.sum())})")
-    finite = err[np.isfinite(err)]
-    if finite.size:
-        lo, hi = np.percentile(finite, [0.5, 99.5])
-        pad = 0.25 * (hi - lo + 1e-3)
-        ax.set_ylim(lo - pad, hi + pad)
-        ax2.set_ylim(lo - pad, hi + pad)
+    _scatter_rejections(ax, t, err, ok, c["status"])
+    _clip_ylim((ax, ax2), err)
     ax.set_title(f"{mode.upper()} measurement stream: {nn.flight_id} ({nn.config}), every anchor"
                  f"{' pair' if mode == 'tdoa' else ''}; y-axis clipped to the 0.5-99.5 % range", fontsize=9)
     ax.set_ylabel("[m]")
