@@ -62,9 +62,18 @@ static void calibrate(void)
     clock_overhead = t1 - t0;
 }
 
-static const bias_nn_t *net_of_kind(const bias_model_t *model, uint8_t kind)
+/* The network of the kind byte that follows a command (0 TWR, 1 TDoA); NULL, with '?' replied, if absent. */
+static const bias_nn_t *read_net(const bias_model_t *model)
 {
-    return kind == 0u ? model->twr : model->tdoa;
+    uint8_t kind;
+    const bias_nn_t *net;
+    read_exact(&kind, 1);
+    net = kind == 0u ? model->twr : model->tdoa;
+    if (net == (const bias_nn_t *)0) {
+        const uint8_t q = '?';
+        usart_write(&q, 1);
+    }
+    return net;
 }
 
 /* 'I': the input counts and feature layouts of both networks (0 where a network is absent). */
@@ -83,16 +92,11 @@ static void reply_info(const bias_model_t *model)
 static void reply_predict(const bias_model_t *model)
 {
     static const predict_fn kernels[3] = {__real_bias_nn_predict, nn_m4_predict_c, nn_m4_predict};
-    uint8_t kind;
-    const bias_nn_t *net;
+    const bias_nn_t *net = read_net(model);
     float x[BIAS_NN_MAX_IN];
     uint8_t out[1 + 3 * 4 + 3 * 4];
     unsigned k;
-    read_exact(&kind, 1);
-    net = net_of_kind(model, kind);
     if (net == (const bias_nn_t *)0) {
-        out[0] = '?';
-        usart_write(out, 1);
         return;
     }
     read_exact((uint8_t *)x, 4u * net->n_in);
@@ -110,13 +114,9 @@ static void reply_predict(const bias_model_t *model)
 /* 'W' kind: the network's compiled-in tables, in the order the header comment lists. */
 static void reply_weights(const bias_model_t *model)
 {
-    uint8_t kind, head[2];
-    const bias_nn_t *net;
-    read_exact(&kind, 1);
-    net = net_of_kind(model, kind);
+    uint8_t head[2];
+    const bias_nn_t *net = read_net(model);
     if (net == (const bias_nn_t *)0) {
-        head[0] = '?';
-        usart_write(head, 1);
         return;
     }
     head[0] = 'w';
