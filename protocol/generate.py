@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from protocol.gen_config import gen_c_config_header, gen_c_config_msg, gen_c_config_source, gen_python_config
-from protocol.spec import CRC_SIZE, HEADER_SIZE, SCALARS, MessageSpec, ProtocolSpec, load_spec
+from protocol.spec import CRC_SIZE, HEADER_SIZE, SCALARS, FieldSpec, MessageSpec, ProtocolSpec, load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Generated files, relative to the repository root.
@@ -232,23 +233,23 @@ def _c_pack_unpack(spec: ProtocolSpec) -> list[str]:
     """One unpack_* and pack_* per message with fields."""
     o: list[str] = []
     for m in spec.messages:
-        if not m.fields:
-            continue
-        o.append(f"static void unpack_{m.c_name}(const uint8_t *p, uwb_{m.c_name}_t *m)")
-        o.append("{")
-        off = 0
-        for f in m.fields:
-            o += _c_get(f, off)
-            off += f.size
-        o += ["}", ""]
-        o.append(f"static void pack_{m.c_name}(const uwb_{m.c_name}_t *m, uint8_t *p)")
-        o.append("{")
-        off = 0
-        for f in m.fields:
-            o += _c_put(f, off)
-            off += f.size
-        o += ["}", ""]
+        if m.fields:
+            o += _c_field_function(f"static void unpack_{m.c_name}(const uint8_t *p, uwb_{m.c_name}_t *m)",
+                                    m.fields, _c_get)
+            o += _c_field_function(f"static void pack_{m.c_name}(const uwb_{m.c_name}_t *m, uint8_t *p)",
+                                   m.fields, _c_put)
     return o
+
+
+def _c_field_function(signature: str, fields: Sequence[FieldSpec],
+                      statements: Callable[[FieldSpec, int], list[str]]) -> list[str]:
+    """A C function whose body is `statements(field, offset)` for each field at its offset in the payload."""
+    o = [signature, "{"]
+    off = 0
+    for f in fields:
+        o += statements(f, off)
+        off += f.size
+    return o + ["}", ""]
 
 
 def _c_codec(spec: ProtocolSpec) -> list[str]:
