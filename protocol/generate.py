@@ -241,6 +241,11 @@ def _c_pack_unpack(spec: ProtocolSpec) -> list[str]:
     return o
 
 
+def _c_cases(spec: ProtocolSpec, case: str) -> list[str]:
+    """`case` (a format with {name} and {c}, the message's C name) for each message with fields."""
+    return [case.format(name=m.name, c=m.c_name) for m in spec.messages if m.fields]
+
+
 def _c_field_function(signature: str, fields: Sequence[FieldSpec],
                       statements: Callable[[FieldSpec, int], list[str]]) -> list[str]:
     """A C function whose body is `statements(field, offset)` for each field at its offset in the payload."""
@@ -277,9 +282,7 @@ def _c_codec(spec: ProtocolSpec) -> list[str]:
           "    }",
           "    p = body + UWB_HEADER_SIZE;",
           "    switch (out->type) {"]
-    for m in spec.messages:
-        if m.fields:
-            o.append(f"    case UWB_MSG_{m.name}: unpack_{m.c_name}(p, &out->u.{m.c_name}); break;")
+    o += _c_cases(spec, "    case UWB_MSG_{name}: unpack_{c}(p, &out->u.{c}); break;")
     o += ["    default: break;", "    }", "    return UWB_DECODE_OK;", "}", "",
           "size_t uwb_body_encode(const uwb_msg_t *msg, uint8_t *body)",
           "{",
@@ -291,9 +294,7 @@ def _c_codec(spec: ProtocolSpec) -> list[str]:
           "    body[0] = msg->type;",
           "    put_u16(body + 1, msg->seq);",
           "    switch (msg->type) {"]
-    for m in spec.messages:
-        if m.fields:
-            o.append(f"    case UWB_MSG_{m.name}: pack_{m.c_name}(&msg->u.{m.c_name}, body + UWB_HEADER_SIZE); break;")
+    o += _c_cases(spec, "    case UWB_MSG_{name}: pack_{c}(&msg->u.{c}, body + UWB_HEADER_SIZE); break;")
     o += ["    default: break;", "    }",
           "    n = UWB_HEADER_SIZE + (size_t)len;",
           "    put_u32(body + n, uwb_crc32c(body, n));",
