@@ -21,9 +21,12 @@ static double expected_bias(const float dp[3])
     return out < -1.0 ? -1.0 : (out > 1.0 ? 1.0 : out);
 }
 
-/* The network above as the TWR network of `model`, the estimator configured at p0 with only the bias stage
- * (no gates: the bias must not be hidden by a rejection), in the box of anchors. */
-static void setup_network(bias_nn_t *net, bias_model_t *model, estimator_config_t *cfg, const float p0[3])
+static bias_nn_t net;       /* the network above, the TWR network of `model` */
+static bias_model_t model;
+
+/* `net` and `model` set up, the estimator configured at p0 with only the bias stage (no gates: the bias must
+ * not be hidden by a rejection), in the box of anchors. */
+static void setup_network(estimator_config_t *cfg, const float p0[3])
 {
     int i;
     for (i = 0; i < BIAS_NN_MAX_IN * BIAS_NN_HIDDEN; i++) {
@@ -35,24 +38,24 @@ static void setup_network(bias_nn_t *net, bias_model_t *model, estimator_config_
     for (i = 0; i < BIAS_NN_HIDDEN; i++) {
         w3[i] = 0.02f;
     }
-    memset(net, 0, sizeof *net);
-    net->layout = BIAS_LAYOUT_TWR_POS;
-    net->n_in = 3;
-    net->w1 = ones;
-    net->b1 = zeros;
-    net->w2 = w2;
-    net->b2 = zeros;
-    net->w3 = w3;
-    net->b3 = -1.0f;
-    net->in_min = in_min;
-    net->in_max = in_max;
-    net->out_min = -1.0f;
-    net->out_max = 1.0f;
-    model->twr = net;
-    model->tdoa = NULL;
-    model->hash = 0;
+    memset(&net, 0, sizeof net);
+    net.layout = BIAS_LAYOUT_TWR_POS;
+    net.n_in = 3;
+    net.w1 = ones;
+    net.b1 = zeros;
+    net.w2 = w2;
+    net.b2 = zeros;
+    net.w3 = w3;
+    net.b3 = -1.0f;
+    net.in_min = in_min;
+    net.in_max = in_max;
+    net.out_min = -1.0f;
+    net.out_max = 1.0f;
+    model.twr = &net;
+    model.tdoa = NULL;
+    model.hash = 0;
 
-    estimator_init(&est, model);
+    estimator_init(&est, &model);
     estimator_default_config(cfg);
     cfg->init_x = p0[0];
     cfg->init_y = p0[1];
@@ -73,13 +76,11 @@ static void offset_to_anchor7(const float p[3], float dp[3])
 
 static void test_bias_network_wiring(void)
 {
-    bias_nn_t net;
-    bias_model_t model;
     estimator_config_t cfg;
     estimator_result_t r;
     const float p0[3] = {0.5f, -0.5f, 1.0f};
     float dp[3], h;
-    setup_network(&net, &model, &cfg, p0);
+    setup_network(&cfg, p0);
     offset_to_anchor7(p0, dp); /* from the estimate */
     h = range_to(&est, 7, p0);
     CHECK(estimator_on_twr(&est, 1000, 7, h, &r) == EST_OK);
@@ -91,13 +92,11 @@ static void test_bias_network_wiring(void)
 /* std head: S = H P H^T + std^2 with the network's std instead of std_twr, bounded by its limits */
 static void test_bias_network_std_head(void)
 {
-    bias_nn_t net;
-    bias_model_t model;
     estimator_config_t cfg;
     estimator_result_t r, r_head;
     const float p0[3] = {0.5f, -0.5f, 1.0f};
     float h, s_plain;
-    setup_network(&net, &model, &cfg, p0);
+    setup_network(&cfg, p0);
     h = range_to(&est, 7, p0);
     CHECK(estimator_on_twr(&est, 1000, 7, h, &r) == EST_OK);
     s_plain = r.innovation_var;
@@ -139,15 +138,13 @@ static void test_bias_network_std_head(void)
 /* out of the training range: the correction fades to 0 over 10 % of the range width */
 static void test_bias_network_out_of_range_fade(void)
 {
-    bias_nn_t net;
-    bias_model_t model;
     estimator_config_t cfg;
     estimator_result_t r, r_out;
     const float p0[3] = {0.5f, -0.5f, 1.0f};
     static const float narrow_min[3] = {-10.0f, -10.0f, -10.0f};
     float narrow_max[3], dp[3], h, in_bias;
     int i;
-    setup_network(&net, &model, &cfg, p0);
+    setup_network(&cfg, p0);
     offset_to_anchor7(p0, dp);
     h = range_to(&est, 7, p0);
     CHECK(estimator_on_twr(&est, 1000, 7, h, &r) == EST_OK);
@@ -181,13 +178,11 @@ static void test_bias_network_out_of_range_fade(void)
 /* The height floor (nn_min_z), the stage switch, TDoA without a network and an unknown layout. */
 static void test_bias_network_floor_and_stages(void)
 {
-    bias_nn_t net;
-    bias_model_t model;
     estimator_config_t cfg;
     estimator_result_t r;
     const float p0[3] = {0.5f, -0.5f, 1.0f};
     float dp[3], h;
-    setup_network(&net, &model, &cfg, p0);
+    setup_network(&cfg, p0);
     h = range_to(&est, 7, p0);
     /* at 0.4 m with the power-up nn_min_z (-1): corrected; with the floor at 0.5 m: no correction */
     cfg.init_z = 0.4f;
