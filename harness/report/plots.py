@@ -30,6 +30,14 @@ def _sim(data: CampaignData) -> list[RunMetrics]:
     return [r for r in data.accuracy_runs if r.source == "sim"]
 
 
+def _sim_grid(data: CampaignData) -> tuple[list[RunMetrics], list[str], list[str]] | None:
+    """The simulated runs with the modes and the trajectories they cover (a figure's rows and columns); None
+    without a simulated run."""
+    sim = _sim(data)
+    modes = [m for m in MODES if any(r.mode == m for r in sim)]
+    return (sim, modes, sorted({r.trajectory for r in sim})) if modes else None
+
+
 def _configs(runs: list[RunMetrics]) -> list[str]:
     return [c for c in COLORS if any(r.config == c for r in runs)]
 
@@ -73,11 +81,10 @@ def rmse_boxes(data: CampaignData) -> Figure | None:
 
 def error_over_time(data: CampaignData) -> Figure | None:
     """Paper Fig. 7: estimation error over time, mean over seeds with a +-1 std band."""
-    sim = _sim(data)
-    modes = [m for m in MODES if any(r.mode == m for r in sim)]
-    if not modes:
+    grid = _sim_grid(data)
+    if grid is None:
         return None
-    trajs = sorted({r.trajectory for r in sim})
+    sim, modes, trajs = grid
     fig = Figure(figsize=(5.5 * len(trajs), 3.2 * len(modes)), layout="constrained")
     axes = fig.subplots(len(modes), len(trajs), squeeze=False)
     for i, mode in enumerate(modes):
@@ -126,11 +133,10 @@ def _first_seed_run(runs: list[RunMetrics], mode: str, traj: str, cfg: str) -> R
 
 def paths_3d(data: CampaignData, max_points: int = 3000) -> Figure | None:
     """Paper Fig. 8 (top): estimated vs true 3-D paths of one flight per mode and trajectory."""
-    sim = _sim(data)
-    modes = [m for m in MODES if any(r.mode == m for r in sim)]
-    if not modes:
+    grid = _sim_grid(data)
+    if grid is None:
         return None
-    trajs = sorted({r.trajectory for r in sim})
+    sim, modes, trajs = grid
     fig = Figure(figsize=(5.0 * len(trajs), 4.6 * len(modes)), layout="constrained")
     for i, mode in enumerate(modes):
         for j, traj in enumerate(trajs):
