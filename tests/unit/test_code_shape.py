@@ -1,8 +1,8 @@
 """Code shape: no source file over 400 lines and no function over 60, in the product and its tests.
 
-Covered: every Python file under harness/, protocol/, tests/ and firmware_sim/ (functions measured with ast:
-`end_lineno - lineno + 1`, the `def` line through the last line of the body, decorators not counted), and
-every C source and header under firmware_sim/ (functions measured by a brace-depth scan of the text with
+Covered: every Python file under harness/, protocol/, tests/, firmware_sim/ and scripts/ (functions measured
+with ast: `end_lineno - lineno + 1`, the `def` line through the last line of the body, decorators not counted),
+and every C source and header under firmware_sim/ (functions measured by a brace-depth scan of the text with
 comments, string and character literals and preprocessor lines blanked out: from the line that names the
 function through its closing brace). Build output (any `build/` folder) and caches are not read.
 
@@ -25,7 +25,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 MAX_FILE_LINES = 400
 MAX_FUNCTION_LINES = 60
-PY_ROOTS = ("harness", "protocol", "tests", "firmware_sim")
+PY_ROOTS = ("harness", "protocol", "tests", "firmware_sim", "scripts")
 C_ROOTS = ("firmware_sim",)
 SKIP_DIRS = frozenset({"build", ".venv", "__pycache__", ".pytest_cache"})
 
