@@ -259,7 +259,8 @@ def test_c_scan_refuses_unbalanced_braces() -> None:
 
 
 def test_python_scan_names_methods_and_nested_functions() -> None:
-    source = "class A:\n    def m(self):\n        def inner():\n            pass\n        return 1\n\n\ndef g():\n    pass\n"
+    source = ("class A:\n    def m(self):\n        def inner():\n            pass\n        return 1\n\n\n"
+              "def g():\n    pass\n")
     found = [(f.name, f.length) for f in python_functions(source)]
     assert found == [("A.m", 4), ("A.m.inner", 2), ("g", 2)]
 
