@@ -98,6 +98,15 @@ class FlightLog:
         return int(self.t.shape[0])
 
 
+@dataclass
+class _Craft:
+    """One flight's physics and sensors, and what the device answered besides CONTROL."""
+    vehicle: Vehicle
+    sensors: Sensors
+    statuses: dict[str, int] = field(default_factory=dict)
+    errors: list[m.Error] = field(default_factory=list)
+
+
 class ClosedLoop:
     """Flies missions through one started device (HELLO already checked): the physics, the pacing and the
     flight log; the frames go through the device's DeviceChannel."""
@@ -164,15 +173,15 @@ class ClosedLoop:
                 f_sum = [0.0] * 6
         return chunks
 
-    def _control_period(self, k: int, t_us: int, plan: MissionPlan, craft: tuple[Vehicle, Sensors],
+    def _control_period(self, craft: _Craft, plan: MissionPlan, k: int, t_us: int,
                         command: tuple[float, tuple[float, float, float]],
-                        seen: tuple[dict[str, int], list[m.Error]], wall0: float) -> tuple[m.Control | None, bool]:
-        """Control period k ending at t_us: the period's sensor frames and the k-th setpoint sent (at its wall
-        time when pacing in real time), the device's CONTROL for it read back (None: refused), and whether it
-        came later than the period's end. The statuses and ERRORs read on the way are added to `seen`."""
+                        wall0: float) -> tuple[m.Control | None, bool]:
+        """Control period k ending at t_us under the last `command` (thrust, rates): the period's sensor frames
+        and the k-th setpoint sent (at its wall time when pacing in real time), the device's CONTROL for it read
+        back (None: refused), and whether it came later than the period's end. The statuses and ERRORs read on
+        the way are added to `craft`."""
         lp = self.loop
-        veh, sens = craft
-        statuses, errors = seen
+        veh, sens, errors = craft.vehicle, craft.sensors, craft.errors
         if k == 0:
             acc, gyr = sens.imu(veh.specific_force, veh.gyro)
             chunks = [self.channel.frame(_imu(0, acc, gyr))[0]]
@@ -186,7 +195,7 @@ class ClosedLoop:
             if wait > 0:
                 time.sleep(wait)
         self.channel.write(b"".join(chunks))
-        ctl = self._await_control(seq, statuses, errors)
+        ctl = self._await_control(seq, craft.statuses, errors)
         late = lp.pacing == "realtime" and time.perf_counter() > wall0 + (t_us * 1e-6 + lp.control_dt) / lp.speed
         if k == 0:
             refused = [e for e in errors if e.msg_type in (m.Config.MSG_ID, m.Anchor.MSG_ID)]
@@ -207,8 +216,8 @@ class ClosedLoop:
             raise UsageError("the closed loop needs the IMU estimator mode (the controller uses the attitude)")
         n = len(plan.t)
         log = _empty_log(n)
-        statuses: dict[str, int] = {}
-        errors: list[m.Error] = []
+        craft = _Craft(veh, sens)
+        errors = craft.errors
         ctrl_us = int(round(lp.control_dt * 1e6))
         lo, hi = np.asarray(arena.lo) - lp.abort_margin_m, np.asarray(arena.hi) + lp.abort_margin_m
         thrust, rates = 0.0, (0.0, 0.0, 0.0)
@@ -220,8 +229,7 @@ class ClosedLoop:
         last = n
         for k in range(n):
             t_us = k * ctrl_us
-            ctl, was_late = self._control_period(k, t_us, plan, (veh, sens), (thrust, rates), (statuses, errors),
-                                                 wall0)
+            ctl, was_late = self._control_period(craft, plan, k, t_us, (thrust, rates), wall0)
             late += was_late
             s = veh.state
             _record(log, k, plan, s, ctl)
@@ -241,7 +249,7 @@ class ClosedLoop:
         wall = time.perf_counter() - wall0
         if last < n:
             log = _truncate(log, last)
-        log.statuses = statuses
+        log.statuses = craft.statuses
         log.nlos_events = sens.nlos_events
         log.errors = [f"code {e.code} type {e.msg_type:#04x} seq {e.msg_seq} detail {e.detail}" for e in errors]
         log.aborted, log.abort_t = aborted, abort_t
