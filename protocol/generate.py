@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from protocol.gen_config import gen_c_config_header, gen_c_config_msg, gen_c_config_source, gen_python_config
 from protocol.gen_kinds import gen_c_meas_header, gen_c_meas_source, gen_c_mm_table
-from protocol.spec import CRC_SIZE, HEADER_SIZE, SCALARS, MessageSpec, ProtocolSpec, load_spec
+from protocol.spec import CRC_SIZE, HEADER_SIZE, SCALARS, FieldSpec, MessageSpec, ProtocolSpec, load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Generated files, relative to the repository root.
@@ -237,23 +238,28 @@ def _c_pack_unpack(spec: ProtocolSpec) -> list[str]:
     """One unpack_* and pack_* per message with fields."""
     o: list[str] = []
     for m in spec.messages:
-        if not m.fields:
-            continue
-        o.append(f"static void unpack_{m.c_name}(const uint8_t *p, uwb_{m.c_name}_t *m)")
-        o.append("{")
-        off = 0
-        for f in m.fields:
-            o += _c_get(f, off)
-            off += f.size
-        o += ["}", ""]
-        o.append(f"static void pack_{m.c_name}(const uwb_{m.c_name}_t *m, uint8_t *p)")
-        o.append("{")
-        off = 0
-        for f in m.fields:
-            o += _c_put(f, off)
-            off += f.size
-        o += ["}", ""]
+        if m.fields:
+            o += _c_field_function(f"static void unpack_{m.c_name}(const uint8_t *p, uwb_{m.c_name}_t *m)",
+                                    m.fields, _c_get)
+            o += _c_field_function(f"static void pack_{m.c_name}(const uwb_{m.c_name}_t *m, uint8_t *p)",
+                                   m.fields, _c_put)
     return o
+
+
+def _c_cases(spec: ProtocolSpec, case: str) -> list[str]:
+    """`case` (a format with {name} and {c}, the message's C name) for each message with fields."""
+    return [case.format(name=m.name, c=m.c_name) for m in spec.messages if m.fields]
+
+
+def _c_field_function(signature: str, fields: Sequence[FieldSpec],
+                      statements: Callable[[FieldSpec, int], list[str]]) -> list[str]:
+    """A C function whose body is `statements(field, offset)` for each field at its offset in the payload."""
+    o = [signature, "{"]
+    off = 0
+    for f in fields:
+        o += statements(f, off)
+        off += f.size
+    return o + ["}", ""]
 
 
 def _c_codec(spec: ProtocolSpec) -> list[str]:
@@ -281,9 +287,7 @@ def _c_codec(spec: ProtocolSpec) -> list[str]:
           "    }",
           "    p = body + UWB_HEADER_SIZE;",
           "    switch (out->type) {"]
-    for m in spec.messages:
-        if m.fields:
-            o.append(f"    case UWB_MSG_{m.name}: unpack_{m.c_name}(p, &out->u.{m.c_name}); break;")
+    o += _c_cases(spec, "    case UWB_MSG_{name}: unpack_{c}(p, &out->u.{c}); break;")
     o += ["    default: break;", "    }", "    return UWB_DECODE_OK;", "}", "",
           "size_t uwb_body_encode(const uwb_msg_t *msg, uint8_t *body)",
           "{",
@@ -295,9 +299,7 @@ def _c_codec(spec: ProtocolSpec) -> list[str]:
           "    body[0] = msg->type;",
           "    put_u16(body + 1, msg->seq);",
           "    switch (msg->type) {"]
-    for m in spec.messages:
-        if m.fields:
-            o.append(f"    case UWB_MSG_{m.name}: pack_{m.c_name}(&msg->u.{m.c_name}, body + UWB_HEADER_SIZE); break;")
+    o += _c_cases(spec, "    case UWB_MSG_{name}: pack_{c}(&msg->u.{c}, body + UWB_HEADER_SIZE); break;")
     o += ["    default: break;", "    }",
           "    n = UWB_HEADER_SIZE + (size_t)len;",
           "    put_u32(body + n, uwb_crc32c(body, n));",

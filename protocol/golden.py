@@ -44,6 +44,11 @@ def _radio(t_us: int, rx_ts: int, src: int, payload: bytes) -> Any:
 
 def _vectors() -> list[tuple[str, int, Any]]:
     """Representative messages: every type, zero bytes (COBS), extremes, negative and special floats."""
+    return _setup_and_sensor_vectors() + _reply_vectors() + _radio_and_control_vectors()
+
+
+def _setup_and_sensor_vectors() -> list[tuple[str, int, Any]]:
+    """Host to device: HELLO, CONFIG, ANCHOR and the measurements."""
     return [
         ("hello", 0, m.Hello(nonce=0xDEADBEEF)),
         ("hello_zero", 1, m.Hello(nonce=0)),
@@ -65,6 +70,12 @@ def _vectors() -> list[tuple[str, int, Any]]:
         ("tdoa_inf", 11, m.Tdoa(t_us=7778, anchor_a=0, anchor_b=1, diff=float("inf"))),
         ("stats_req", 12, m.StatsReq()),
         ("height", 17, m.Height(t_us=5000, z=1.375, std=0.05)),
+    ]
+
+
+def _reply_vectors() -> list[tuple[str, int, Any]]:
+    """Device to host: HELLO_REPLY, RESULT, STATS, ERROR."""
+    return [
         ("hello_reply", 0, m.HelloReply(nonce=0xDEADBEEF, proto_version=1, fw_major=0, fw_minor=1, fw_patch=0,
                                         cost_unit=0, layout_twr=1, layout_tdoa=2,
                                         model_hash=0x0123456789ABCDEF, build_id=b"abc1234\x00",
@@ -90,6 +101,12 @@ def _vectors() -> list[tuple[str, int, Any]]:
                              radio_no_position=2, divergences=2, heights=30, bad_values=1, nn_pairs_disabled=3,
                              baseline_rejects=6)),
         ("error", 4, m.Error(code=4, msg_type=5, msg_seq=8, detail=12)),
+    ]
+
+
+def _radio_and_control_vectors() -> list[tuple[str, int, Any]]:
+    """The radio level (RADIO, CLOCK_REQ, RADIO_DROP, CLOCK) and the closed loop (SETPOINT, CONTROL)."""
+    return [
         ("radio_tdoa2_lpp", 17, _radio(20_000, 0xFF_FFFF_FFFF, 0xBCCF000000000003, _TDOA2_LPP)),
         ("radio_tdoa3", 18, _radio(2**63, 0x12_3456_789A, 0xBCCF000000000005, _TDOA3)),
         ("radio_empty", 19, _radio(0, 0, 0, b"")),

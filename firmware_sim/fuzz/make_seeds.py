@@ -18,19 +18,14 @@ import struct
 import sys
 from pathlib import Path
 
-_POLY = 0x82F63B78
-_TABLE = []
-for _i in range(256):
-    _c = _i
-    for _ in range(8):
-        _c = (_c >> 1) ^ _POLY if _c & 1 else _c >> 1
-    _TABLE.append(_c)
-
-
 def crc32c(data: bytes) -> int:
+    """CRC-32C (Castagnoli, reflected) bit by bit: the seeds are few and short, and the script stays standard
+    library only (protocol/framing.py, which the harness uses, needs crcmod)."""
     crc = 0xFFFFFFFF
     for b in data:
-        crc = _TABLE[(crc ^ b) & 0xFF] ^ (crc >> 8)
+        crc ^= b
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0x82F63B78 if crc & 1 else crc >> 1
     return crc ^ 0xFFFFFFFF
 
 

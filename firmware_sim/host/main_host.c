@@ -99,31 +99,63 @@ static void usage(const char *argv0)
             argv0);
 }
 
-int main(int argc, char **argv)
-{
-    static firmware_t fw; /* static: the estimator state is large for a stack */
-    static out_buf_t out;
-    const char *tty = NULL;
-    long baud = 0;
-    int use_stdio = 0;
-    int in_fd, i;
-    struct sigaction sa;
-    uint8_t buf[4096];
+typedef struct {
+    const char *tty; /* --tty PATH, or NULL with --stdio */
+    long baud;       /* --baud N, 0: leave the tty's speed */
+    int use_stdio;
+} host_args_t;
 
+/* 0 when the command line is one of the two usages, else 2 (usage printed). */
+static int parse_args(int argc, char **argv, host_args_t *a)
+{
+    int i;
+    memset(a, 0, sizeof *a);
     for (i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--tty") == 0 && i + 1 < argc) {
-            tty = argv[++i];
+            a->tty = argv[++i];
         } else if (strcmp(argv[i], "--baud") == 0 && i + 1 < argc) {
-            baud = strtol(argv[++i], NULL, 10);
+            a->baud = strtol(argv[++i], NULL, 10);
         } else if (strcmp(argv[i], "--stdio") == 0) {
-            use_stdio = 1;
+            a->use_stdio = 1;
         } else {
             usage(argv[0]);
             return 2;
         }
     }
-    if ((tty == NULL) == (use_stdio == 0)) {
+    if ((a->tty == NULL) == (a->use_stdio == 0)) {
         usage(argv[0]);
+        return 2;
+    }
+    return 0;
+}
+
+/* Feed what arrives on in_fd to the firmware, flushing its replies after each chunk, until a stop signal,
+ * end of input or a failed write. */
+static void serve(firmware_t *fw, out_buf_t *out, int in_fd)
+{
+    uint8_t buf[4096];
+    while (!stop_requested && !out->failed) {
+        ssize_t n = read(in_fd, buf, sizeof buf);
+        if (n > 0) {
+            firmware_feed(fw, buf, (size_t)n);
+            flush_out(out);
+        } else if (n < 0 && errno == EINTR) {
+            continue;
+        } else {
+            break; /* 0 = EOF, EIO = the other end of the pty closed */
+        }
+    }
+}
+
+int main(int argc, char **argv)
+{
+    static firmware_t fw; /* static: the estimator state is large for a stack */
+    static out_buf_t out;
+    host_args_t args;
+    int in_fd;
+    struct sigaction sa;
+
+    if (parse_args(argc, argv, &args) != 0) {
         return 2;
     }
     memset(&sa, 0, sizeof sa);
@@ -132,36 +164,25 @@ int main(int argc, char **argv)
     sigaction(SIGINT, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
 
-    if (use_stdio) {
+    if (args.use_stdio) {
         in_fd = STDIN_FILENO;
         out.fd = STDOUT_FILENO;
     } else {
-        in_fd = open(tty, O_RDWR | O_NOCTTY);
+        in_fd = open(args.tty, O_RDWR | O_NOCTTY);
         if (in_fd < 0) {
-            fprintf(stderr, "uwb-fw: cannot open %s: %s\n", tty, strerror(errno));
+            fprintf(stderr, "uwb-fw: cannot open %s: %s\n", args.tty, strerror(errno));
             return 1;
         }
-        if (set_raw(in_fd, baud_const(baud)) != 0) {
-            fprintf(stderr, "uwb-fw: cannot set raw mode on %s: %s\n", tty, strerror(errno));
+        if (set_raw(in_fd, baud_const(args.baud)) != 0) {
+            fprintf(stderr, "uwb-fw: cannot set raw mode on %s: %s\n", args.tty, strerror(errno));
             return 1;
         }
         out.fd = in_fd;
     }
     firmware_init(&fw, write_cb, &out, "host");
     fprintf(stderr, "uwb-fw %d.%d.%d serving %s\n", FW_VERSION_MAJOR, FW_VERSION_MINOR, FW_VERSION_PATCH,
-            use_stdio ? "stdio" : tty);
-
-    while (!stop_requested && !out.failed) {
-        ssize_t n = read(in_fd, buf, sizeof buf);
-        if (n > 0) {
-            firmware_feed(&fw, buf, (size_t)n);
-            flush_out(&out);
-        } else if (n < 0 && errno == EINTR) {
-            continue;
-        } else {
-            break; /* 0 = EOF, EIO = the other end of the pty closed */
-        }
-    }
+            args.use_stdio ? "stdio" : args.tty);
+    serve(&fw, &out, in_fd);
     fprintf(stderr, "uwb-fw: stopping (frames ok %lu, crc errors %lu, framing errors %lu)\n",
             (unsigned long)fw.stats.frames_ok, (unsigned long)fw.stats.crc_errors,
             (unsigned long)fw.stats.framing_errors);

@@ -62,9 +62,80 @@ static void calibrate(void)
     clock_overhead = t1 - t0;
 }
 
-int main(void)
+/* The network of the kind byte that follows a command (0 TWR, 1 TDoA); NULL, with '?' replied, if absent. */
+static const bias_nn_t *read_net(const bias_model_t *model)
+{
+    uint8_t kind;
+    const bias_nn_t *net;
+    read_exact(&kind, 1);
+    net = kind == 0u ? model->twr : model->tdoa;
+    if (net == (const bias_nn_t *)0) {
+        const uint8_t q = '?';
+        usart_write(&q, 1);
+    }
+    return net;
+}
+
+/* 'I': the input counts and feature layouts of both networks (0 where a network is absent). */
+static void reply_info(const bias_model_t *model)
+{
+    uint8_t out[5];
+    out[0] = 'i';
+    out[1] = model->twr ? model->twr->n_in : 0u;
+    out[2] = model->tdoa ? model->tdoa->n_in : 0u;
+    out[3] = model->twr ? model->twr->layout : 0u;
+    out[4] = model->tdoa ? model->tdoa->layout : 0u;
+    usart_write(out, sizeof out);
+}
+
+/* 'P' kind x[n_in]: each kernel's output bits and instruction count. */
+static void reply_predict(const bias_model_t *model)
 {
     static const predict_fn kernels[3] = {__real_bias_nn_predict, nn_m4_predict_c, nn_m4_predict};
+    const bias_nn_t *net = read_net(model);
+    float x[BIAS_NN_MAX_IN];
+    uint8_t out[1 + 3 * 4 + 3 * 4];
+    unsigned k;
+    if (net == (const bias_nn_t *)0) {
+        return;
+    }
+    read_exact((uint8_t *)x, 4u * net->n_in);
+    out[0] = 'p';
+    for (k = 0; k < 3u; k++) {
+        float y;
+        uint32_t bits, cost = timed(kernels[k], net, x, &y);
+        memcpy(&bits, &y, sizeof bits);
+        put_u32(&out[1u + 4u * k], bits);
+        put_u32(&out[13u + 4u * k], cost);
+    }
+    usart_write(out, sizeof out);
+}
+
+/* 'W' kind: the network's compiled-in tables, in the order the header comment lists. */
+static void reply_weights(const bias_model_t *model)
+{
+    uint8_t head[2];
+    const bias_nn_t *net = read_net(model);
+    if (net == (const bias_nn_t *)0) {
+        return;
+    }
+    head[0] = 'w';
+    head[1] = net->n_in;
+    usart_write(head, 2);
+    usart_write((const uint8_t *)net->in_min, 4u * net->n_in);
+    usart_write((const uint8_t *)net->in_max, 4u * net->n_in);
+    usart_write((const uint8_t *)net->w1, 4u * net->n_in * BIAS_NN_HIDDEN);
+    usart_write((const uint8_t *)net->b1, 4u * BIAS_NN_HIDDEN);
+    usart_write((const uint8_t *)net->w2, 4u * BIAS_NN_HIDDEN * BIAS_NN_HIDDEN);
+    usart_write((const uint8_t *)net->b2, 4u * BIAS_NN_HIDDEN);
+    usart_write((const uint8_t *)net->w3, 4u * BIAS_NN_HIDDEN);
+    usart_write((const uint8_t *)&net->b3, 4u);
+    usart_write((const uint8_t *)&net->out_min, 4u);
+    usart_write((const uint8_t *)&net->out_max, 4u);
+}
+
+int main(void)
+{
     board_clocks_t clk;
     const bias_model_t *model = &bias_model_compiled;
 
@@ -77,59 +148,11 @@ int main(void)
         uint8_t cmd;
         read_exact(&cmd, 1);
         if (cmd == 'I') {
-            uint8_t out[5];
-            out[0] = 'i';
-            out[1] = model->twr ? model->twr->n_in : 0u;
-            out[2] = model->tdoa ? model->tdoa->n_in : 0u;
-            out[3] = model->twr ? model->twr->layout : 0u;
-            out[4] = model->tdoa ? model->tdoa->layout : 0u;
-            usart_write(out, sizeof out);
+            reply_info(model);
         } else if (cmd == 'P') {
-            uint8_t kind;
-            const bias_nn_t *net;
-            float x[BIAS_NN_MAX_IN];
-            uint8_t out[1 + 3 * 4 + 3 * 4];
-            unsigned k;
-            read_exact(&kind, 1);
-            net = kind == 0u ? model->twr : model->tdoa;
-            if (net == (const bias_nn_t *)0) {
-                out[0] = '?';
-                usart_write(out, 1);
-                continue;
-            }
-            read_exact((uint8_t *)x, 4u * net->n_in);
-            out[0] = 'p';
-            for (k = 0; k < 3u; k++) {
-                float y;
-                uint32_t bits, cost = timed(kernels[k], net, x, &y);
-                memcpy(&bits, &y, sizeof bits);
-                put_u32(&out[1u + 4u * k], bits);
-                put_u32(&out[13u + 4u * k], cost);
-            }
-            usart_write(out, sizeof out);
+            reply_predict(model);
         } else if (cmd == 'W') {
-            uint8_t kind, head[2];
-            const bias_nn_t *net;
-            read_exact(&kind, 1);
-            net = kind == 0u ? model->twr : model->tdoa;
-            if (net == (const bias_nn_t *)0) {
-                head[0] = '?';
-                usart_write(head, 1);
-                continue;
-            }
-            head[0] = 'w';
-            head[1] = net->n_in;
-            usart_write(head, 2);
-            usart_write((const uint8_t *)net->in_min, 4u * net->n_in);
-            usart_write((const uint8_t *)net->in_max, 4u * net->n_in);
-            usart_write((const uint8_t *)net->w1, 4u * net->n_in * BIAS_NN_HIDDEN);
-            usart_write((const uint8_t *)net->b1, 4u * BIAS_NN_HIDDEN);
-            usart_write((const uint8_t *)net->w2, 4u * BIAS_NN_HIDDEN * BIAS_NN_HIDDEN);
-            usart_write((const uint8_t *)net->b2, 4u * BIAS_NN_HIDDEN);
-            usart_write((const uint8_t *)net->w3, 4u * BIAS_NN_HIDDEN);
-            usart_write((const uint8_t *)&net->b3, 4u);
-            usart_write((const uint8_t *)&net->out_min, 4u);
-            usart_write((const uint8_t *)&net->out_max, 4u);
+            reply_weights(model);
         } else {
             uint8_t q = '?';
             usart_write(&q, 1);

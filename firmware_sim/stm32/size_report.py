@@ -70,10 +70,16 @@ def _component(origin: str, core: set[str], proto: set[str], app: set[str]) -> s
     return "board"
 
 
-def parse_map(map_path: Path, fw_dir: Path = FW_DIR) -> SizeReport:
+def _object_groups(fw_dir: Path) -> tuple[set[str], set[str], set[str]]:
+    """The object files of the estimator core (the network's aside), the protocol and the app."""
     core = {p.with_suffix(".o").name for p in (fw_dir / "core").glob("*.c")} - NETWORK_OBJECTS
     proto = {p.with_suffix(".o").name for p in (fw_dir / "proto").glob("*.c")}
     app = {p.with_suffix(".o").name for p in (fw_dir / "app").glob("*.c")}
+    return core, proto, app
+
+
+def parse_map(map_path: Path, fw_dir: Path = FW_DIR) -> SizeReport:
+    core, proto, app = _object_groups(fw_dir)
     text = map_path.read_text(errors="replace")
     start = text.find("Linker script and memory map")
     if start < 0:

@@ -91,6 +91,60 @@ static void test_frame_rx_resync_and_oversize(void)
     CHECK(frame_rx_push(&rx, 0, &f, &len) == FRAME_RX_NONE);
 }
 
+/* Any single flipped bit of a body must be caught by the CRC or the framing (every 7th bit). */
+static void check_bit_flips(uint8_t *body, size_t blen)
+{
+    size_t bit;
+    for (bit = 0; bit < blen * 8; bit += 7) {
+        uwb_msg_t junk;
+        body[bit / 8] ^= (uint8_t)(1u << (bit % 8));
+        CHECK(uwb_body_decode(body, blen, &junk) != UWB_DECODE_OK);
+        body[bit / 8] ^= (uint8_t)(1u << (bit % 8));
+    }
+}
+
+/* One line of vectors.txt ("name seq frame-hex MsgName field=value ..."): the frame decodes to those fields
+ * and re-encodes to the same bytes. 1 when the line was a vector that decoded, else 0. */
+static int check_golden_vector(char *line)
+{
+    char name[64], hex[1024], msgname[32];
+    unsigned seq;
+    int consumed = 0;
+    uint8_t frame[512], body[UWB_MAX_BODY], reenc_body[UWB_MAX_BODY], reenc[UWB_MAX_ENCODED + 1];
+    size_t flen, blen_re, elen;
+    long blen;
+    uwb_msg_t msg;
+    char fields[2048];
+    const char *expect_fields;
+    if (line[0] == '#' || line[0] == '\n') {
+        return 0;
+    }
+    line[strcspn(line, "\n")] = 0;
+    if (sscanf(line, "%63s %u %1023s %31s%n", name, &seq, hex, msgname, &consumed) != 4) {
+        CHECK(0);
+        return 0;
+    }
+    expect_fields = line + consumed; /* " field=value ..." or "" */
+    flen = from_hex(hex, frame, sizeof frame);
+    CHECK(flen >= 2 && frame[flen - 1] == 0);
+    blen = cobs_decode(frame, flen - 1, body, sizeof body);
+    CHECK(blen > 0);
+    if (blen <= 0) return 0;
+    CHECK(uwb_body_decode(body, (size_t)blen, &msg) == UWB_DECODE_OK);
+    CHECK(msg.seq == seq);
+    CHECK(uwb_msg_format(&msg, fields, sizeof fields) == 1);
+    if (strcmp(fields, expect_fields) != 0) {
+        fprintf(stderr, "vector %s: fields differ\n  C:      %s\n  golden: %s\n", name, fields, expect_fields);
+        CHECK(0);
+    }
+    blen_re = uwb_body_encode(&msg, reenc_body);
+    elen = cobs_encode(reenc_body, blen_re, reenc);
+    reenc[elen++] = 0;
+    CHECK(elen == flen && memcmp(reenc, frame, flen) == 0);
+    check_bit_flips(body, (size_t)blen);
+    return 1;
+}
+
 static void test_golden_vectors(void)
 {
     char path[512];
@@ -105,51 +159,7 @@ static void test_golden_vectors(void)
         return;
     }
     while (fgets(line, sizeof line, fh)) {
-        char name[64], hex[1024], msgname[32];
-        unsigned seq;
-        int consumed = 0;
-        uint8_t frame[512], body[UWB_MAX_BODY], reenc_body[UWB_MAX_BODY], reenc[UWB_MAX_ENCODED + 1];
-        size_t flen, blen_re, elen;
-        long blen;
-        uwb_msg_t msg;
-        char fields[2048];
-        const char *expect_fields;
-        if (line[0] == '#' || line[0] == '\n') {
-            continue;
-        }
-        line[strcspn(line, "\n")] = 0;
-        if (sscanf(line, "%63s %u %1023s %31s%n", name, &seq, hex, msgname, &consumed) != 4) {
-            CHECK(0);
-            continue;
-        }
-        expect_fields = line + consumed; /* " field=value ..." or "" */
-        flen = from_hex(hex, frame, sizeof frame);
-        CHECK(flen >= 2 && frame[flen - 1] == 0);
-        blen = cobs_decode(frame, flen - 1, body, sizeof body);
-        CHECK(blen > 0);
-        if (blen <= 0) continue;
-        CHECK(uwb_body_decode(body, (size_t)blen, &msg) == UWB_DECODE_OK);
-        CHECK(msg.seq == seq);
-        CHECK(uwb_msg_format(&msg, fields, sizeof fields) == 1);
-        if (strcmp(fields, expect_fields) != 0) {
-            fprintf(stderr, "vector %s: fields differ\n  C:      %s\n  golden: %s\n", name, fields, expect_fields);
-            CHECK(0);
-        }
-        blen_re = uwb_body_encode(&msg, reenc_body);
-        elen = cobs_encode(reenc_body, blen_re, reenc);
-        reenc[elen++] = 0;
-        CHECK(elen == flen && memcmp(reenc, frame, flen) == 0);
-        /* any single flipped bit must be caught by the CRC or the framing */
-        {
-            size_t bit;
-            for (bit = 0; bit < (size_t)blen * 8; bit += 7) {
-                uwb_msg_t junk;
-                body[bit / 8] ^= (uint8_t)(1u << (bit % 8));
-                CHECK(uwb_body_decode(body, (size_t)blen, &junk) != UWB_DECODE_OK);
-                body[bit / 8] ^= (uint8_t)(1u << (bit % 8));
-            }
-        }
-        vectors++;
+        vectors += check_golden_vector(line);
     }
     fclose(fh);
     CHECK(vectors >= 15);

@@ -192,6 +192,14 @@ def _add_ensemble_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_commands(sub: Any) -> None:
+    _add_train_parser(sub)
+    _add_export_parser(sub)
+    _add_eval_parser(sub)
+    _add_fit_std_parser(sub)
+    _add_models_parser(sub)
+
+
+def _add_train_parser(sub: Any) -> None:
     tr = sub.add_parser("train", help="train a bias network (simulated flights or recordings)")
     src = tr.add_argument_group("data")
     src.add_argument("--recording", nargs="+", help="recorded flights (UTIL CSV, rcv_twr directory, Crazyflie uSD log, native .npz)")
@@ -216,11 +224,15 @@ def add_commands(sub: Any) -> None:
     tr.add_argument("--json", action="store_true", help="print what was trained as JSON")
     tr.set_defaults(func=cmd_train)
 
+
+def _add_export_parser(sub: Any) -> None:
     ex = sub.add_parser("export-c", help="write a model as the C header the firmware build takes")
     ex.add_argument("model", help="model .npz")
     ex.add_argument("--out", default=str(DEFAULT_HEADER), help=f"header path (default {DEFAULT_HEADER})")
     ex.set_defaults(func=cmd_export)
 
+
+def _add_eval_parser(sub: Any) -> None:
     ev = sub.add_parser("eval-bias", help="measurement error before/after correction, vs simple baselines")
     ev.add_argument("--model", default=str(DEFAULT_NPZ),
                     help=f"bias model (.npz) to evaluate (default {DEFAULT_NPZ}: the simulated pose network)")
@@ -242,6 +254,8 @@ def add_commands(sub: Any) -> None:
     ev.add_argument("--json", action="store_true", help="print the comparison as JSON")
     ev.set_defaults(func=cmd_eval)
 
+
+def _add_fit_std_parser(sub: Any) -> None:
     fs = sub.add_parser("fit-std", help="fit the std head of a model's network on flights its body never saw")
     fs.add_argument("--model", default=str(DEFAULT_NPZ), help="model .npz (its bias networks are kept)")
     fs.add_argument("--out", required=True, help="model file to write (.npz)")
@@ -263,6 +277,8 @@ def add_commands(sub: Any) -> None:
     fs.add_argument("--inflate", type=float, default=1.0, help="multiply the fitted std by this factor")
     fs.set_defaults(func=cmd_fit_std)
 
+
+def _add_models_parser(sub: Any) -> None:
     mo = sub.add_parser("models", help="train the shipped default networks (what `make models` runs)")
     mo.add_argument("--data", default=str(SHARED_DATA),
                     help="the shared recordings (util/, rcv_twr/, cf_usd/) to train on (default ../shared/data)")

@@ -107,10 +107,29 @@ def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Sampl
     xv, yv = tensors(val)
     n_in = train.x.shape[1]
     net = nn.Sequential(nn.Linear(n_in, HIDDEN), nn.ReLU(), nn.Linear(HIDDEN, HIDDEN), nn.ReLU(), nn.Linear(HIDDEN, 1))
+    report = TrainReport(epochs=0, best_epoch=0, n_train=len(train), n_val=len(val))
+    best = _fit_epochs(torch, net, (xt, yt), (xv, yv), cfg, report, progress)
+    with torch.no_grad():
+        for p, b in zip(net.parameters(), best):
+            p.copy_(b)
+    result = to_network(net, train.layout, in_min, in_max, out_min, out_max)
+    if cfg.std_head is not None:
+        result = fit_std_head(result, val, cfg.std_head)
+    pred = result.predict_batch(val.x)
+    report.val_rmse_before_m = float(np.sqrt(np.mean(val.bias ** 2)))
+    report.val_rmse_after_m = float(np.sqrt(np.mean((val.bias - pred) ** 2)))
+    return result, report
+
+
+def _fit_epochs(torch: Any, net: Any, train: tuple[Any, Any], val: tuple[Any, Any], cfg: TrainConfig,
+                report: TrainReport, progress: ProgressFn | None) -> list[Any]:
+    """Run the epochs (early stopping on the validation loss, time budget) recording the losses and the reason
+    it stopped in ``report``; the parameters of the best validation epoch."""
+    xt, yt = train
+    xv, yv = val
     opt = _optimizer(torch, net, cfg)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, cfg.patience // 3))
     gen = torch.Generator().manual_seed(cfg.seed)
-    report = TrainReport(epochs=0, best_epoch=0, n_train=len(train), n_val=len(val))
     best = (float("inf"), [p.detach().clone() for p in net.parameters()])
     t0 = time.perf_counter()
     since_best = 0
@@ -137,16 +156,7 @@ def train_network(samples: Samples, cfg: TrainConfig = TrainConfig(), val: Sampl
             report.stopped_by = "time_budget"
             break
     report.seconds = time.perf_counter() - t0
-    with torch.no_grad():
-        for p, b in zip(net.parameters(), best[1]):
-            p.copy_(b)
-    result = to_network(net, train.layout, in_min, in_max, out_min, out_max)
-    if cfg.std_head is not None:
-        result = fit_std_head(result, val, cfg.std_head)
-    pred = result.predict_batch(val.x)
-    report.val_rmse_before_m = float(np.sqrt(np.mean(val.bias ** 2)))
-    report.val_rmse_after_m = float(np.sqrt(np.mean((val.bias - pred) ** 2)))
-    return result, report
+    return best[1]
 
 
 def _optimizer(torch: Any, net: Any, cfg: TrainConfig) -> Any:

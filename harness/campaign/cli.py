@@ -87,6 +87,12 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
                    help="run every flight as a task on this Dask scheduler (default $UWB_HIL_SCHEDULER; none: the "
                         "local process pool). Workers need only the package ([cluster] extra); results come back here")
+    _add_board_options(p)
+    add_verdict_options(p)
+    p.set_defaults(func=cmd_campaign)
+
+
+def _add_board_options(p: argparse.ArgumentParser) -> None:
     boards = p.add_argument_group("boards", "run the flights on boards instead of one host build per flight: each "
                                   "board serves one flight at a time, the boards in parallel; a board that stops "
                                   "answering is taken out and its runs move to the others (exit 3)")
@@ -99,8 +105,6 @@ def add_parser(sub: Any) -> None:
                         help="board list (YAML: name, port or serial_number, target, baud, firmware per board)")
     boards.add_argument("--baud", type=int, default=115200, help="baud rate of --port boards")
     add_labgrid_options(boards)
-    add_verdict_options(p)
-    p.set_defaults(func=cmd_campaign)
 
 
 def _executor(args: argparse.Namespace) -> AbstractContextManager[GroupExecutor | None]:

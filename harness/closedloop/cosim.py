@@ -98,6 +98,15 @@ class FlightLog:
         return int(self.t.shape[0])
 
 
+@dataclass
+class _Craft:
+    """One flight's physics and sensors, and what the device answered besides CONTROL."""
+    vehicle: Vehicle
+    sensors: Sensors
+    statuses: dict[str, int] = field(default_factory=dict)
+    errors: list[m.Error] = field(default_factory=list)
+
+
 class ClosedLoop:
     """Flies missions through one started device (HELLO already checked): the physics, the pacing and the
     flight log; the frames go through the device's DeviceChannel."""
@@ -164,6 +173,36 @@ class ClosedLoop:
                 f_sum = [0.0] * 6
         return chunks
 
+    def _control_period(self, craft: _Craft, plan: MissionPlan, k: int, t_us: int,
+                        command: tuple[float, tuple[float, float, float]],
+                        wall0: float) -> tuple[m.Control | None, bool]:
+        """Control period k ending at t_us under the last `command` (thrust, rates): the period's sensor frames
+        and the k-th setpoint sent (at its wall time when pacing in real time), the device's CONTROL for it read
+        back (None: refused), and whether it came later than the period's end. The statuses and ERRORs read on
+        the way are added to `craft`."""
+        lp = self.loop
+        veh, sens, errors = craft.vehicle, craft.sensors, craft.errors
+        if k == 0:
+            acc, gyr = sens.imu(veh.specific_force, veh.gyro)
+            chunks = [self.channel.frame(_imu(0, acc, gyr))[0]]
+        else:
+            chunks = self._advance(veh, sens, t_us, command[0], command[1])
+        frame, seq = self.channel.frame(_setpoint(plan, k, t_us))
+        chunks.append(frame)
+        if lp.pacing == "realtime":
+            due = wall0 + (t_us * 1e-6) / lp.speed
+            wait = due - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+        self.channel.write(b"".join(chunks))
+        ctl = self._await_control(seq, craft.statuses, errors)
+        late = lp.pacing == "realtime" and time.perf_counter() > wall0 + (t_us * 1e-6 + lp.control_dt) / lp.speed
+        if k == 0:
+            refused = [e for e in errors if e.msg_type in (m.Config.MSG_ID, m.Anchor.MSG_ID)]
+            if refused:
+                raise DeviceError(f"device refused the flight setup: {refused[0]}")
+        return ctl, late
+
     # ------------------------------------------------------------------------------------ flight
     def fly(self, plan: MissionPlan, est_cfg: EstimatorConfig, sensors_cfg: SensorConfig, sim: SimConfig,
             arena: Arena, vehicle: VehicleParams = VehicleParams(), seed: int = 1,
@@ -177,8 +216,8 @@ class ClosedLoop:
             raise UsageError("the closed loop needs the IMU estimator mode (the controller uses the attitude)")
         n = len(plan.t)
         log = _empty_log(n)
-        statuses: dict[str, int] = {}
-        errors: list[m.Error] = []
+        craft = _Craft(veh, sens)
+        errors = craft.errors
         ctrl_us = int(round(lp.control_dt * 1e6))
         lo, hi = np.asarray(arena.lo) - lp.abort_margin_m, np.asarray(arena.hi) + lp.abort_margin_m
         thrust, rates = 0.0, (0.0, 0.0, 0.0)
@@ -190,26 +229,8 @@ class ClosedLoop:
         last = n
         for k in range(n):
             t_us = k * ctrl_us
-            if k == 0:
-                acc, gyr = sens.imu(veh.specific_force, veh.gyro)
-                chunks = [self.channel.frame(_imu(0, acc, gyr))[0]]
-            else:
-                chunks = self._advance(veh, sens, t_us, thrust, rates)
-            frame, seq = self.channel.frame(_setpoint(plan, k, t_us))
-            chunks.append(frame)
-            if lp.pacing == "realtime":
-                due = wall0 + (t_us * 1e-6) / lp.speed
-                wait = due - time.perf_counter()
-                if wait > 0:
-                    time.sleep(wait)
-            self.channel.write(b"".join(chunks))
-            ctl = self._await_control(seq, statuses, errors)
-            if lp.pacing == "realtime" and time.perf_counter() > wall0 + (t_us * 1e-6 + lp.control_dt) / lp.speed:
-                late += 1
-            if k == 0:
-                refused = [e for e in errors if e.msg_type in (m.Config.MSG_ID, m.Anchor.MSG_ID)]
-                if refused:
-                    raise DeviceError(f"device refused the flight setup: {refused[0]}")
+            ctl, was_late = self._control_period(craft, plan, k, t_us, (thrust, rates), wall0)
+            late += was_late
             s = veh.state
             _record(log, k, plan, s, ctl)
             if ctl is None:
@@ -228,7 +249,7 @@ class ClosedLoop:
         wall = time.perf_counter() - wall0
         if last < n:
             log = _truncate(log, last)
-        log.statuses = statuses
+        log.statuses = craft.statuses
         log.nlos_events = sens.nlos_events
         log.errors = [f"code {e.code} type {e.msg_type:#04x} seq {e.msg_seq} detail {e.detail}" for e in errors]
         log.aborted, log.abort_t = aborted, abort_t

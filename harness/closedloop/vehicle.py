@@ -107,18 +107,25 @@ class Vehicle:
                 return f
         return [min(fmax, max(0.0, v)) for v in f]
 
-    def step(self, thrust_cmd: float, rate_cmd: tuple[float, float, float], dt: float) -> None:
+    def _spin_motors(self, thrust_cmd: float, rate_cmd: tuple[float, float, float], dt: float) -> list[float]:
+        """The body-rate loop's torques (with gyroscopic compensation) mixed to motor forces, each motor
+        following its target with a first-order lag; the new motor forces (also stored in the state)."""
         p, s = self.p, self.s
         jx, jy, jz = p.inertia
         wx, wy, wz = s.omega
-        # body-rate loop -> desired torques (with gyroscopic compensation)
         tx = jx * p.k_rate[0] * (rate_cmd[0] - wx) + (jz - jy) * wy * wz
         ty = jy * p.k_rate[1] * (rate_cmd[1] - wy) + (jx - jz) * wz * wx
         tz = jz * p.k_rate[2] * (rate_cmd[2] - wz) + (jy - jx) * wx * wy
         target = self._motor_targets(max(0.0, thrust_cmd), (tx, ty, tz))
         a_m = min(1.0, dt / p.tau_motor)
-        f = [fi + (ti - fi) * a_m for fi, ti in zip(s.motors, target)]
-        s.motors = f
+        s.motors = [fi + (ti - fi) * a_m for fi, ti in zip(s.motors, target)]
+        return s.motors
+
+    def step(self, thrust_cmd: float, rate_cmd: tuple[float, float, float], dt: float) -> None:
+        p, s = self.p, self.s
+        jx, jy, jz = p.inertia
+        wx, wy, wz = s.omega
+        f = self._spin_motors(thrust_cmd, rate_cmd, dt)
         xs, ys, spin = self._geom
         thrust = f[0] + f[1] + f[2] + f[3]
         tau_x = sum(ys[i] * f[i] for i in range(4))
@@ -154,20 +161,7 @@ class Vehicle:
         dwz = (tau_z - (jy - jx) * wx * wy) / jz
         wx, wy, wz = wx + dwx * dt, wy + dwy * dt, wz + dwz * dt
         s.omega = [wx, wy, wz]
-        # q <- q (x) exp(w dt / 2), exact for a constant rate over the step
-        ang = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
-        if ang > 1e-12:
-            k = math.sin(ang / 2) / (ang / dt)
-            dq = (math.cos(ang / 2), wx * k, wy * k, wz * k)
-        else:
-            dq = (1.0, wx * dt / 2, wy * dt / 2, wz * dt / 2)
-        qw, qx, qy, qz = s.quat
-        nq = [qw * dq[0] - qx * dq[1] - qy * dq[2] - qz * dq[3],
-              qw * dq[1] + qx * dq[0] + qy * dq[3] - qz * dq[2],
-              qw * dq[2] - qx * dq[3] + qy * dq[0] + qz * dq[1],
-              qw * dq[3] + qx * dq[2] - qy * dq[1] + qz * dq[0]]
-        n = math.sqrt(nq[0] ** 2 + nq[1] ** 2 + nq[2] ** 2 + nq[3] ** 2)
-        s.quat = [c / n for c in nq]
+        s.quat = _rotate_quat(s.quat, (wx, wy, wz), dt)
         # translation, semi-implicit Euler
         vx, vy, vz = vx + ax * dt, vy + ay * dt, vz + az * dt
         px, py, pz = s.pos[0] + vx * dt, s.pos[1] + vy * dt, s.pos[2] + vz * dt
@@ -191,3 +185,21 @@ class Vehicle:
 
     def tilt(self) -> float:
         return tilt_of(self.s.quat)
+
+
+def _rotate_quat(quat: list[float], omega: tuple[float, float, float], dt: float) -> list[float]:
+    """q <- q (x) exp(w dt / 2), exact for a constant body rate over the step, renormalised."""
+    wx, wy, wz = omega
+    ang = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
+    if ang > 1e-12:
+        k = math.sin(ang / 2) / (ang / dt)
+        dq = (math.cos(ang / 2), wx * k, wy * k, wz * k)
+    else:
+        dq = (1.0, wx * dt / 2, wy * dt / 2, wz * dt / 2)
+    qw, qx, qy, qz = quat
+    nq = [qw * dq[0] - qx * dq[1] - qy * dq[2] - qz * dq[3],
+          qw * dq[1] + qx * dq[0] + qy * dq[3] - qz * dq[2],
+          qw * dq[2] - qx * dq[3] + qy * dq[0] + qz * dq[1],
+          qw * dq[3] + qx * dq[2] - qy * dq[1] + qz * dq[0]]
+    n = math.sqrt(nq[0] ** 2 + nq[1] ** 2 + nq[2] ** 2 + nq[3] ** 2)
+    return [c / n for c in nq]

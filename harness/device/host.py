@@ -15,12 +15,9 @@ The exit status is observed without reaping (waitid WNOWAIT) until stop() reaps 
 
 from __future__ import annotations
 
-import itertools
 import os
-import shutil
 import signal
 import subprocess
-import tempfile
 import time
 import weakref
 from collections.abc import Mapping, Sequence
@@ -28,12 +25,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from harness.device.base import Device
+from harness.device.process_log import exit_error, new_log_path, remove_tmp_dir
 from harness.errors import DeviceDied, DeviceError
 from harness.link.base import Link
 from harness.link.pty_link import PtyOptions, PtyPair
 
 _POLL_S = 0.005
-_counter = itertools.count()
 
 
 @dataclass(frozen=True)
@@ -130,8 +127,7 @@ class HostDevice(Device):
         status = _wait_exit(proc, grace_s)
         if status is None:
             return None
-        return DeviceDied(f"{self.name} exited", exit_code=status, log_tail=self.log_tail(),
-                          log_path=self.log_path if self._tmp_log_dir is None else None)
+        return exit_error(self.name, status, self.log_tail(), self.log_path, self._tmp_log_dir is None)
 
     def stop(self) -> int | None:
         proc, self._proc = self._proc, None
@@ -148,8 +144,7 @@ class HostDevice(Device):
 
     def _remove_tmp_log(self) -> None:
         tmp, self._tmp_log_dir = self._tmp_log_dir, None
-        if tmp is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
+        if remove_tmp_dir(tmp):
             self.log_path = None
 
     # ------------------------------------------------------------------------------------ log
@@ -169,14 +164,8 @@ class HostDevice(Device):
         return "\n".join(text.splitlines()[-n:])
 
     def _new_log_path(self) -> Path:
-        if self.log_dir is None:
-            self._tmp_log_dir = tempfile.mkdtemp(prefix="uwb-fw-")
-            directory = Path(self._tmp_log_dir)
-        else:
-            directory = self.log_dir
-            directory.mkdir(parents=True, exist_ok=True)
-        stamp = time.strftime("%Y%m%d-%H%M%S")
-        return directory / f"{self.binary.name}-{stamp}-{os.getpid()}-{next(_counter)}.log"
+        path, self._tmp_log_dir = new_log_path(self.log_dir, "uwb-fw-", self.binary.name)
+        return path
 
 
 # ------------------------------------------------------------------------- process helpers
@@ -235,5 +224,4 @@ def _reap(proc: subprocess.Popen[bytes], pty: PtyPair, timeout: float, tmp_log_d
         _terminate(proc, timeout)
     finally:
         pty.close()
-        if tmp_log_dir is not None:
-            shutil.rmtree(tmp_log_dir, ignore_errors=True)
+        remove_tmp_dir(tmp_log_dir)

@@ -17,15 +17,12 @@ identical from run to run. Every wait has a timeout; stop() always reaps QEMU.
 
 from __future__ import annotations
 
-import itertools
-import os
 import shutil
 import subprocess
-import tempfile
-import time
 from pathlib import Path
 
 from harness.device.base import Device
+from harness.device.process_log import exit_error, new_log_path, remove_tmp_dir
 from harness.device.qemu_process import QemuError, QemuOptions, QemuProcess
 from harness.errors import DeviceDied, DeviceError
 from harness.link.base import Link
@@ -33,7 +30,6 @@ from harness.link.qemu_link import QemuPtyLink
 from harness.paths import DEFAULT_STM32_ELF
 
 DEFAULT_ELF = DEFAULT_STM32_ELF
-_counter = itertools.count()
 
 
 class QemuDevice(Device):
@@ -96,8 +92,7 @@ class QemuDevice(Device):
             code = None
         if code is None:
             return None
-        return DeviceDied(f"{self.name} exited", exit_code=code, log_tail=self.log_tail(),
-                          log_path=self.log_path if self._tmp_log_dir is None else None)
+        return exit_error(self.name, code, self.log_tail(), self.log_path, self._tmp_log_dir is None)
 
     def stop(self) -> int | None:
         proc, self._proc = self._proc, None
@@ -129,18 +124,12 @@ class QemuDevice(Device):
         return size - 4 * untouched
 
     def _new_log_path(self) -> Path:
-        if self.log_dir is None:
-            self._tmp_log_dir = tempfile.mkdtemp(prefix="uwb-qemu-")
-            directory = Path(self._tmp_log_dir)
-        else:
-            directory = self.log_dir
-            directory.mkdir(parents=True, exist_ok=True)
-        return directory / f"qemu-{self.elf.stem}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}-{next(_counter)}.log"
+        path, self._tmp_log_dir = new_log_path(self.log_dir, "uwb-qemu-", f"qemu-{self.elf.stem}")
+        return path
 
     def _remove_tmp_log(self) -> None:
         tmp, self._tmp_log_dir = self._tmp_log_dir, None
-        if tmp is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
+        if remove_tmp_dir(tmp):
             self.log_path = None
 
 

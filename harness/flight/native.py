@@ -113,16 +113,7 @@ def _known_kind(kind: object, path: Path) -> int:
 def load_flight(path: Path | str) -> Flight:
     """Read a native recording; every malformation is a RecordingError naming the file and the member."""
     path = Path(path)
-    if not path.exists():
-        raise InputFileNotFound(f"recording {path} not found")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
-        raise RecordingError(f"not a readable .npz file ({exc})", path=path) from None
-    if HEADER_KEY not in data:
-        raise RecordingError(f"not a native uwb-hil recording: no {HEADER_KEY} member (has {sorted(data)})",
-                             path=path)
+    data = _read_members(path)
     try:
         header = json.loads(str(data[HEADER_KEY]))
     except json.JSONDecodeError as exc:
@@ -169,6 +160,21 @@ def load_flight(path: Path | str) -> Flight:
     except FlightError as exc:
         raise RecordingError(str(exc), path=path) from None
     return flight
+
+
+def _read_members(path: Path) -> dict[str, np.ndarray]:
+    """The .npz file's members by name, the native header among them."""
+    if not path.exists():
+        raise InputFileNotFound(f"recording {path} not found")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise RecordingError(f"not a readable .npz file ({exc})", path=path) from None
+    if HEADER_KEY not in data:
+        raise RecordingError(f"not a native uwb-hil recording: no {HEADER_KEY} member (has {sorted(data)})",
+                             path=path)
+    return data
 
 
 def _check_integral(data: dict[str, np.ndarray], member: str, path: Path) -> None:

@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from harness.report.data import CampaignData, RunMetrics
@@ -28,6 +29,14 @@ def save(fig: Figure, path: Path, dpi: int = 100) -> Path:
 
 def _sim(data: CampaignData) -> list[RunMetrics]:
     return [r for r in data.accuracy_runs if r.source == "sim"]
+
+
+def _sim_grid(data: CampaignData) -> tuple[list[RunMetrics], list[str], list[str]] | None:
+    """The simulated runs with the modes and the trajectories they cover (a figure's rows and columns); None
+    without a simulated run."""
+    sim = _sim(data)
+    modes = [m for m in MODES if any(r.mode == m for r in sim)]
+    return (sim, modes, sorted({r.trajectory for r in sim})) if modes else None
 
 
 def _configs(runs: list[RunMetrics]) -> list[str]:
@@ -73,11 +82,10 @@ def rmse_boxes(data: CampaignData) -> Figure | None:
 
 def error_over_time(data: CampaignData) -> Figure | None:
     """Paper Fig. 7: estimation error over time, mean over seeds with a +-1 std band."""
-    sim = _sim(data)
-    modes = [m for m in MODES if any(r.mode == m for r in sim)]
-    if not modes:
+    grid = _sim_grid(data)
+    if grid is None:
         return None
-    trajs = sorted({r.trajectory for r in sim})
+    sim, modes, trajs = grid
     fig = Figure(figsize=(5.5 * len(trajs), 3.2 * len(modes)), layout="constrained")
     axes = fig.subplots(len(modes), len(trajs), squeeze=False)
     for i, mode in enumerate(modes):
@@ -126,11 +134,10 @@ def _first_seed_run(runs: list[RunMetrics], mode: str, traj: str, cfg: str) -> R
 
 def paths_3d(data: CampaignData, max_points: int = 3000) -> Figure | None:
     """Paper Fig. 8 (top): estimated vs true 3-D paths of one flight per mode and trajectory."""
-    sim = _sim(data)
-    modes = [m for m in MODES if any(r.mode == m for r in sim)]
-    if not modes:
+    grid = _sim_grid(data)
+    if grid is None:
         return None
-    trajs = sorted({r.trajectory for r in sim})
+    sim, modes, trajs = grid
     fig = Figure(figsize=(5.0 * len(trajs), 4.6 * len(modes)), layout="constrained")
     for i, mode in enumerate(modes):
         for j, traj in enumerate(trajs):
@@ -161,6 +168,30 @@ def paths_3d(data: CampaignData, max_points: int = 3000) -> Figure | None:
     return fig
 
 
+_REJECTIONS = ((Status.REJECTED_KINEMATIC, "rejected: kinematic gate", "#ff7f0e"),
+               (Status.REJECTED_CHI2, "rejected: chi-square gate", "#d62728"),
+               (Status.REJECTED_GEOMETRY, "rejected: geometry", "#9467bd"),
+               (Status.REJECTED_BASELINE, "rejected: beyond the anchors' distance", "#8c564b"))
+
+
+def _scatter_rejections(ax: Axes, t: np.ndarray, err: np.ndarray, ok: np.ndarray, status: np.ndarray) -> None:
+    """The measurements each gate rejected, one colour per gate, their count in the legend."""
+    for code, name, color in _REJECTIONS:
+        sel = ok & (status == code)
+        if np.any(sel):
+            ax.scatter(t[sel], err[sel], s=9, marker="x", color=color, label=f"{name} ({int(sel.sum())})")
+
+
+def _clip_ylim(axes: tuple[Axes, ...], err: np.ndarray) -> None:
+    """Every axis's y range: the 0.5-99.5 % range of the finite errors, padded by a quarter."""
+    finite = err[np.isfinite(err)]
+    if finite.size:
+        lo, hi = np.percentile(finite, [0.5, 99.5])
+        pad = 0.25 * (hi - lo + 1e-3)
+        for ax in axes:
+            ax.set_ylim(lo - pad, hi + pad)
+
+
 def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
     """Paper Fig. 4: one flight's measurement errors, the network's predicted bias (RESULT.bias of the
     outlier+nn run) and the measurements each gate rejected, coloured by gate."""
@@ -185,19 +216,8 @@ def measurement_stream(data: CampaignData, mode: str) -> Figure | None:
     if has_nn:
         ax.scatter(t[ok], c["bias"][ok], s=2, color=COLORS["outlier+nn"], label="predicted bias (NN)",
                    rasterized=True)
-    for status, name, color in ((Status.REJECTED_KINEMATIC, "rejected: kinematic gate", "#ff7f0e"),
-                                (Status.REJECTED_CHI2, "rejected: chi-square gate", "#d62728"),
-                                (Status.REJECTED_GEOMETRY, "rejected: geometry", "#9467bd"),
-                                (Status.REJECTED_BASELINE, "rejected: beyond the anchors' distance", "#8c564b")):
-        sel = ok & (c["status"] == status)
-        if np.any(sel):
-            ax.scatter(t[sel], err[sel], s=9, marker="x", color=color, label=f"{name} ({int(sel.sum())})")
-    finite = err[np.isfinite(err)]
-    if finite.size:
-        lo, hi = np.percentile(finite, [0.5, 99.5])
-        pad = 0.25 * (hi - lo + 1e-3)
-        ax.set_ylim(lo - pad, hi + pad)
-        ax2.set_ylim(lo - pad, hi + pad)
+    _scatter_rejections(ax, t, err, ok, c["status"])
+    _clip_ylim((ax, ax2), err)
     kind = kind_named(mode)
     ax.set_title(f"{kind.label} measurement stream: {nn.flight_id} ({nn.config}), every {kind.link}"
                  f"; y-axis clipped to the 0.5-99.5 % range", fontsize=9)

@@ -96,6 +96,28 @@ class _Compact:
         return replace(first, uwb=uwb, truth=truth, imu=None, meta={**first.meta, "compact": True})
 
 
+class _Rows:
+    """The slices' RESULT rows: in one preallocated array when the flight's total is known (no concatenation
+    copy at the end), else (or past it) one array per slice."""
+
+    def __init__(self, n: int | None) -> None:
+        self.filled = np.zeros(n, RESULTS_DTYPE) if n else None
+        self.extra: list[np.ndarray] = []
+
+    def add(self, results: np.ndarray, done: int) -> None:
+        """The rows of the slice that starts at measurement `done`."""
+        if self.filled is not None and done + len(results) <= len(self.filled):
+            self.filled[done:done + len(results)] = results
+        else:
+            self.extra.append(results)
+
+    def gathered(self, done: int) -> np.ndarray:
+        """Every row, in order, once `done` measurements were streamed."""
+        if self.filled is not None and not self.extra and done == len(self.filled):
+            return self.filled
+        return np.concatenate(([self.filled[:done]] if self.filled is not None else []) + self.extra)
+
+
 def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
                   config: EstimatorConfig | Callable[[Flight], EstimatorConfig], pacing: Pacing = Pacing(),
                   n_measurements: int | None = None, results_path: Path | None = None,
@@ -106,8 +128,7 @@ def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
     first slice (e.g. session.config_for); `n_measurements` (the whole flight's) goes into the header
     and the progress total; `schedule` (times, anchor a, anchor b of every measurement, when known) is
     referenced by the summary flight instead of copied."""
-    rows: list[np.ndarray] = []       # per slice, or one preallocated array when the total is known
-    filled = np.zeros(n_measurements, RESULTS_DTYPE) if n_measurements else None
+    rows = _Rows(n_measurements)
     errors: list[Any] = []
     compact = _Compact(n_measurements, schedule)
     writer: _SliceWriter | None = None
@@ -134,10 +155,7 @@ def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
 
             last = streamer.run(piece, cfg, pacing, writer=writer, reset=(i == 0),  # type: ignore[arg-type]
                                 progress=slice_progress)
-            if filled is not None and done + len(last.results) <= len(filled):
-                filled[done:done + len(last.results)] = last.results
-            else:
-                rows.append(last.results)
+            rows.add(last.results, done)
             errors += last.errors
             opening = opening or last
             compact.add(piece)
@@ -150,10 +168,7 @@ def stream_chunks(streamer: Streamer, pieces: Iterable[Flight],
     if first is None or last is None or cfg is None:
         raise ValueError("stream_chunks: no slice to stream")
     flight = compact.flight(first)
-    if filled is not None and not rows and done == len(filled):
-        results = filled
-    else:
-        results = np.concatenate(([filled[:done]] if filled is not None else []) + rows)
+    results = rows.gathered(done)
     t = flight.uwb.t_us
     sim = (int(t[-1]) - int(t[0])) * 1e-6 if len(t) else 0.0
     run = RunResult(flight=first.name, config=cfg, pacing=pacing, results=results, stats=last.stats,

@@ -97,6 +97,16 @@ class _State:
     stats: m.Stats | None = None
     last_rx: float = 0.0
 
+    def answer(self, seq: int, outcome: int, code: int, now_ns: int) -> int:
+        """The pending measurement sent as `seq` answered without a RESULT (an ERROR, a RADIO_DROP): its outcome,
+        code and time set; its index, or -1 when `seq` is no pending measurement."""
+        k = self.seq_to_meas.pop(seq, -1)
+        if k >= 0:
+            self.results["outcome"][k] = outcome
+            self.results["error_code"][k] = code
+            self.results["t_recv_ns"][k] = now_ns
+        return k
+
 
 class Streamer:
     """Drives one device through flights: pacing and bookkeeping. The frames go through the device's
@@ -178,21 +188,15 @@ class Streamer:
         for f in frames:
             if isinstance(f.msg, m.Error):
                 state.errors.append(f.msg)
-                k = state.seq_to_meas.pop(f.msg.msg_seq, -1)
+                k = state.answer(f.msg.msg_seq, OUTCOME_ERROR, f.msg.code, now_ns)
                 if k >= 0:
-                    res["outcome"][k] = OUTCOME_ERROR
-                    res["error_code"][k] = f.msg.code
-                    res["t_recv_ns"][k] = now_ns
                     answered.append(k)
                 else:
                     # not about a pending measurement (an IMU frame, or DIVERGED after a RESULT): keep it
                     writer.write_record({"type": REC_DEVICE_ERROR, **asdict(f.msg)})
             elif isinstance(f.msg, m.RadioDrop):
-                k = state.seq_to_meas.pop(f.msg.meas_seq, -1)
+                k = state.answer(f.msg.meas_seq, OUTCOME_NO_MEAS, f.msg.reason, now_ns)
                 if k >= 0:
-                    res["outcome"][k] = OUTCOME_NO_MEAS
-                    res["error_code"][k] = f.msg.reason
-                    res["t_recv_ns"][k] = now_ns
                     answered.append(k)
             elif isinstance(f.msg, m.Stats):
                 state.stats = f.msg

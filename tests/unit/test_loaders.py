@@ -1,7 +1,9 @@
-"""Recorded-data loaders: synthetic fixtures with known answers, malformed files, the native format,
-every shared recording (skipped without ../shared/data), and a real flight replayed through the device.
+"""Recorded-data loaders: synthetic fixtures with known answers, malformed files, every shared recording
+(skipped without ../shared/data), and a real flight replayed through the device. The native format has its own
+tests (test_native_format.py).
 
-The fixtures in tests/fixtures/recordings, and the rcv_twr sequence written by `write_rcv_twr_mini`, come
+The fixtures in tests/fixtures/recordings, and the rcv_twr sequence written by `write_rcv_twr_mini`
+(rcv_twr_mini.py), come
 from exact geometry (noise-free values), so a loader that gets a convention wrong (TDoA sign, lever arm,
 quaternion order, units) fails here. Real recordings are only read from ../shared/data.
 """
@@ -9,7 +11,6 @@ quaternion order, units) fails here. Real recordings are only read from ../share
 from __future__ import annotations
 
 import shutil
-import zipfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,11 +18,11 @@ import numpy as np
 import pytest
 
 from harness.config import MODE_IMU, MODE_IMU_THRUST, MODE_UWB_ONLY, PRESETS, EstimatorConfig
-from harness.flight.loaders import (RecordingError, load_anchors, load_flight, load_rcv_twr, load_recording,
-                                    save_flight, time_slice)
-from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, ImuStream, Truth, UwbStream
+from harness.flight.loaders import RecordingError, load_anchors, load_rcv_twr, load_recording, time_slice
+from harness.flight.data import KIND_TDOA, KIND_TWR
 from harness.flight.run_config import config_for
 from harness.paths import shared_data_dir
+from rcv_twr_mini import write_rcv_twr_mini
 
 FIX = Path(__file__).parents[1] / "fixtures" / "recordings"
 REDUCED = FIX / "const1-fixture-tdoa2.csv"
@@ -156,44 +157,6 @@ def test_measurements_outside_the_truth_span_are_dropped_and_counted(tmp_path: P
 
 
 # ------------------------------------------------------------------------------------ rcv_twr
-def write_rcv_twr_mini(d: Path) -> Path:
-    """A synthetic rcv_twr sequence in `d` (written here, not committed: the real ones are only read from
-    ../shared/data): 4 anchors, exact ranges (1 cm resolution) to a tag moving in a straight line, round
-    robin every 40 ms, gt at 10 ms, one failed ranging (-1.5) on anchor 2."""
-    d.mkdir(parents=True, exist_ok=True)
-    anchors = {1: (2.0, 2.0, 1.0), 2: (-2.0, 2.0, 1.2), 3: (-2.0, -2.0, 0.8), 4: (2.0, -2.0, 1.1)}
-    offset = np.array([0.0, -0.05, 0.045])   # the antenna offset this data folder's README states
-    (d.parent / "README.md").write_text("- `anchor.yaml`: anchor positions.\n  The source's own analysis adds "
-                                        "(0, -0.05, +0.045) m to the anchor positions (antenna offset).\n")
-
-    def ts(t: float) -> str:
-        s = 13.0 + t
-        return f"2024-06-09 19:39:{int(s):02d}.{int(round((s % 1) * 1e6)):06d}"
-
-    def tag(t: float) -> np.ndarray:
-        return np.array([0.2 * t, -0.1 * t, 0.5 + 0.05 * t])
-
-    (d / "anchor.yaml").write_text("".join(
-        f"anchor{k}:\n  - position:\n      data: [{p[0]}, {p[1]}, {p[2]}]\n  - orientation:\n"
-        f"      data: [0.0, 0.0, 0.0, 1.0]\n\n" for k, p in anchors.items()))
-    gt = ["Time,Position X,Position Y,Position Z,Orientation X,Orientation Y,Orientation Z,Orientation W"]
-    for k in range(121):
-        t = 0.01 * k
-        p = tag(t)
-        gt.append(f"{ts(t)},{p[0]:.9f},{p[1]:.9f},{p[2]:.9f},0.0,0.0,0.0,1.0")
-    (d / "gt.csv").write_text("\n".join(gt) + "\n")
-    for k, a in anchors.items():
-        rows = ["Time,Address,Range,Rxpower,Position X,Position Y,Position Z,Orientation X,Orientation Y,"
-                "Orientation Z,Orientation W"]
-        for j in range(7):
-            t = 0.02 + 0.16 * j + 0.04 * (k - 1)
-            p = tag(t)
-            rng = f"{np.linalg.norm(p - (np.array(a) + offset)):.2f}" if not (k == 2 and j == 3) else "-1.5"
-            rows.append(f"{ts(t)},{80 + k},{rng},-62.5,{p[0]:.9f},{p[1]:.9f},{p[2]:.9f},0.0,0.0,0.0,1.0")
-        (d / f"anchor_{k}.csv").write_text("\n".join(rows) + "\n")
-    return d
-
-
 @pytest.fixture(scope="module")
 def rcv(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_rcv_twr_mini(tmp_path_factory.mktemp("rcv") / "rcv_twr_mini")
@@ -270,126 +233,6 @@ def test_rcv_twr_malformed(tmp_path: Path) -> None:
     (d / "anchor.yaml").unlink()
     with pytest.raises(FileNotFoundError, match="anchor.yaml"):
         load_rcv_twr(d)
-
-
-# ------------------------------------------------------------------------------------ native format
-def _synthetic_flight() -> Flight:
-    rng = np.random.default_rng(3)
-    n, k, m = 50, 30, 200
-    q = rng.normal(size=(k, 4))
-    return Flight(
-        name="synthetic",
-        anchors=Anchors(ids=np.array([0, 3, 5]), positions=rng.normal(size=(3, 3)),
-                        orientations=np.array([[1.0, 0, 0, 0]] * 3)),
-        uwb=UwbStream(kind=KIND_TWR, t_us=np.sort(rng.integers(0, 10**6, n)).astype(np.int64),
-                      anchor_a=rng.choice([0, 3, 5], n), anchor_b=np.full(n, -1), value=rng.normal(size=n),
-                      true_value=rng.normal(size=n)),
-        truth=Truth(t_us=np.arange(k, dtype=np.int64) * 40_000, pos=rng.normal(size=(k, 3)),
-                    quat=q / np.linalg.norm(q, axis=1, keepdims=True), vel=rng.normal(size=(k, 3))),
-        imu=ImuStream(t_us=np.arange(m, dtype=np.int64) * 5000, acc=rng.normal(size=(m, 3)),
-                      gyro=rng.normal(size=(m, 3))),
-        meta={"seed": 3, "noise": "gaussian", "std": 0.1, "nested": {"a": [1, 2.5, None], "b": True}},
-    )
-
-
-def _assert_same(a: Flight, b: Flight) -> None:
-    assert a.name == b.name and a.meta == b.meta and a.uwb.kind == b.uwb.kind
-    for part in ("anchors", "uwb", "truth", "imu"):
-        pa, pb = getattr(a, part), getattr(b, part)
-        assert (pa is None) == (pb is None), part
-        if pa is None:
-            continue
-        for name, va in vars(pa).items():
-            vb = getattr(pb, name)
-            if isinstance(va, np.ndarray) or isinstance(vb, np.ndarray):
-                assert va is not None and vb is not None, f"{part}.{name}"
-                assert va.dtype == vb.dtype and va.shape == vb.shape, f"{part}.{name}"
-                assert va.tobytes() == vb.tobytes(), f"{part}.{name}"   # bit for bit
-            else:
-                assert va == vb, f"{part}.{name}"
-
-
-def _simulated_flight() -> Flight:
-    from harness.flight.scenarios import scenario_flight
-    return scenario_flight("circle", mode="tdoa", duration_s=3.0, seed=2, noise="realistic")
-
-
-@pytest.mark.parametrize("make", [lambda rcv: _synthetic_flight(), lambda rcv: _simulated_flight(),
-                                  lambda rcv: load_recording(REDUCED), lambda rcv: load_recording(OFFICIAL),
-                                  load_recording],
-                         ids=["synthetic", "simulator", "util8", "util27", "rcv"])
-def test_native_round_trip_is_exact(tmp_path: Path, rcv: Path, make) -> None:  # noqa: ANN001
-    flight = make(rcv)
-    path = save_flight(flight, tmp_path / "flight.npz")
-    _assert_same(flight, load_flight(path))
-    _assert_same(flight, load_recording(path, check=False))  # dispatch by content (the synthetic flight is
-                                                             # random arrays: a format test, not a flight)
-    with np.load(path, allow_pickle=False) as z:             # plain arrays, no pickles
-        assert "flight_json" in z.files
-
-
-def test_native_format_refuses_bad_files(tmp_path: Path) -> None:
-    path = save_flight(_synthetic_flight(), tmp_path / "f.npz")
-    cut = tmp_path / "cut.npz"
-    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
-    with pytest.raises(RecordingError, match="cut.npz"):
-        load_flight(cut)
-    survey = tmp_path / "anchor_const1.npz"
-    np.savez(survey, an_pos=np.zeros((8, 3)), an_quat=np.tile([0, 0, 0, 1.0], (8, 1)))
-    with pytest.raises(RecordingError, match="anchor survey"):
-        load_recording(survey)
-    with zipfile.ZipFile(path) as z:
-        members = {n: z.read(n) for n in z.namelist()}
-    with np.load(path, allow_pickle=False) as z:
-        header = str(z["flight_json"])
-    bad = dict(members)
-    del bad["uwb_value.npy"]
-    _write_zip(tmp_path / "missing.npz", bad)
-    with pytest.raises(RecordingError, match="required member missing") as info:
-        load_flight(tmp_path / "missing.npz")
-    assert info.value.field == "uwb_value"
-    newer = np.lib.format
-    import io
-    buf = io.BytesIO()
-    newer.write_array(buf, np.array(header.replace('"version": 1', '"version": 99')))
-    bad = dict(members, **{"flight_json.npy": buf.getvalue()})
-    _write_zip(tmp_path / "v99.npz", bad)
-    with pytest.raises(RecordingError, match="unsupported format version 99"):
-        load_flight(tmp_path / "v99.npz")
-    with pytest.raises(RecordingError, match="meta cannot be stored"):
-        save_flight(replace(_synthetic_flight(), meta={"x": object()}), tmp_path / "g.npz")
-    assert not (tmp_path / "g.npz").exists() and not (tmp_path / "g.npz.tmp").exists()
-
-
-def _write_zip(path: Path, members: dict[str, bytes]) -> None:
-    with zipfile.ZipFile(path, "w") as z:
-        for name, data in members.items():
-            z.writestr(name, data)
-
-
-def test_inspect_command_summarises_and_converts(tmp_path: Path, rcv: Path,
-                                                 capsys: pytest.CaptureFixture[str]) -> None:
-    from harness.flight.loaders import error_summary, main
-    out = tmp_path / "rcv.npz"
-    assert main([str(rcv), "--save", str(out)]) == 0
-    text = capsys.readouterr().out
-    assert "rcv_twr-rcv_twr_mini: 27 TWR measurements" in text and "nonpositive_range_anchor_2" in text
-    _assert_same(load_recording(rcv), load_flight(out))
-    s = error_summary(load_recording(rcv))
-    assert s["n"] == 27 and s["gross"] == 0 and abs(s["median"]) <= 0.005  # type: ignore[operator]
-    assert [g["group"] for g in s["groups"]] == ["1", "2", "3", "4"]  # type: ignore[index]
-    pairs = error_summary(load_recording(REDUCED))["groups"]
-    assert [g["group"] for g in pairs][:2] == ["0-1", "1-2"] and all(g["std"] < 1e-5 for g in pairs)  # type: ignore
-    assert main([str(FIX / "const1-bad-nan.csv")]) == 2
-    assert "line 12" in capsys.readouterr().err
-
-
-def test_time_slice() -> None:
-    f = load_recording(REDUCED)
-    s = time_slice(f, 0.02, 0.05)
-    assert s.uwb.t_us[0] >= f.uwb.t_us[0] + 20_000 and s.uwb.t_us[-1] < f.uwb.t_us[0] + 50_000
-    assert s.truth.t_us[0] <= s.uwb.t_us[0] and s.truth.t_us[-1] >= s.uwb.t_us[-1]
-    s.validate()
 
 
 # ------------------------------------------------------------------------------------ shared data

@@ -11,7 +11,7 @@ from harness.config import MODE_IMU, MODE_IMU_THRUST
 from harness.flight.data import KIND_TDOA, Anchors, Flight, ImuStream, Truth, UwbStream
 from harness.twin.estimator import TwinEstimator, run_flight
 from harness.twin.takeoff import CLIMB_V, TakeoffDetector
-from test_core_vs_twin import assert_core_equals_twin, base_config, f32, replay_core, run_c  # noqa: F401
+from core_replay import assert_core_equals_twin, base_config, f32, replay_core, run_c  # noqa: F401
 
 ANCHORS = np.array([[-3, -4, 0.2], [-3, 4, 3.0], [4, 4, 0.2], [4, -4, 3.2], [-3, -4.4, 3.0], [4, -3.8, 0.2],
                     [4, 3.8, 3.1], [-3, 3.4, 0.2]], dtype=np.float64)
