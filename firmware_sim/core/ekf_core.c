@@ -14,13 +14,31 @@
 /* The finalize step only trusts attitude errors below this magnitude [rad] (as the Crazyflie). */
 #define EKF_ATT_ERR_MAX 10.0f
 
-void ekf_sym_clamp_flat(float *P)
+/* The bound of one off-diagonal entry of a symmetric P whose variances are all finite and <= EKF_P_MAX. */
+static float clamp_cov(float v)
 {
-    /* Clamping entries one by one (as the Crazyflie does) can make P indefinite: a variance cut to
-     * EKF_P_MAX next to an uncut covariance. Then S = H P H^T + R can go negative and an update throws
-     * the state kilometres away (rcv_twr sequence 3). So a variance above EKF_P_MAX scales its whole
-     * row and column by s_i = sqrt(EKF_P_MAX / P_ii): P <- D P D is a congruence, it keeps P positive
-     * semi-definite and every correlation coefficient. A non-finite variance loses its correlations. */
+    if (v != v) {
+        return 0.0f;
+    }
+    return v > EKF_P_MAX ? EKF_P_MAX : (v < -EKF_P_MAX ? -EKF_P_MAX : v);
+}
+
+/* 1 if every variance is finite and <= EKF_P_MAX: then no row needs scaling and the clamp is entry-wise. */
+static int variances_in_range(const float *P)
+{
+    int i;
+    for (i = 0; i < EKF_N; i++) {
+        if (!(fabsf(P[i * EKF_N + i]) <= EKF_P_MAX)) { /* also NaN and -inf */
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/* The general clamp: a variance above EKF_P_MAX or a non-finite one (see ekf_sym_clamp_flat). P is
+ * symmetric here (the averaging is kept: it is exact then, and it was the rule before the fast path). */
+static void sym_clamp_scaled(float *P)
+{
     float s[EKF_N];
     uint8_t bad[EKF_N];
     int i, j;
@@ -34,13 +52,53 @@ void ekf_sym_clamp_flat(float *P)
             float v = 0.5f * (P[i * EKF_N + j] + P[j * EKF_N + i]) * s[i] * s[j];
             if (i == j) {
                 v = (bad[i] || isnan(v) || v > EKF_P_MAX) ? EKF_P_MAX : (v < EKF_P_MIN ? EKF_P_MIN : v);
-            } else if (bad[i] || bad[j] || isnan(v)) {
+            } else if (bad[i] || bad[j]) {
                 v = 0.0f;
-            } else if (v > EKF_P_MAX) {
-                v = EKF_P_MAX;
-            } else if (v < -EKF_P_MAX) {
-                v = -EKF_P_MAX;
+            } else {
+                v = clamp_cov(v);
             }
+            P[i * EKF_N + j] = v;
+            P[j * EKF_N + i] = v;
+        }
+    }
+}
+
+void ekf_sym_clamp_flat(float *P)
+{
+    /* Clamping entries one by one (as the Crazyflie does) can make P indefinite: a variance cut to
+     * EKF_P_MAX next to an uncut covariance. Then S = H P H^T + R can go negative and an update throws
+     * the state kilometres away (rcv_twr sequence 3). So a variance above EKF_P_MAX scales its whole
+     * row and column by s_i = sqrt(EKF_P_MAX / P_ii): P <- D P D is a congruence, it keeps P positive
+     * semi-definite and every correlation coefficient. A non-finite variance loses its correlations.
+     * Here: (P + P^T) / 2 into the upper triangle, then the bounds (ekf_sym_clamp_upper, the same numbers). */
+    int i, j;
+    for (i = 0; i < EKF_N; i++) {
+        for (j = i + 1; j < EKF_N; j++) {
+            P[i * EKF_N + j] = 0.5f * (P[i * EKF_N + j] + P[j * EKF_N + i]);
+        }
+    }
+    ekf_sym_clamp_upper(P);
+}
+
+void ekf_sym_clamp_upper(float *P)
+{
+    /* When no variance needs scaling (the usual case) every s_i is 1 and the bounds are entry-wise:
+     * the same result without the products. */
+    int i, j;
+    if (!variances_in_range(P)) {
+        for (i = 1; i < EKF_N; i++) {
+            for (j = 0; j < i; j++) {
+                P[i * EKF_N + j] = P[j * EKF_N + i];
+            }
+        }
+        sym_clamp_scaled(P);
+        return;
+    }
+    for (i = 0; i < EKF_N; i++) {
+        const float d = P[i * EKF_N + i];
+        P[i * EKF_N + i] = d < EKF_P_MIN ? EKF_P_MIN : d;
+        for (j = i + 1; j < EKF_N; j++) {
+            const float v = clamp_cov(P[i * EKF_N + j]);
             P[i * EKF_N + j] = v;
             P[j * EKF_N + i] = v;
         }

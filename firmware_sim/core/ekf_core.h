@@ -88,6 +88,9 @@ void ekf_sym_clamp(float P[EKF_N][EKF_N]);
 /* The same on a flat row-major 9x9 array (the form ekf_core.c and ekf_update.c call: GCC 12 misreads the
  * bounds of an array parameter at some call sites, a false -Wstringop-overflow). */
 void ekf_sym_clamp_flat(float *P);
+/* The same for a symmetric P given by its upper triangle (j >= i; the lower one is not read): the result
+ * of ekf_sym_clamp_flat on that symmetric matrix, both triangles written. */
+void ekf_sym_clamp_upper(float *P);
 
 /* 1 if the state, q and the diagonal of P are all finite. */
 int ekf_is_finite(const ekf_t *ekf);

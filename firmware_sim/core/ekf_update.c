@@ -22,35 +22,43 @@ void ekf_scalar_prepare(const ekf_t *ekf, ekf_scalar_t *m, const float h[3], flo
     m->mahalanobis = fabsf(innovation) / sqrtf(m->S);
 }
 
+/* Entry (i, j) of the Joseph form's second step (below): P1_ij + (R K_i K_j - w_i K_j), P1 = P - K s^T. */
+static inline float joseph_entry(const float *P, const ekf_scalar_t *m, const float *w, int i, int j)
+{
+    const float p1 = P[i * EKF_N + j] - m->K[i] * m->ph[j];
+    return p1 + (m->r_var * m->K[i] * m->K[j] - w[i] * m->K[j]);
+}
+
 void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
 {
     const float inv_s = 1.0f / m->S;
     const float *h = m->h;
+    float *P = &ekf->P[0][0];
     float w[EKF_N];
     int i, j;
     for (i = 0; i < EKF_N; i++) {
         m->K[i] = m->ph[i] * inv_s;
         ekf->x[i] += m->K[i] * m->innovation;
     }
-    /* Joseph form P = (I - K H) P (I - K H)^T + K R K^T, evaluated as two rank-one corrections
-     * because H = [h 0]: first P <- (I - K H) P = P - K (H P) (H P = (P H^T)^T, P symmetric),
-     * then P <- P (I - K H)^T + K R K^T = P - w K^T + R K K^T with w = P H^T of the new P.
-     * Same result as the matrix products, O(n^2) instead of O(n^3), stays symmetric PSD. */
+    /* Joseph form P <- (I - K H) P (I - K H)^T + K R K^T as two rank-one corrections (H = [h 0]):
+     * P1 = P - K s^T (s = P H^T), then P2 = P1 - w K^T + R K K^T with w = P1 H^T measured on the rounded
+     * P1: that is what keeps the Joseph form accurate in float32 (P - s s^T / S, equal in exact
+     * arithmetic, drifts by millimetres from the float64 twin after a divergence). w needs P1's first
+     * three columns only (27 entries). P2 is symmetrised as (P2_ij + P2_ji) / 2 pair by pair, the upper
+     * triangle mirrored by the clamp: the same numbers as the full 9x9 passes and ekf_sym_clamp_flat. */
     for (i = 0; i < EKF_N; i++) {
-        for (j = 0; j < EKF_N; j++) {
-            ekf->P[i][j] -= m->K[i] * m->ph[j];
+        const float ki = m->K[i];
+        w[i] = (P[i * EKF_N] - ki * m->ph[0]) * h[0] + (P[i * EKF_N + 1] - ki * m->ph[1]) * h[1] +
+               (P[i * EKF_N + 2] - ki * m->ph[2]) * h[2];
+    }
+    for (i = 0; i < EKF_N; i++) {
+        const float d = joseph_entry(P, m, w, i, i);
+        for (j = i + 1; j < EKF_N; j++) {
+            P[i * EKF_N + j] = 0.5f * (joseph_entry(P, m, w, i, j) + joseph_entry(P, m, w, j, i));
         }
+        P[i * EKF_N + i] = 0.5f * (d + d);
     }
-    for (i = 0; i < EKF_N; i++) {
-        w[i] = ekf->P[i][0] * h[0] + ekf->P[i][1] * h[1] + ekf->P[i][2] * h[2];
-    }
-    for (i = 0; i < EKF_N; i++) {
-        const float rki = m->r_var * m->K[i];
-        for (j = 0; j < EKF_N; j++) {
-            ekf->P[i][j] += rki * m->K[j] - w[i] * m->K[j];
-        }
-    }
-    ekf_sym_clamp_flat(&ekf->P[0][0]);
+    ekf_sym_clamp_upper(P);
 }
 
 void ekf_scalar_update(ekf_t *ekf, ekf_scalar_t *m, const float h[3], float innovation, float r_var)
