@@ -20,9 +20,8 @@
 #define EKF_GYRO_NOISE_RP 0.01f
 #define EKF_GYRO_NOISE_YAW 0.01f
 
-/* First index where row i of the IMU transition matrix can be nonzero: A is block upper
- * triangular (position <- all, velocity <- velocity/attitude, attitude <- attitude). */
-static const uint8_t imu_row_start[EKF_N] = {0, 0, 0, 3, 3, 3, 6, 6, 6};
+/* The IMU transition matrix A is block upper triangular: position <- position (I), velocity, attitude;
+ * velocity <- velocity, attitude; attitude <- attitude. The covariance products below skip its zeros. */
 
 /* The linearised IMU transition A (9x9) over dt with the averaged gyro w, at the state of the step's start. */
 static void imu_transition(const ekf_t *ekf, const float gyro[3], float dt, float A[EKF_N][EKF_N])
@@ -75,27 +74,57 @@ static void imu_transition(const ekf_t *ekf, const float gyro[3], float dt, floa
     }
 }
 
-/* P = A P A^T, skipping the structural zeros of A. */
+/* s + a[0] p[0] + a[1] p[st] + a[2] p[2 st] (+ the next three), added in this order; written out so the
+ * compiler emits straight-line code (no loop counter per multiply-add). */
+static inline float dot3(float s, const float *a, const float *p, int st)
+{
+    s += a[0] * p[0];
+    s += a[1] * p[st];
+    s += a[2] * p[2 * st];
+    return s;
+}
+
+static inline float dot6(float s, const float *a, const float *p, int st)
+{
+    return dot3(dot3(s, a, p, st), a + 3, p + 3 * st, st);
+}
+
+/* A P over A's nonzero columns only: a position row is P's row plus columns 3..8 (velocity and attitude),
+ * a velocity row columns 3..8, an attitude row columns 6..8: 351 multiply-adds instead of 729, each row
+ * of A held in registers across the columns of P. The sums run in the order of the dense product (the
+ * skipped terms are exact zeros): the same numbers. */
+static void imu_ap(const float *P, const float A[EKF_N][EKF_N], float AP[EKF_N][EKF_N])
+{
+    int i, j;
+    for (i = 0; i < EKF_D0; i++) {
+        for (j = 0; j < EKF_N; j++) {
+            AP[i][j] = dot6(i < EKF_PX ? P[i * EKF_N + j] : 0.0f, &A[i][EKF_PX], &P[EKF_PX * EKF_N + j], EKF_N);
+        }
+    }
+    for (i = EKF_D0; i < EKF_N; i++) {
+        for (j = 0; j < EKF_N; j++) {
+            AP[i][j] = dot3(0.0f, &A[i][EKF_D0], &P[EKF_D0 * EKF_N + j], EKF_N);
+        }
+    }
+}
+
+/* P = A P A^T: (A P) A^T over A's nonzero columns (333 multiply-adds instead of 729). Both triangles:
+ * the clamp averages P_ij and P_ji as before (computing one triangle only is cheaper still, but the
+ * rounding then differs from the twin's by up to 4 mm after a divergence, test_supervisor_matches_twin). */
 static void imu_propagate_cov(ekf_t *ekf, const float A[EKF_N][EKF_N])
 {
     float AP[EKF_N][EKF_N];
-    int i, j, k;
-    for (i = 0; i < EKF_N; i++) {
-        for (j = 0; j < EKF_N; j++) {
-            float s = 0.0f;
-            for (k = imu_row_start[i]; k < EKF_N; k++) {
-                s += A[i][k] * ekf->P[k][j];
-            }
-            AP[i][j] = s;
+    float *P = &ekf->P[0][0];
+    int i, j;
+    imu_ap(P, A, AP);
+    for (j = 0; j < EKF_D0; j++) {
+        for (i = 0; i < EKF_N; i++) {
+            P[i * EKF_N + j] = dot6(j < EKF_PX ? AP[i][j] : 0.0f, &A[j][EKF_PX], &AP[i][EKF_PX], 1);
         }
     }
-    for (i = 0; i < EKF_N; i++) {
-        for (j = 0; j < EKF_N; j++) {
-            float s = 0.0f;
-            for (k = imu_row_start[j]; k < EKF_N; k++) {
-                s += AP[i][k] * A[j][k];
-            }
-            ekf->P[i][j] = s;
+    for (j = EKF_D0; j < EKF_N; j++) {
+        for (i = 0; i < EKF_N; i++) {
+            P[i * EKF_N + j] = dot3(0.0f, &A[j][EKF_D0], &AP[i][EKF_D0], 1);
         }
     }
 }
