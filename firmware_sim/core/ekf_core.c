@@ -15,12 +15,15 @@
 #define EKF_ATT_ERR_MAX 10.0f
 
 /* The bound of one off-diagonal entry of a symmetric P whose variances are all finite and <= EKF_P_MAX. */
-static float clamp_cov(float v)
+static inline float clamp_cov(float v)
 {
+    if (fabsf(v) <= EKF_P_MAX) { /* the usual case: one test */
+        return v;
+    }
     if (v != v) {
         return 0.0f;
     }
-    return v > EKF_P_MAX ? EKF_P_MAX : (v < -EKF_P_MAX ? -EKF_P_MAX : v);
+    return v > 0.0f ? EKF_P_MAX : -EKF_P_MAX;
 }
 
 /* 1 if every variance is finite and <= EKF_P_MAX: then no row needs scaling and the clamp is entry-wise. */
@@ -35,8 +38,7 @@ static int variances_in_range(const float *P)
     return 1;
 }
 
-/* The general clamp: a variance above EKF_P_MAX or a non-finite one (see ekf_sym_clamp_flat). P is
- * symmetric here (the averaging is kept: it is exact then, and it was the rule before the fast path). */
+/* The general clamp: a variance above EKF_P_MAX or a non-finite one (see ekf_sym_clamp_flat). */
 static void sym_clamp_scaled(float *P)
 {
     float s[EKF_N];
@@ -63,6 +65,23 @@ static void sym_clamp_scaled(float *P)
     }
 }
 
+/* The entry-wise bounds of a symmetric P whose variances are all in range, upper triangle mirrored; with
+ * `average` the upper entry is first (P_ij + P_ji) / 2 (constant at each call: two specialised copies). */
+static inline void clamp_in_range(float *P, int average)
+{
+    int i, j;
+    for (i = 0; i < EKF_N; i++) {
+        float *row = P + i * EKF_N;
+        const float d = row[i];
+        row[i] = d < EKF_P_MIN ? EKF_P_MIN : d;
+        for (j = i + 1; j < EKF_N; j++) {
+            const float v = clamp_cov(average ? 0.5f * (row[j] + P[j * EKF_N + i]) : row[j]);
+            row[j] = v;
+            P[j * EKF_N + i] = v;
+        }
+    }
+}
+
 void ekf_sym_clamp_flat(float *P)
 {
     /* Clamping entries one by one (as the Crazyflie does) can make P indefinite: a variance cut to
@@ -70,39 +89,28 @@ void ekf_sym_clamp_flat(float *P)
      * the state kilometres away (rcv_twr sequence 3). So a variance above EKF_P_MAX scales its whole
      * row and column by s_i = sqrt(EKF_P_MAX / P_ii): P <- D P D is a congruence, it keeps P positive
      * semi-definite and every correlation coefficient. A non-finite variance loses its correlations.
-     * Here: (P + P^T) / 2 into the upper triangle, then the bounds (ekf_sym_clamp_upper, the same numbers). */
-    int i, j;
-    for (i = 0; i < EKF_N; i++) {
-        for (j = i + 1; j < EKF_N; j++) {
-            P[i * EKF_N + j] = 0.5f * (P[i * EKF_N + j] + P[j * EKF_N + i]);
-        }
+     * When no variance needs it (the usual case) every s_i is 1 and the bounds are entry-wise on
+     * (P + P^T) / 2: the same result without the products. */
+    if (variances_in_range(P)) {
+        clamp_in_range(P, 1);
+    } else {
+        sym_clamp_scaled(P);
     }
-    ekf_sym_clamp_upper(P);
 }
 
 void ekf_sym_clamp_upper(float *P)
 {
-    /* When no variance needs scaling (the usual case) every s_i is 1 and the bounds are entry-wise:
-     * the same result without the products. */
     int i, j;
-    if (!variances_in_range(P)) {
-        for (i = 1; i < EKF_N; i++) {
-            for (j = 0; j < i; j++) {
-                P[i * EKF_N + j] = P[j * EKF_N + i];
-            }
-        }
-        sym_clamp_scaled(P);
+    if (variances_in_range(P)) {
+        clamp_in_range(P, 0);
         return;
     }
-    for (i = 0; i < EKF_N; i++) {
-        const float d = P[i * EKF_N + i];
-        P[i * EKF_N + i] = d < EKF_P_MIN ? EKF_P_MIN : d;
-        for (j = i + 1; j < EKF_N; j++) {
-            const float v = clamp_cov(P[i * EKF_N + j]);
-            P[i * EKF_N + j] = v;
-            P[j * EKF_N + i] = v;
+    for (i = 1; i < EKF_N; i++) {
+        for (j = 0; j < i; j++) {
+            P[i * EKF_N + j] = P[j * EKF_N + i];
         }
     }
+    sym_clamp_scaled(P);
 }
 
 void ekf_sym_clamp(float P[EKF_N][EKF_N])
