@@ -22,11 +22,17 @@ void ekf_scalar_prepare(const ekf_t *ekf, ekf_scalar_t *m, const float h[3], flo
     m->mahalanobis = fabsf(innovation) / sqrtf(m->S);
 }
 
+/* The gain, s = P H^T, R K and w = P1 H^T of one update in locals (no aliasing with P: they stay in
+ * registers while P is written). */
+typedef struct {
+    float K[EKF_N], s[EKF_N], rk[EKF_N], w[EKF_N];
+} joseph_t;
+
 /* Entry (i, j) of the Joseph form's second step (below): P1_ij + (R K_i K_j - w_i K_j), P1 = P - K s^T. */
-static inline float joseph_entry(const float *P, const ekf_scalar_t *m, const float *w, int i, int j)
+static inline float joseph_entry(const float *P, const joseph_t *t, int i, int j)
 {
-    const float p1 = P[i * EKF_N + j] - m->K[i] * m->ph[j];
-    return p1 + (m->r_var * m->K[i] * m->K[j] - w[i] * m->K[j]);
+    const float p1 = P[i * EKF_N + j] - t->K[i] * t->s[j];
+    return p1 + (t->rk[i] * t->K[j] - t->w[i] * t->K[j]);
 }
 
 void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
@@ -34,11 +40,14 @@ void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
     const float inv_s = 1.0f / m->S;
     const float *h = m->h;
     float *P = &ekf->P[0][0];
-    float w[EKF_N];
+    joseph_t t;
     int i, j;
     for (i = 0; i < EKF_N; i++) {
-        m->K[i] = m->ph[i] * inv_s;
-        ekf->x[i] += m->K[i] * m->innovation;
+        t.K[i] = m->ph[i] * inv_s;
+        t.s[i] = m->ph[i];
+        t.rk[i] = m->r_var * t.K[i];
+        m->K[i] = t.K[i];
+        ekf->x[i] += t.K[i] * m->innovation;
     }
     /* Joseph form P <- (I - K H) P (I - K H)^T + K R K^T as two rank-one corrections (H = [h 0]):
      * P1 = P - K s^T (s = P H^T), then P2 = P1 - w K^T + R K K^T with w = P1 H^T measured on the rounded
@@ -47,14 +56,14 @@ void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
      * three columns only (27 entries). P2 is symmetrised as (P2_ij + P2_ji) / 2 pair by pair, the upper
      * triangle mirrored by the clamp: the same numbers as the full 9x9 passes and ekf_sym_clamp_flat. */
     for (i = 0; i < EKF_N; i++) {
-        const float ki = m->K[i];
-        w[i] = (P[i * EKF_N] - ki * m->ph[0]) * h[0] + (P[i * EKF_N + 1] - ki * m->ph[1]) * h[1] +
-               (P[i * EKF_N + 2] - ki * m->ph[2]) * h[2];
+        const float ki = t.K[i];
+        t.w[i] = (P[i * EKF_N] - ki * t.s[0]) * h[0] + (P[i * EKF_N + 1] - ki * t.s[1]) * h[1] +
+                 (P[i * EKF_N + 2] - ki * t.s[2]) * h[2];
     }
     for (i = 0; i < EKF_N; i++) {
-        const float d = joseph_entry(P, m, w, i, i);
+        const float d = joseph_entry(P, &t, i, i);
         for (j = i + 1; j < EKF_N; j++) {
-            P[i * EKF_N + j] = 0.5f * (joseph_entry(P, m, w, i, j) + joseph_entry(P, m, w, j, i));
+            P[i * EKF_N + j] = 0.5f * (joseph_entry(P, &t, i, j) + joseph_entry(P, &t, j, i));
         }
         P[i * EKF_N + i] = 0.5f * (d + d);
     }
