@@ -1,0 +1,59 @@
+"""harness/biasnet/quantize.py: the q15 form of a bias network (issue 24) - integer ranges, no overflow for
+any input, agreement with the float network, NaN and out-of-range inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from harness.biasnet.export import DEFAULT_NPZ
+from harness.biasnet.network import BiasModel, init_network
+from harness.biasnet.quantize import ACC_LIMIT, Q_MAX, Q15Network, agreement, box_inputs
+from harness.twin.features import LAYOUT_TDOA_POSE
+
+
+@pytest.fixture(scope="module")
+def shipped() -> BiasModel:
+    return BiasModel.load(DEFAULT_NPZ)
+
+
+@pytest.mark.parametrize("kind", ["twr", "tdoa"])
+def test_tables_fit_int16_and_no_sum_can_overflow(shipped: BiasModel, kind: str) -> None:
+    net = shipped.network(kind)
+    assert net is not None
+    q = Q15Network.from_network(net)
+    for layer, x_max in ((q.l1, 2 ** 15), (q.l2, Q_MAX), (q.head, Q_MAX)):
+        assert np.max(np.abs(layer.w)) <= Q_MAX
+        worst = np.abs(layer.b) + np.sum(np.abs(layer.w), axis=0) * x_max
+        assert np.max(worst) < ACC_LIMIT          # int32 sums are exact for every input
+    assert q.l1.shift >= 1 and q.l2.shift >= 1
+    assert q.flash_bytes < 0.55 * 4 * (net.w1.size + net.w2.size + 2 * 50)   # about half the float32 tables
+
+
+@pytest.mark.parametrize("kind", ["twr", "tdoa"])
+def test_q15_agrees_with_the_float_network_within_a_millimetre(shipped: BiasModel, kind: str) -> None:
+    net = shipped.network(kind)
+    assert net is not None
+    q = Q15Network.from_network(net)
+    a = agreement(q, box_inputs(net, 4000, seed=1))
+    # measured on the shipped model (python -m harness.biasnet.quantize): max 0.10 / 0.36 mm, RMS 0.02 / 0.10 mm
+    assert a["bias_max_m"] < 1e-3 and a["bias_rms_m"] < 3e-4
+    assert a["bias_max_m"] > 0.0                  # it is a different computation, not the float one again
+    if net.w3s is not None:
+        assert a["std_max_m"] < 1e-5
+
+
+def test_random_network_with_a_std_head_and_hostile_inputs() -> None:
+    rng = np.random.default_rng(7)
+    net = init_network(LAYOUT_TDOA_POSE, np.full(9, -3.0), np.full(9, 3.0), -0.5, 0.5, rng)
+    from dataclasses import replace
+    net = replace(net, w3s=rng.normal(0, 0.1, 50).astype(np.float32), b3s=-2.5, std_min=0.02, std_max=0.5)
+    q = Q15Network.from_network(net)
+    a = agreement(q, box_inputs(net, 2000, seed=2))
+    assert a["bias_rms_m"] < 1e-3 * (net.out_max - net.out_min)
+    x = np.array([[np.nan] * 9, [1e30] * 9, [-1e30] * 9])
+    xq = q.input_q(x)
+    assert list(xq[0]) == [0] * 9 and list(xq[1]) == [Q_MAX] * 9 and list(xq[2]) == [-32768] * 9
+    b, s = q.predict_with_std_batch(x)
+    assert np.all(np.isfinite(b)) and np.all((b >= net.out_min) & (b <= net.out_max))
+    assert np.all((s >= net.std_min) & (s <= net.std_max))
