@@ -124,7 +124,7 @@ float bias_nn_ood_fade(float excess)
 
 float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN])
 {
-    float s = net->b3s, std;
+    float s = net->b3s;
     int i;
     if (net->w3s == NULL) {
         return 0.0f;
@@ -132,7 +132,12 @@ float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN])
     for (i = 0; i < BIAS_NN_HIDDEN; i++) {
         s += h2[i] * net->w3s[i];
     }
-    std = expf(s);
+    return bias_nn_std_of(net, s);
+}
+
+float bias_nn_std_of(const bias_nn_t *net, float s)
+{
+    float std = expf(s);
     /* NaN fails both comparisons' "inside" side and ends at std_max: trust least when unsure */
     if (!(std <= net->std_max)) {
         std = net->std_max;
@@ -148,7 +153,11 @@ float bias_nn_predict(const bias_nn_t *net, const float *features, float *std_ou
     float x[BIAS_NN_MAX_IN], h1[BIAS_NN_HIDDEN], h2[BIAS_NN_HIDDEN];
     float y;
     int i;
-    const uint8_t n_in = (uint8_t)bias_nn_scale_inputs(net, features, x);
+    uint8_t n_in;
+    if (net->q_heads > 0u) {
+        return bias_nn_predict_q15(net, features, std_out);
+    }
+    n_in = (uint8_t)bias_nn_scale_inputs(net, features, x);
 
     dense_relu(x, n_in, net->w1, net->b1, h1);
     dense_relu(h1, (uint8_t)BIAS_NN_HIDDEN, net->w2, net->b2, h2);

@@ -7,6 +7,7 @@
 #include <stdint.h>
 
 #define BIAS_NN_HIDDEN 50
+#define BIAS_NN_Q15_BLOCK(n_out) ((n_out) % 5u == 0u ? 5u : (n_out)) /* outputs per block (q15 layout) */
 #define BIAS_NN_MAX_IN 9
 
 /* Input layouts (protocol enum `layout`). dp = anchor - tag position, world frame [m]. */
@@ -37,6 +38,21 @@ typedef struct {
     float b3s;
     float std_min;       /* bounds of the predicted std [m] */
     float std_max;
+    /* The q15 form (harness/biasnet/quantize.py), used when q_heads > 0 (the float tables w1..w3s are then
+     * NULL): int16 weights and activations, int32 sums. Weights block-major for the M4's SMLAD: outputs
+     * in blocks of B = BIAS_NN_Q15_BLOCK(n_out), inputs in pairs (n_in padded to even with zeros); output
+     * j = b B + t, pair k: int16 q_w[((b n_pairs + k) B + t) 2 + h] = w[2k + h][j]. Heads: output 0 the
+     * bias, 1 the log std. */
+    uint8_t q_heads;     /* 0: float32 network; 1: q15 with the bias head; 2: q15 with the bias and std heads */
+    uint8_t q_shift1;    /* hidden-layer requantisation: activation = clamp(sum >> shift, 0, 32767) */
+    uint8_t q_shift2;
+    const int16_t *q_w1;
+    const int32_t *q_b1; /* 50, the rounding half of q_shift1 included */
+    const int16_t *q_w2;
+    const int32_t *q_b2;
+    const int16_t *q_wh;
+    const int32_t *q_bh; /* q_heads */
+    float q_out_scale;   /* head sum -> the float network's output unit (a power of two) */
 } bias_nn_t;
 
 /* The compiled-in model: one network per measurement kind (either may be NULL). */
@@ -97,6 +113,16 @@ static inline float bias_nn_descale_output(const bias_nn_t *net, float y)
 
 /* The std head on a computed second hidden layer h2 (shared by bias_nn.c and the M4 kernel). */
 float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN]);
+
+/* The std of a log-std value s, clamped to [std_min, std_max] (NaN -> std_max). */
+float bias_nn_std_of(const bias_nn_t *net, float s);
+
+/* A q15 network (q_heads > 0): the bias (and the std when std_out != NULL), as bias_nn_predict. */
+float bias_nn_predict_q15(const bias_nn_t *net, const float *features, float *std_out);
+/* Its two ends (shared with the M4 kernel): the int16 inputs (padded to pairs; returns the number of
+ * pairs), and the heads on the second hidden layer: the bias, the std into *std_out when not NULL. */
+unsigned bias_nn_q15_inputs(const bias_nn_t *net, const float *features, int16_t x[BIAS_NN_MAX_IN + 1]);
+float bias_nn_q15_heads(const bias_nn_t *net, const int16_t h2[BIAS_NN_HIDDEN], float *std_out);
 
 /* The model the firmware is built with (firmware_sim/models/bias_model_default.h, or the
  * header named by -DBIAS_MODEL_HEADER). Defined in bias_nn.c. */

@@ -111,6 +111,30 @@ float nn_m4_predict(const bias_nn_t *net, const float *features, float *std_out)
     return predict_with(net, features, std_out, dense_relu_m4);
 }
 
+float nn_m4_predict_q15(const bias_nn_t *net, const float *features, float *std_out)
+{
+    int16_t x[BIAS_NN_MAX_IN + 1], h1[H], h2[H];
+    const unsigned n_pairs = bias_nn_q15_inputs(net, features, x);
+    unsigned b;
+    for (b = 0; b < H; b += 5u) {
+        q15_block5_m4(x, n_pairs, net->q_w1 + 2u * b * n_pairs, net->q_b1 + b, h1 + b, net->q_shift1);
+    }
+    for (b = 0; b < H; b += 5u) {
+        q15_block5_m4(h1, H / 2u, net->q_w2 + 2u * b * (H / 2u), net->q_b2 + b, h2 + b, net->q_shift2);
+    }
+    if (net->q_heads == 2u) {
+        int32_t acc[2];
+        acc[0] = net->q_bh[0];
+        acc[1] = net->q_bh[1];
+        q15_heads2_m4(h2, H / 2u, net->q_wh, acc);
+        if (std_out != (float *)0) {
+            *std_out = bias_nn_std_of(net, (float)acc[1] * net->q_out_scale);
+        }
+        return bias_nn_descale_output(net, (float)acc[0] * net->q_out_scale);
+    }
+    return bias_nn_q15_heads(net, h2, std_out);
+}
+
 float nn_m4_predict_c(const bias_nn_t *net, const float *features, float *std_out)
 {
     return predict_with(net, features, std_out, dense_relu);
@@ -118,5 +142,8 @@ float nn_m4_predict_c(const bias_nn_t *net, const float *features, float *std_ou
 
 float __wrap_bias_nn_predict(const bias_nn_t *net, const float *features, float *std_out)
 {
+    if (net->q_heads > 0u) { /* a q15 network (bias_nn.h) */
+        return nn_m4_predict_q15(net, features, std_out);
+    }
     return nn_m4_predict(net, features, std_out);
 }

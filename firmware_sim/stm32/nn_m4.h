@@ -13,6 +13,16 @@ float nn_m4_predict_c(const bias_nn_t *net, const float *features, float *std_ou
 /* One hidden layer in assembly (nn_m4_kernel.S): out[j] = relu(b[j] + sum_i x[i] w[i*50+j]). */
 void dense_relu_m4(const float *x, unsigned n_in, const float *w, const float *b, float *out);
 
+/* A q15 network (bias_nn.h, q_heads > 0): the hidden layers with SMLAD (nn_m4_q15.S), the same integers
+ * as the core's bias_nn_predict_q15. */
+float nn_m4_predict_q15(const bias_nn_t *net, const float *features, float *std_out);
+
+/* nn_m4_q15.S: five outputs of a q15 hidden layer (w at the block's words, bias_nn.h), and the two heads'
+ * sums added to acc2 (the biases on entry). */
+void q15_block5_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, const int32_t *b5, int16_t *out5,
+                   unsigned shift);
+void q15_heads2_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, int32_t acc2[2]);
+
 /* The core's portable version, still linked under this name when the build wraps
  * bias_nn_predict (-Wl,--wrap=bias_nn_predict). */
 float __real_bias_nn_predict(const bias_nn_t *net, const float *features, float *std_out);

@@ -2,7 +2,8 @@
 
 The header defines ``BIAS_MODEL_TWR``, ``BIAS_MODEL_TDOA`` (pointers or NULL) and ``BIAS_MODEL_HASH``; it is
 included by firmware_sim/core/bias_nn.c only (the default one, or the one named by -DBIAS_MODEL_HEADER).
-Floats are written with 9 significant digits, which round-trips every float32 exactly.
+Floats are written with 9 significant digits, which round-trips every float32 exactly. A network whose
+``quant`` is ``"q15"`` is written as its q15 tables only (harness/biasnet/quantize.py; bias_nn_q15.c).
 """
 
 from __future__ import annotations
@@ -34,21 +35,61 @@ def _c_array(name: str, values: np.ndarray, per_line: int = 8) -> str:
     return f"static const float {name}[{len(flat)}] = {{\n" + "\n".join(lines) + "\n};\n"
 
 
+def _int_array(ctype: str, name: str, values: np.ndarray, per_line: int = 16) -> str:
+    flat = np.asarray(values, dtype=np.int64).ravel()
+    lines = ["    " + ", ".join(str(int(v)) for v in flat[k:k + per_line]) + "," for k in range(0, len(flat), per_line)]
+    return f"static const {ctype} {name}[{len(flat)}] = {{\n" + "\n".join(lines) + "\n};\n"
+
+
+def _pairs(w: np.ndarray) -> np.ndarray:
+    """(n_in, n_out) -> the q15 block-major layout of bias_nn.h: [((b n_pairs + k) B + t) 2 + h] = w[2k + h, b B + t]
+    with B = 5 when 5 divides n_out, else n_out (BIAS_NN_Q15_BLOCK); n_in padded to even with zeros."""
+    if w.shape[0] % 2:
+        w = np.vstack([w, np.zeros((1, w.shape[1]), dtype=w.dtype)])
+    n_out = w.shape[1]
+    blk = 5 if n_out % 5 == 0 else n_out
+    return w.reshape(-1, 2, n_out // blk, blk).transpose(2, 0, 3, 1).ravel()
+
+
+def _init(fields: list[tuple[str, str]]) -> str:
+    return "\n".join(f"    .{k} = {v}," for k, v in fields)
+
+
 def _net_block(kind: str, net: BiasNetwork) -> str:
     p = f"bias_net_{kind}"
-    out = [f"/* {kind.upper()} network: layout {net.layout}, {net.n_in} inputs. */\n"]
-    for name in ("w1", "b1", "w2", "b2", "w3", "in_min", "in_max"):
+    null = "(const float *)0"
+    out = [f"/* {kind.upper()} network: layout {net.layout}, {net.n_in} inputs{', q15' if net.quant == 'q15' else ''}. */\n"]
+    fields = [("layout", f"{net.layout}u"), ("n_in", f"{net.n_in}u")]
+    names = ("in_min", "in_max") if net.quant == "q15" else ("w1", "b1", "w2", "b2", "w3", "in_min", "in_max")
+    for name in names:
         out.append(_c_array(f"{p}_{name}", getattr(net, name)))
+    fields += [(n, f"{p}_{n}") for n in names]
+    fields += [("out_min", _c_float(net.out_min)), ("out_max", _c_float(net.out_max))]
     if net.w3s is not None:
-        out.append(_c_array(f"{p}_w3s", net.w3s))
-        head = f"{p}_w3s, {_c_float(net.b3s)}, {_c_float(net.std_min)}, {_c_float(net.std_max)}"
+        fields += [("std_min", _c_float(net.std_min)), ("std_max", _c_float(net.std_max))]
+    if net.quant == "q15":
+        out.append(_q15_tables(p, net))
+        q = net.q15
+        fields += [("q_heads", f"{q.head.w.shape[1]}u"), ("q_shift1", f"{q.l1.shift}u"), ("q_shift2", f"{q.l2.shift}u")]
+        fields += [(f"q_{n}", f"{p}_q_{n}") for n in ("w1", "b1", "w2", "b2", "wh", "bh")]
+        fields.append(("q_out_scale", _c_float(2.0 ** -(q.a2 + q.head.w_exp))))
     else:
-        head = "(const float *)0, 0.0f, 0.0f, 0.0f"
-    out.append(f"static const bias_nn_t {p} = {{\n"
-               f"    {net.layout}u, {net.n_in}u, {p}_w1, {p}_b1, {p}_w2, {p}_b2, {p}_w3, {_c_float(net.b3)},\n"
-               f"    {p}_in_min, {p}_in_max, {_c_float(net.out_min)}, {_c_float(net.out_max)},\n"
-               f"    {head}\n}};\n")
+        fields += [("b3", _c_float(net.b3))]
+        if net.w3s is not None:
+            out.append(_c_array(f"{p}_w3s", net.w3s))
+            fields += [("w3s", f"{p}_w3s"), ("b3s", _c_float(net.b3s))]
+        else:
+            fields.append(("w3s", null))
+    out.append(f"static const bias_nn_t {p} = {{\n{_init(fields)}\n}};\n")
     return "\n".join(out)
+
+
+def _q15_tables(p: str, net: BiasNetwork) -> str:
+    q = net.q15
+    assert q is not None
+    return "\n".join([_int_array("int16_t", f"{p}_q_w1", _pairs(q.l1.w)), _int_array("int32_t", f"{p}_q_b1", q.l1.b),
+                      _int_array("int16_t", f"{p}_q_w2", _pairs(q.l2.w)), _int_array("int32_t", f"{p}_q_b2", q.l2.b),
+                      _int_array("int16_t", f"{p}_q_wh", _pairs(q.head.w)), _int_array("int32_t", f"{p}_q_bh", q.head.b)])
 
 
 def header_text(model: BiasModel) -> str:

@@ -17,8 +17,9 @@ from __future__ import annotations
 import hashlib
 import json
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -27,6 +28,7 @@ from harness.twin.features import (LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR
 from harness.errors import InputError, InputFileNotFound
 
 HIDDEN = 50
+QUANTS = ("float32", "q15")
 FORMAT_VERSION = 2          # 2: optional std head; version-1 files (no head) still load
 _READABLE_VERSIONS = (1, 2)
 _MAGIC = b"UWBNN\x01"
@@ -58,6 +60,10 @@ class BiasNetwork:
     b3s: float = 0.0
     std_min: float = 0.0           # bounds of the predicted std [m] (0 < std_min < std_max with a head)
     std_max: float = 0.0
+    #: how the firmware computes it: "float32" or "q15" (quantize.py: integers from these float tables,
+    #: computed by predict* as the firmware does; part of the hash)
+    quant: str = "float32"
+    _q15: Any = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         n_in = layout_inputs(self.layout)
@@ -82,6 +88,16 @@ class BiasNetwork:
         if not self.out_max > self.out_min:
             raise ModelFormatError("out_max must exceed out_min")
         self._check_std_head()
+        if self.quant not in QUANTS:
+            raise ModelFormatError(f"quant must be one of {QUANTS}, got {self.quant!r}")
+        if self.quant == "q15":
+            from harness.biasnet.quantize import Q15Network
+            object.__setattr__(self, "_q15", Q15Network.from_network(self))
+
+    @property
+    def q15(self) -> Any:
+        """The :class:`~harness.biasnet.quantize.Q15Network` of a q15 network (None for float32)."""
+        return self._q15
 
     def _check_std_head(self) -> None:
         for name in ("b3s", "std_min", "std_max"):
@@ -128,11 +144,16 @@ class BiasNetwork:
         return np.maximum(std, self.std_min)
 
     def predict_batch(self, features: np.ndarray) -> np.ndarray:
-        """Bias [m] for each row of ``features`` (N, n_in), float64 arithmetic on the float32 tables."""
+        """Bias [m] for each row of ``features`` (N, n_in), float64 arithmetic on the float32 tables (a q15
+        network: the firmware's integers, quantize.py)."""
+        if self._q15 is not None:
+            return self._q15.predict_batch(features)  # type: ignore[no-any-return]
         return self._bias_from_hidden(self.hidden(features))
 
     def predict_with_std_batch(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bias and predicted std [m] per row; std 0 when the network has no std head."""
+        if self._q15 is not None:
+            return self._q15.predict_with_std_batch(features)  # type: ignore[no-any-return]
         h2 = self.hidden(features)
         std = self._std_from_hidden(h2) if self.w3s is not None else np.zeros(len(h2))
         return self._bias_from_hidden(h2), std
@@ -169,6 +190,8 @@ class BiasNetwork:
         if self.w3s is not None:  # only with a head: networks without one keep their hash
             parts.append(b"S" + self.w3s.astype("<f4").tobytes())
             parts.append(struct.pack("<fff", self.b3s, self.std_min, self.std_max))
+        if self.quant != "float32":  # float32 networks keep their hash
+            parts.append(b"Q" + self.quant.encode())
         return b"".join(parts)
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
@@ -181,6 +204,8 @@ class BiasNetwork:
             out[f"{prefix}_w3s"] = self.w3s
             for name in ("b3s", "std_min", "std_max"):
                 out[f"{prefix}_{name}"] = np.array(getattr(self, name), dtype=np.float32)
+        if self.quant != "float32":
+            out[f"{prefix}_quant"] = np.array(self.quant)
         return out
 
     @classmethod
@@ -199,7 +224,8 @@ class BiasNetwork:
             return cls(layout=int(arrays[f"{prefix}_layout"]),
                        **{n: arrays[f"{prefix}_{n}"] for n in ("w1", "b1", "w2", "b2", "w3", "in_min", "in_max")},
                        b3=float(arrays[f"{prefix}_b3"]), out_min=float(arrays[f"{prefix}_out_min"]),
-                       out_max=float(arrays[f"{prefix}_out_max"]), **std)
+                       out_max=float(arrays[f"{prefix}_out_max"]), **std,
+                       quant=str(arrays.get(f"{prefix}_quant", "float32")))
         except ModelFormatError as exc:
             raise ModelFormatError(f"{source}: {prefix} network: {exc}") from None
         except (TypeError, ValueError) as exc:
@@ -241,6 +267,12 @@ class BiasModel:
         if kind not in _KINDS:
             raise ValueError(f"kind must be 'twr' or 'tdoa', got {kind!r}")
         return getattr(self, kind)
+
+    def quantized(self, quant: str = "q15", name: str | None = None) -> "BiasModel":
+        """The same networks computed as ``quant`` by the firmware (another hash), named ``name`` or
+        ``<name>-<quant>``."""
+        nets = {k: None if n is None else replace(n, quant=quant) for k, n in (("twr", self.twr), ("tdoa", self.tdoa))}
+        return BiasModel(**nets, name=name or f"{self.name}-{quant}", meta=dict(self.meta) | {"quant": quant})
 
     def replace(self, kind: str, net: BiasNetwork | None) -> "BiasModel":
         nets = {k: net if k == kind else getattr(self, k) for k in _KINDS}

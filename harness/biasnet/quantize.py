@@ -18,9 +18,12 @@ estimator's range of evaluation), so inside it no activation saturates. Integer 
 numpy forward below equals the C kernels' to the bit (up to the float32 de-scaling, 1 ulp).
 
     python -m harness.biasnet.quantize [--model firmware_sim/models/bias_model_default.npz] [--quick]
+    python -m harness.biasnet.quantize --write q15.npz --header q15.h    # the build option
 
 prints the agreement of the q15 network with the float one (max and RMS, metres) on the held-out
-simulated flights and over the input box, and the held-out accuracy cost (RMSE after correction).
+simulated flights and over the input box, and the held-out accuracy cost (RMSE after correction);
+``--write`` / ``--header`` save the model with ``quant="q15"`` (its own hash) and its C header, which
+``make firmware MODEL_HEADER=q15.h`` (or ``-C firmware_sim/stm32``) compiles in (bias_nn_q15.c).
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -101,7 +104,7 @@ class Q15Network:
         a2 = _act_exponent(b2 + np.maximum(w2, 0.0).T @ h1_max)
         hw = net.w3[:, None] if net.w3s is None else np.stack([net.w3, net.w3s], axis=1)
         hb = np.array([net.b3] if net.w3s is None else [net.b3, net.b3s])
-        return cls(net=net, l1=_layer(w1, b1, Q_IN, a1, 2 ** 15), l2=_layer(w2, b2, a1, a2, Q_MAX),
+        return cls(net=replace(net, quant="float32"), l1=_layer(w1, b1, Q_IN, a1, 2 ** 15), l2=_layer(w2, b2, a1, a2, Q_MAX),
                    head=_layer(hw, hb, a2, None, Q_MAX), a1=a1, a2=a2)
 
     # ------------------------------------------------------------------------------------ inference
@@ -206,8 +209,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--model", type=Path, default=DEFAULT_NPZ)
     ap.add_argument("--duration", type=float, default=70.0, help="seconds per held-out flight (shipped.py: 70)")
     ap.add_argument("--quick", action="store_true", help="10 s held-out flights")
+    ap.add_argument("--write", type=Path, default=None, help="save the q15 model (.npz) here instead of measuring")
+    ap.add_argument("--header", type=Path, default=None, help="with --write: its C header (export-c) here")
     args = ap.parse_args(argv)
     model = BiasModel.load(args.model)
+    if args.write is not None:
+        from harness.biasnet.export import export_c
+        q = model.quantized("q15")
+        q.save(args.write)
+        if args.header is not None:
+            export_c(q, args.header)
+        print(f"wrote {args.write} (hash {q.hash_hex})" + (f" and {args.header}" if args.header else ""))
+        return 0
     print(json.dumps(report(model, 10.0 if args.quick else args.duration), indent=2))
     return 0
 

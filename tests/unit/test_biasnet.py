@@ -169,9 +169,13 @@ def test_c_torch_numpy_agree_on_10000_inputs(nn_eval_for, which: str) -> None:  
             t = to_torch(net)(torch.from_numpy(x)).numpy().astype(np.float64)  # type: ignore[operator]
         n = net.predict_batch(x)
         assert c.shape == t.shape == n.shape == (10_000,)
-        assert np.max(np.abs(c - t)) <= 1e-5, kind
+        # C = numpy always (a q15 network: the same integers); PyTorch is the float network, which a q15 one
+        # (the shipped default since issue 24) follows within its quantisation error (max 0.37 mm measured,
+        # docs/bias-network.md); a float network within float32 rounding
+        torch_tol = 1e-3 if net.quant == "q15" else 1e-5
+        assert np.max(np.abs(c - t)) <= torch_tol, kind
         assert np.max(np.abs(c - n)) <= 1e-5, kind
-        assert np.max(np.abs(t - n)) <= 1e-5, kind
+        assert np.max(np.abs(t - n)) <= torch_tol, kind
         if which == "random":  # the comparison must not be vacuous: most outputs are unclamped and varied
             inside = (n > net.out_min) & (n < net.out_max)
             assert inside.mean() > 0.5 and np.std(n[inside]) > 0.01

@@ -102,6 +102,33 @@ def test_core_matches_twin_with_a_std_head_network(replay_core_std: tuple[Path, 
             assert np.all(t_s[61::97] > 1.2 * std_cfg ** 2)
 
 
+@pytest.fixture(scope="module")
+def replay_core_q15(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, "BiasModel"]:
+    model = std_head_model().quantized("q15")
+    return build_replay_core(tmp_path_factory, model), model
+
+
+@pytest.mark.parametrize("kind", [KIND_TWR, KIND_TDOA], ids=["twr", "tdoa"])
+def test_core_matches_twin_with_a_q15_network(replay_core_q15: tuple[Path, "BiasModel"], kind: int) -> None:
+    """The q15 build (bias_nn_q15.c) and the twin's Q15Network compute the same integers from the same
+    inputs. The inputs themselves differ by float32 noise (C's float32 state, the twin's float64): one that
+    falls that close to a q15 rounding boundary moves by one step (2^-14 of its range). The positions stay
+    within the usual 1e-4 m; S, through this test's steep std head (log-std weights ~N(0, 6)), within 1 %
+    (0.4 % measured) where float32 vs float64 alone gives 0.1 %."""
+    from harness.config import PRESETS
+    exe, model = replay_core_q15
+    flight = synthetic_flight(kind, noise=0.05, outliers=True, seed=11 + kind)
+    cfg = base_config(flight, MODE_IMU, stages=PRESETS["outlier+nn+std"])
+    twin = run_flight(flight, cfg, model)
+    c = run_c(exe, flight, cfg, with_model=True)
+    assert_core_equals_twin(c, twin)
+    t_s = np.array([r.innovation_var for r in twin])
+    assert np.max(np.abs(c.S - t_s) / t_s) < 1e-2 and np.median(np.abs(c.S - t_s) / t_s) < 1e-5
+    bias = np.array([r.bias for r in twin])
+    assert np.count_nonzero(bias) > 100       # the network ran
+    assert rmse(c.pos, flight) < 0.15
+
+
 @pytest.mark.parametrize("kind", [KIND_TWR, KIND_TDOA], ids=["twr", "tdoa"])
 def test_correction_fades_outside_the_training_range_as_in_the_twin(tmp_path_factory: pytest.TempPathFactory,
                                                                      kind: int) -> None:

@@ -57,3 +57,37 @@ def test_random_network_with_a_std_head_and_hostile_inputs() -> None:
     b, s = q.predict_with_std_batch(x)
     assert np.all(np.isfinite(b)) and np.all((b >= net.out_min) & (b <= net.out_max))
     assert np.all((s >= net.std_min) & (s <= net.std_max))
+
+
+def test_c_q15_kernel_equals_the_numpy_integers(tmp_path) -> None:  # noqa: ANN001
+    """bias_nn_q15.c (built by `make nn_eval` against the exported q15 header) and Q15Network, on the same
+    float32 inputs: the same integer sums, so the same bias to float32 rounding, including inputs beyond
+    the training range (saturation) and both heads."""
+    import subprocess
+    from harness.biasnet.export import export_c
+    from harness.firmware_build import build_nn_eval
+    model = BiasModel.load(DEFAULT_NPZ).quantized("q15")
+    exe = build_nn_eval(export_c(model, tmp_path / "q15.h"), tmp_path / "nn_eval_q15")
+    rng = np.random.default_rng(5)
+    for kind in ("twr", "tdoa"):
+        net = model.network(kind)
+        assert net is not None and net.quant == "q15"
+        span = net.in_max - net.in_min
+        x = rng.uniform(net.in_min - 0.5 * span, net.in_max + 0.5 * span, size=(3000, net.n_in)).astype(np.float32)
+        text = "".join(f"{kind} " + " ".join(repr(float(v)) for v in row) + "\n" for row in x)
+        out = subprocess.run([str(exe)], input=text, capture_output=True, text=True, check=True, timeout=120).stdout
+        vals = np.array([[float(v) for v in ln.split()] for ln in out.splitlines()[1:]]).reshape(-1, 2)
+        bias, std = net.predict_with_std_batch(x)
+        assert np.max(np.abs(vals[:, 0] - bias)) < 1e-7
+        assert np.max(np.abs(vals[:, 1] - std) / std) < 1e-6
+
+
+def test_q15_model_has_its_own_hash_and_round_trips(tmp_path) -> None:  # noqa: ANN001
+    q = BiasModel.load(DEFAULT_NPZ)          # the shipped model is q15 (the default since issue 24)
+    assert q.twr is not None and q.twr.quant == "q15"
+    model = q.quantized("float32", name=q.name)
+    assert q.hash != model.hash and q.twr is not None and q.twr.quant == "q15"
+    back = BiasModel.load(q.save(tmp_path / "q.npz"))
+    assert back.hash == q.hash and back.tdoa is not None and back.tdoa.quant == "q15"
+    x = box_inputs(model.tdoa, 50, seed=4)  # type: ignore[arg-type]
+    assert np.array_equal(back.tdoa.predict_batch(x), q.tdoa.predict_batch(x))  # type: ignore[union-attr]

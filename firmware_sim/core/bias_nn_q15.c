@@ -1,0 +1,89 @@
+/* The bias network in q15 (bias_nn.h: q_heads > 0; harness/biasnet/quantize.py writes the tables and its
+ * Q15Network computes the same integers for the twin). Portable C99: int32 sums that cannot overflow for
+ * any input (the exporter's bound), so the order of the multiply-adds does not matter and every build
+ * (host, STM32) gives the same sums to the bit.
+ *   x_q = round(x' 2^14) saturated to int16 (x' the min-max scaled input, rounded half away from zero)
+ *   h1 = clamp((b1 + sum x_q w1) >> shift1, 0, 32767), h2 likewise
+ *   head h: (float)(bh + sum h2 wh) * q_out_scale, then de-scaled and clamped (bias) or expf (std). */
+#include "bias_nn.h"
+
+#ifndef NULL
+#define NULL ((void *)0)
+#endif
+
+#define Q15_MAX 32767
+
+static int16_t q15_input(float x)
+{
+    float v = x * 16384.0f;
+    if (!(v >= -32768.0f)) {
+        v = v != v ? 0.0f : -32768.0f; /* NaN -> 0 */
+    }
+    if (v > (float)Q15_MAX) {
+        v = (float)Q15_MAX;
+    }
+    v += v >= 0.0f ? 0.5f : -0.5f;
+    return (int16_t)(int32_t)v;
+}
+
+/* acc[j] = b[j] + sum_i x[i] w[i][j] over n_pairs input pairs, w in the block-major layout (bias_nn.h). */
+static void q15_sums(const int16_t *x, unsigned n_pairs, const int16_t *w, const int32_t *b, unsigned n_out,
+                     int32_t *acc)
+{
+    const unsigned blk = BIAS_NN_Q15_BLOCK(n_out);
+    unsigned j, k;
+    for (j = 0; j < n_out; j++) {
+        const unsigned first = (j / blk) * n_pairs * blk + j % blk; /* word of pair 0 */
+        int32_t s = b[j];
+        for (k = 0; k < n_pairs; k++) {
+            const int16_t *wk = w + 2u * (first + k * blk);
+            s += (int32_t)x[2u * k] * wk[0] + (int32_t)x[2u * k + 1u] * wk[1];
+        }
+        acc[j] = s;
+    }
+}
+
+/* ReLU and requantisation to int16 activations. */
+static void q15_relu(const int32_t *acc, unsigned shift, int16_t *out)
+{
+    unsigned j;
+    for (j = 0; j < BIAS_NN_HIDDEN; j++) {
+        const int32_t v = acc[j] > 0 ? acc[j] >> shift : 0;
+        out[j] = (int16_t)(v > Q15_MAX ? Q15_MAX : v);
+    }
+}
+
+unsigned bias_nn_q15_inputs(const bias_nn_t *net, const float *features, int16_t x[BIAS_NN_MAX_IN + 1])
+{
+    float xs[BIAS_NN_MAX_IN];
+    const unsigned n_in = bias_nn_scale_inputs(net, features, xs);
+    unsigned i;
+    for (i = 0; i < n_in; i++) {
+        x[i] = q15_input(xs[i]);
+    }
+    x[n_in] = 0; /* the pad of an odd input count */
+    return (n_in + 1u) / 2u;
+}
+
+float bias_nn_q15_heads(const bias_nn_t *net, const int16_t h2[BIAS_NN_HIDDEN], float *std_out)
+{
+    int32_t acc[2];
+    const unsigned n_heads = net->q_heads > 2u ? 2u : net->q_heads;
+    q15_sums(h2, BIAS_NN_HIDDEN / 2u, net->q_wh, net->q_bh, n_heads, acc);
+    if (std_out != NULL) {
+        *std_out = n_heads > 1u ? bias_nn_std_of(net, (float)acc[1] * net->q_out_scale) : 0.0f;
+    }
+    return bias_nn_descale_output(net, (float)acc[0] * net->q_out_scale);
+}
+
+float bias_nn_predict_q15(const bias_nn_t *net, const float *features, float *std_out)
+{
+    int16_t x[BIAS_NN_MAX_IN + 1], h1[BIAS_NN_HIDDEN], h2[BIAS_NN_HIDDEN];
+    int32_t acc[BIAS_NN_HIDDEN];
+    const unsigned n_pairs = bias_nn_q15_inputs(net, features, x);
+    q15_sums(x, n_pairs, net->q_w1, net->q_b1, BIAS_NN_HIDDEN, acc);
+    q15_relu(acc, net->q_shift1, h1);
+    q15_sums(h1, BIAS_NN_HIDDEN / 2u, net->q_w2, net->q_b2, BIAS_NN_HIDDEN, acc);
+    q15_relu(acc, net->q_shift2, h2);
+    return bias_nn_q15_heads(net, h2, std_out);
+}
