@@ -38,7 +38,7 @@ typedef struct {
     float b3s;
     float std_min;       /* bounds of the predicted std [m] */
     float std_max;
-    /* The q15 form (harness/biasnet/quantize.py), used when q_heads > 0 (the float tables w1..w3s are then
+    /* The q15 form (harness/biasnet/q15.py), used when q_heads > 0 (the float tables w1..w3s are then
      * NULL): int16 weights and activations, int32 sums. Weights block-major for the M4's SMLAD: outputs
      * in blocks of B = BIAS_NN_Q15_BLOCK(n_out), inputs in pairs (n_in padded to even with zeros); output
      * j = b B + t, pair k: int16 q_w[((b n_pairs + k) B + t) 2 + h] = w[2k + h][j]. Heads: output 0 the

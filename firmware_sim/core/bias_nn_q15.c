@@ -1,4 +1,4 @@
-/* The bias network in q15 (bias_nn.h: q_heads > 0; harness/biasnet/quantize.py writes the tables and its
+/* The bias network in q15 (bias_nn.h: q_heads > 0; harness/biasnet/q15.py computes the tables and its
  * Q15Network computes the same integers for the twin). Portable C99: int32 sums that cannot overflow for
  * any input (the exporter's bound), so the order of the multiply-adds does not matter and every build
  * (host, STM32) gives the same sums to the bit.

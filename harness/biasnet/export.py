@@ -3,7 +3,7 @@
 The header defines ``BIAS_MODEL_TWR``, ``BIAS_MODEL_TDOA`` (pointers or NULL) and ``BIAS_MODEL_HASH``; it is
 included by firmware_sim/core/bias_nn.c only (the default one, or the one named by -DBIAS_MODEL_HEADER).
 Floats are written with 9 significant digits, which round-trips every float32 exactly. A network whose
-``quant`` is ``"q15"`` is written as its q15 tables only (harness/biasnet/quantize.py; bias_nn_q15.c).
+``quant`` is ``"q15"`` is written as its q15 tables only (harness/biasnet/q15.py; bias_nn_q15.c).
 """
 
 from __future__ import annotations

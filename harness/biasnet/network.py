@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.biasnet.q15 import Q15Network
 from harness.twin.features import (LAYOUT_TDOA_POS, LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE,
                                    layout_inputs)
 from harness.errors import InputError, InputFileNotFound
@@ -60,7 +61,7 @@ class BiasNetwork:
     b3s: float = 0.0
     std_min: float = 0.0           # bounds of the predicted std [m] (0 < std_min < std_max with a head)
     std_max: float = 0.0
-    #: how the firmware computes it: "float32" or "q15" (quantize.py: integers from these float tables,
+    #: how the firmware computes it: "float32" or "q15" (q15.py: integers from these float tables,
     #: computed by predict* as the firmware does; part of the hash)
     quant: str = "float32"
     _q15: Any = field(default=None, init=False, repr=False, compare=False)
@@ -91,12 +92,11 @@ class BiasNetwork:
         if self.quant not in QUANTS:
             raise ModelFormatError(f"quant must be one of {QUANTS}, got {self.quant!r}")
         if self.quant == "q15":
-            from harness.biasnet.quantize import Q15Network
             object.__setattr__(self, "_q15", Q15Network.from_network(self))
 
     @property
     def q15(self) -> Any:
-        """The :class:`~harness.biasnet.quantize.Q15Network` of a q15 network (None for float32)."""
+        """The :class:`~harness.biasnet.q15.Q15Network` of a q15 network (None for float32)."""
         return self._q15
 
     def _check_std_head(self) -> None:
@@ -145,7 +145,7 @@ class BiasNetwork:
 
     def predict_batch(self, features: np.ndarray) -> np.ndarray:
         """Bias [m] for each row of ``features`` (N, n_in), float64 arithmetic on the float32 tables (a q15
-        network: the firmware's integers, quantize.py)."""
+        network: the firmware's integers, q15.py)."""
         if self._q15 is not None:
             return self._q15.predict_batch(features)  # type: ignore[no-any-return]
         return self._bias_from_hidden(self.hidden(features))

@@ -1,29 +1,13 @@
-"""Post-training q15 quantisation of a bias network (issue 24: the network at the MCU's limit).
+"""What the q15 form of a bias network costs (issue 24), and the build option that writes one.
 
-The float32 network (network.py) is turned, after training, into integers the Cortex-M4's dual 16-bit
-multiply-accumulate (SMLAD: two q15 products into a 32-bit sum per instruction) computes exactly:
-
-* inputs: the min-max scaled features x' (float32, as bias_nn.c) -> ``round(x' 2^14)`` saturated to int16
-  (x' in [-2, 2): the estimator only evaluates the network within 10 % of its training box);
-* each layer: int16 weights ``round(w 2^s)`` with one power-of-two exponent ``s`` per layer, int32 biases at
-  the sum's scale, the sum in int32, then ReLU + requantisation to the next layer's int16 activations by an
-  arithmetic right shift (floor; the rounding half is folded into the bias) saturated to [0, 32767];
-* the output head(s): the int32 sum, converted to float32 and scaled by a power of two (exact), then
-  de-scaled and clamped as the float network.
-
-Scales are chosen so nothing can overflow for ANY input: a layer's exponent is the largest for which every
-weight fits int16 and ``|b| + sum |w| * 32768 < 2^31`` for every unit (the sum's worst case); an activation's
-exponent comes from interval bounds of the layer's output over the input box x' in [-0.1, 1.1] (the
-estimator's range of evaluation), so inside it no activation saturates. Integer arithmetic is exact, so the
-numpy forward below equals the C kernels' to the bit (up to the float32 de-scaling, 1 ulp).
+q15.py holds the integer form; here its agreement with the float network (max and RMS, metres) on the
+held-out simulated flights and over the input box, and the held-out accuracy cost (RMSE after correction):
 
     python -m harness.biasnet.quantize [--model firmware_sim/models/bias_model_default.npz] [--quick]
-    python -m harness.biasnet.quantize --write q15.npz --header q15.h    # the build option
+    python -m harness.biasnet.quantize --model M.npz --write M-q15.npz --header M-q15.h   # the build option
 
-prints the agreement of the q15 network with the float one (max and RMS, metres) on the held-out
-simulated flights and over the input box, and the held-out accuracy cost (RMSE after correction);
 ``--write`` / ``--header`` save the model with ``quant="q15"`` (its own hash) and its C header, which
-``make firmware MODEL_HEADER=q15.h`` (or ``-C firmware_sim/stm32``) compiles in (bias_nn_q15.c).
+``make firmware MODEL_HEADER=M-q15.h`` (or ``-C firmware_sim/stm32``) compiles in (bias_nn_q15.c).
 """
 
 from __future__ import annotations
@@ -31,129 +15,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from harness.biasnet.network import HIDDEN, BiasModel, BiasNetwork
-
-Q_IN = 14                  # scaled input x' -> round(x' 2^14)
-Q_MAX = 32767
-ACC_LIMIT = 2 ** 31 - 1
-BOX_LO, BOX_HI = -0.1, 1.1  # x' range the estimator evaluates (bias_nn.h: BIAS_NN_OOD_MARGIN)
-
-
-@dataclass(frozen=True)
-class QLayer:
-    """One dense layer in integers: ``acc = b + x @ w`` (int32), scale of acc = 2^(x_exp + w_exp)."""
-
-    w: np.ndarray        # (n_in, n_out) int16 values (held as int64)
-    b: np.ndarray        # (n_out,) int32 values (held as int64), rounding half of `shift` included
-    w_exp: int           # weights = round(w_float 2^w_exp)
-    shift: int           # hidden layers: acc >> shift -> next activation (0 for an output head)
-
-
-def _weight_exponent(w: np.ndarray, b: np.ndarray, b_scale_exp: int, x_max: int) -> int:
-    """Largest exponent s with every round(w 2^s) in int16 and no possible int32 overflow of the sum."""
-    s = int(np.floor(np.log2(Q_MAX / max(float(np.max(np.abs(w))), 1e-30))))
-    while True:
-        wq = np.round(w.astype(np.float64) * 2.0 ** s)
-        bq = np.round(b.astype(np.float64) * 2.0 ** (b_scale_exp + s))
-        worst = np.max(np.abs(bq) + np.sum(np.abs(wq), axis=0) * x_max + 2.0 ** 16)  # + the rounding half
-        if np.max(np.abs(wq)) <= Q_MAX and worst < ACC_LIMIT:
-            return s
-        s -= 1
-
-
-def _act_exponent(upper: np.ndarray) -> int:
-    """Exponent a of a layer's int16 activations: the largest with max(upper) 2^a <= 32767."""
-    return int(np.floor(np.log2(Q_MAX / max(float(np.max(upper)), 1e-12))))
-
-
-def _layer(w: np.ndarray, b: np.ndarray, x_exp: int, out_exp: int | None, x_max: int) -> QLayer:
-    s = _weight_exponent(w, b, x_exp, x_max)
-    wq = np.round(w.astype(np.float64) * 2.0 ** s).astype(np.int64)
-    bq = np.round(b.astype(np.float64) * 2.0 ** (x_exp + s)).astype(np.int64)
-    shift = 0 if out_exp is None else x_exp + s - out_exp
-    if out_exp is not None:
-        if shift < 1:
-            raise ValueError(f"activation exponent {out_exp} needs a left shift: not representable")
-        bq = bq + (1 << (shift - 1))       # round to nearest instead of floor
-    return QLayer(w=wq, b=bq, w_exp=s, shift=shift)
-
-
-@dataclass(frozen=True)
-class Q15Network:
-    """The q15 form of one :class:`BiasNetwork` (see the module docstring)."""
-
-    net: BiasNetwork
-    l1: QLayer
-    l2: QLayer
-    head: QLayer             # (50, 1) bias head, or (50, 2): bias and std head
-    a1: int                  # hidden-1 activations = round(h1 2^a1)
-    a2: int
-
-    @classmethod
-    def from_network(cls, net: BiasNetwork) -> "Q15Network":
-        w1, b1 = net.w1.astype(np.float64), net.b1.astype(np.float64)
-        ub1 = b1 + np.sum(np.maximum(w1 * BOX_LO, w1 * BOX_HI), axis=0)
-        a1 = _act_exponent(ub1)
-        h1_max = np.clip(ub1, 0.0, Q_MAX / 2.0 ** a1)
-        w2, b2 = net.w2.astype(np.float64), net.b2.astype(np.float64)
-        a2 = _act_exponent(b2 + np.maximum(w2, 0.0).T @ h1_max)
-        hw = net.w3[:, None] if net.w3s is None else np.stack([net.w3, net.w3s], axis=1)
-        hb = np.array([net.b3] if net.w3s is None else [net.b3, net.b3s])
-        return cls(net=replace(net, quant="float32"), l1=_layer(w1, b1, Q_IN, a1, 2 ** 15), l2=_layer(w2, b2, a1, a2, Q_MAX),
-                   head=_layer(hw, hb, a2, None, Q_MAX), a1=a1, a2=a2)
-
-    # ------------------------------------------------------------------------------------ inference
-    def input_q(self, features: np.ndarray) -> np.ndarray:
-        """int16 inputs (N, n_in): x' in float32 as bias_nn.c, x' 2^14 saturated, rounded half away from 0."""
-        net = self.net
-        f = np.asarray(features, dtype=np.float32).reshape(-1, net.n_in)
-        xs = ((f - net.in_min) / (net.in_max - net.in_min)).astype(np.float32)
-        v = np.clip(xs * np.float32(2.0 ** Q_IN), np.float32(-32768.0), np.float32(Q_MAX)).astype(np.float32)
-        v = np.where(np.isnan(v), np.float32(0.0), v)
-        return np.trunc(v + np.where(v >= 0, np.float32(0.5), np.float32(-0.5)).astype(np.float32)).astype(np.int64)
-
-    def hidden_q(self, features: np.ndarray) -> np.ndarray:
-        """int16 second hidden layer (N, 50)."""
-        x = self.input_q(features)
-        h1 = np.clip((self.l1.b + x @ self.l1.w) >> self.l1.shift, 0, Q_MAX)
-        return np.clip((self.l2.b + h1 @ self.l2.w) >> self.l2.shift, 0, Q_MAX)
-
-    def heads(self, features: np.ndarray) -> np.ndarray:
-        """The head sums as float32 values of the float network's units (N, 1 or 2)."""
-        acc = self.head.b + self.hidden_q(features) @ self.head.w
-        return acc.astype(np.float32) * np.float32(2.0 ** -(self.a2 + self.head.w_exp))
-
-    def predict_with_std_batch(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        net, h = self.net, self.heads(features)
-        y = h[:, 0] * np.float32(net.out_max - net.out_min) + np.float32(net.out_min)
-        bias = np.clip(y.astype(np.float32), np.float32(net.out_min), np.float32(net.out_max)).astype(np.float64)
-        if net.w3s is None:
-            return bias, np.zeros(len(bias))
-        with np.errstate(over="ignore"):
-            std = np.exp(h[:, 1].astype(np.float32)).astype(np.float64)
-        std = np.where(np.isnan(std) | (std > net.std_max), net.std_max, std)
-        return bias, np.maximum(std, net.std_min)
-
-    def predict_batch(self, features: np.ndarray) -> np.ndarray:
-        return self.predict_with_std_batch(features)[0]
-
-    def predict(self, features: np.ndarray) -> float:
-        return float(self.predict_batch(features)[0])
-
-    def predict_with_std(self, features: np.ndarray) -> tuple[float, float]:
-        b, s = self.predict_with_std_batch(features)
-        return float(b[0]), float(s[0])
-
-    @property
-    def flash_bytes(self) -> int:
-        """Weights (int16) and biases (int32) as the firmware would store them."""
-        n16 = self.l1.w.size + self.l2.w.size + self.head.w.size
-        return 2 * n16 + 4 * (self.l1.b.size + self.l2.b.size + self.head.b.size)
+from harness.biasnet.network import BiasModel, BiasNetwork
+from harness.biasnet.q15 import Q15Network
 
 
 # ---------------------------------------------------------------------------------- measurement

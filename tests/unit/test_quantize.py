@@ -8,7 +8,8 @@ import pytest
 
 from harness.biasnet.export import DEFAULT_NPZ
 from harness.biasnet.network import BiasModel, init_network
-from harness.biasnet.quantize import ACC_LIMIT, Q_MAX, Q15Network, agreement, box_inputs
+from harness.biasnet.q15 import ACC_LIMIT, Q_MAX, Q15Network
+from harness.biasnet.quantize import agreement, box_inputs
 from harness.twin.features import LAYOUT_TDOA_POSE
 
 
