@@ -11,7 +11,6 @@
  */
 #include "ekf_core.h"
 
-#include <string.h>
 
 #include "ekf_quat.h"
 
@@ -23,7 +22,8 @@
 /* The IMU transition matrix A is block upper triangular: position <- position (I), velocity, attitude;
  * velocity <- velocity, attitude; attitude <- attitude. The covariance products below skip its zeros. */
 
-/* The linearised IMU transition A (9x9) over dt with the averaged gyro w, at the state of the step's start. */
+/* The linearised IMU transition A (9x9) over dt with the averaged gyro w, at the state of the step's start:
+ * its non-zero blocks (the zero ones are never read). */
 static void imu_transition(const ekf_t *ekf, const float gyro[3], float dt, float A[EKF_N][EKF_N])
 {
     const float (*R)[3] = (const float (*)[3])ekf->R;
@@ -34,9 +34,12 @@ static void imu_transition(const ekf_t *ekf, const float gyro[3], float dt, floa
     float d[3], G[3][3];
     int i, j;
 
-    memset(A, 0, sizeof(float) * EKF_N * EKF_N);
-    for (i = 0; i < EKF_N; i++) {
-        A[i][i] = 1.0f;
+    /* Only the blocks imu_ap and imu_propagate_cov read are written (columns 3..8 of the position and
+     * velocity rows, columns 6..8 of the attitude rows): the position rows' identity block is P's row
+     * itself there, and clearing all 81 entries cost more than the products skip. */
+    for (i = EKF_PX; i <= EKF_PZ; i++) {
+        A[i][i] = 1.0f;          /* velocity <- velocity: I - [w]x dt, diagonal */
+        A[i][EKF_D0 + i - EKF_PX] = 0.0f; /* velocity <- attitude: -g [R^T e3]x dt, zero diagonal */
     }
     for (i = 0; i < 3; i++) {
         /* position <- body velocity */
