@@ -6,8 +6,9 @@ held-out simulated flights and over the input box, and the held-out accuracy cos
     python -m harness.biasnet.quantize [--model firmware_sim/models/bias_model_default.npz] [--quick]
     python -m harness.biasnet.quantize --model M.npz --write M-q15.npz --header M-q15.h   # the build option
 
-``--write`` / ``--header`` save the model with ``quant="q15"`` (its own hash) and its C header, which
-``make firmware MODEL_HEADER=M-q15.h`` (or ``-C firmware_sim/stm32``) compiles in (bias_nn_q15.c).
+``--write`` / ``--header`` save the model with ``quant="q15"`` (its own hash) and its C header, which a
+firmware build compiles in (bias_nn_q15.c) when make's MODEL_HEADER names it (docs/bias-network.md; the
+harness builds through harness/firmware_build.py, e.g. `uwb-hil run --model M-q15.npz`).
 """
 
 from __future__ import annotations
