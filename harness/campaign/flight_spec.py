@@ -24,6 +24,13 @@ class FlightSpec:
     radio: str | None = None       # "tdoa2" | "tdoa3": the flight at LPS radio level (harness/flight/radio.py)
     lever_arm: tuple[float, float, float] | None = None  # uSD log: the tag's calibrated lever arm (None: UTIL's)
 
+    def __post_init__(self) -> None:
+        # a plan read back from JSON (shards, workers) gives a list: keep the spec hashable and equal to its
+        # original (runs are grouped by flight, plan.group_by_flight)
+        if self.lever_arm is not None:
+            x, y, z = (float(v) for v in self.lever_arm)
+            object.__setattr__(self, "lever_arm", (x, y, z))
+
     @property
     def flight_id(self) -> str:
         radio = f"-radio-{self.radio}" if self.radio else ""

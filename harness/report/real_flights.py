@@ -20,12 +20,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from harness.biasnet.recipes import CF_USD_EVAL, CF_USD_SHELF, cf_usd_lever_arms
 from harness.paths import REPO_ROOT, shared_data_dir
 from harness.report.replay_all import run_json
 
-EVALUATION = {"0425": ("0425-traj3", "0425-traj8", "0425-traj13", "0425-traj18"),
-              "0426": ("0426-traj3", "0426-traj5")}
-SHELF = ("0426-traj3", "0426-traj5")
+SHELF = tuple(Path(r).name for r in CF_USD_SHELF)
+EVALUATION = {"0425": tuple(Path(r).name for r in CF_USD_EVAL), "0426": SHELF}   # the network's split
 DEFAULT_MODEL = REPO_ROOT / "firmware_sim" / "models" / "cf_tdoa_pose.npz"
 
 
@@ -55,7 +55,6 @@ def log_path(data: Path, flight: str) -> Path:
 def lever_arms(data: Path) -> dict[str, str]:
     """The `--lever-arm X,Y,Z` of each evaluation flight, fitted on flights it is not (recipes.cf_usd_lever_arms:
     the tag point the real-flight network is trained on too)."""
-    from harness.biasnet.recipes import cf_usd_lever_arms
     return {name: ",".join(f"{v:.6f}" for v in arm) for name, arm in cf_usd_lever_arms(data).items()}
 
 

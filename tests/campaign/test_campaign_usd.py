@@ -102,3 +102,17 @@ def test_report_section_splits_the_crazyflie_logs_by_role_replay_and_phase() -> 
     assert fig is not None and len(fig.axes) == 1        # only the flight the network never saw
     # the UTIL/rcv recorded summary keeps its own flights
     assert [f["flight_id"] for f in accuracy_section(data)["recorded"]["flights"]] == ["rec-tdoa-util-const1-trial5-tdoa2"]
+
+
+def test_a_calibrated_flight_survives_the_plan_file_round_trip() -> None:
+    """Shards and workers read the plan back from JSON: the lever arm comes back as a list, the spec must
+    still equal its original and group by flight."""
+    import json
+    from harness.campaign.flight_spec import FlightSpec
+    from harness.campaign.plan import RunSpec, group_by_flight
+    spec = FlightSpec(source="recorded", mode="tdoa", trajectory="cf-0425-traj3", path="/d/0425-traj3",
+                      lever_arm=(0.037, -0.0167, 0.1458))
+    runs = [RunSpec(flight=spec, config=c, firmware="fw") for c in ("outlier", "outlier+nn")]
+    back = [RunSpec.from_dict(json.loads(json.dumps(r.as_dict()))) for r in runs]
+    assert back == runs and back[0].flight.lever_arm == (0.037, -0.0167, 0.1458)
+    assert [len(g) for g in group_by_flight(back)] == [2]
