@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
+import numpy  # noqa: F401  (pytester's in-process runs drop the modules first imported inside them, and
+import pytest  # numpy's C core cannot be imported twice in one process: import it here, before any inner run)
 
 from stand_ins import FAKE_HASH, FakeBoard, board, fake_fw, write_script  # noqa: F401
 
