@@ -12,6 +12,8 @@
  * the one on the USART. End of input (the host closed LINK_IN) ends the emulator: SYS_EXIT, after
  * printing on QEMU's semihosting console (its log) how many ticks of TIM2 the guest ran: under
  * `-icount shift=0` its executed instructions, read by harness/bench/real_replay.py. */
+#include <string.h>
+
 #include "board.h"
 #include "stm32f405_regs.h"
 
@@ -125,12 +127,15 @@ void usart_flush(void)
 
 void usart_write(const uint8_t *data, size_t n)
 {
-    size_t i;
-    for (i = 0; i < n; i++) {
+    while (n != 0u) {
+        size_t room = TX_SIZE - tx_len, k = n < room ? n : room;
+        memcpy(&tx_buf[tx_len], data, k);
+        tx_len += (uint32_t)k;
+        data += k;
+        n -= k;
         if (tx_len == TX_SIZE) {
             usart_flush();
         }
-        tx_buf[tx_len++] = data[i];
     }
 }
 

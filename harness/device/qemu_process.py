@@ -154,6 +154,7 @@ class QemuProcess:
         (SYS_EXIT). Its output is drained meanwhile (a full FIFO would block it), bounded by stop_timeout_s.
         While the guest waits in SYS_READ QEMU holds its big lock and its monitor does not answer, so
         "quit" would not work before this."""
+        self._log_cpu_time(proc.pid)
         os.close(self.write_fd)
         self.write_fd = -1
         deadline = time.monotonic() + self.options.stop_timeout_s
@@ -167,6 +168,19 @@ class QemuProcess:
 
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
+
+    def _log_cpu_time(self, pid: int) -> None:
+        """The CPU seconds QEMU has used so far (user + system, /proc/PID/stat), as one line of its log: with the
+        guest's instruction count, which it prints at the end, the emulator's speed on this firmware, whatever
+        else loads the machine (harness/bench/real_replay.py)."""
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            cpu_s = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return
+        if self._log is not None:
+            self._log.write(f"harness: QEMU CPU time {cpu_s:.3f} s at the end of input\n".encode())
+            self._log.flush()
 
     def stop(self) -> None:
         if self._finalizer is not None:

@@ -55,9 +55,7 @@ class DeviceSpec:
     def firmware_path(self) -> Path:
         if self.firmware is not None:
             return Path(self.firmware)
-        if self.resolved_target() == "qemu" and self.qemu_link in QEMU_LINKS:
-            return QEMU_LINKS[self.qemu_link]
-        return default_firmware(self.resolved_target())
+        return default_firmware(self.resolved_target(), self.qemu_link)
 
 
 @dataclass(frozen=True)
@@ -135,8 +133,11 @@ def create_device(spec: DeviceSpec) -> Device:
     return kind.build(spec, firmware)
 
 
-def default_firmware(target: str) -> Path:
-    """The firmware image a kind runs when none is given (the host binary for a board: unused)."""
+def default_firmware(target: str, qemu_link: str = "usart") -> Path:
+    """The firmware image a kind runs when none is given (the host binary for a board: unused); for qemu, the
+    build its link needs."""
+    if target == "qemu" and qemu_link in QEMU_LINKS:
+        return QEMU_LINKS[qemu_link]
     kind = KINDS.get(target)
     return kind.firmware if kind is not None and kind.firmware is not None else DEFAULT_FIRMWARE
 

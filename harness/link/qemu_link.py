@@ -15,7 +15,8 @@ from harness.errors import LinkClosed, LinkTimeout
 from harness.link.base import DEFAULT_READ_SIZE, Link, write_fd
 
 #: how each host end moves bytes (Link.info()["transport"])
-_TRANSPORTS = {"unix": "QEMU -serial socket (USART, ~65 us per byte)", "pty": "QEMU -serial pty (USART, ~65 us per byte)",
+_TRANSPORTS = {"unix": "QEMU -serial socket (USART, ~65 us per byte)",
+               "pty": "QEMU -serial pty (USART, ~65 us per byte)",
                "semihosting": "ARM semihosting SYS_READ/SYS_WRITE on two FIFOs (whole blocks per trap)"}
 
 
