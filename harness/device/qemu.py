@@ -87,15 +87,9 @@ class QemuDevice(Device):
         self._link = QemuPtyLink(proc.fd, proc.serial_name, write_fd=proc.write_fd)
 
     def _check_link_build(self) -> None:
-        """The semihosting link needs the emulator build and the USART link the other: a mismatch would only
-        show as a silent device, so it is refused with the fix before QEMU starts."""
-        semihost_build = SEMIHOST_SYMBOL in _elf_symbols(self.elf)
-        if self.options.link == "semihosting" and not semihost_build:
-            raise DeviceError(f"{self.elf.name} has no semihosting link: the QEMU semihosting link runs "
-                              "uwb-fw-semihost.elf (`make stm32`; docs/qemu.md)")
-        if self.options.link != "semihosting" and semihost_build:
-            raise DeviceError(f"{self.elf.name} is the semihosting build: run it with the semihosting link "
-                              "(--qemu-link semihosting), or the USART link with uwb-fw.elf")
+        problem = link_build_mismatch(self.elf, self.options.link)
+        if problem:
+            raise DeviceError(problem)
 
     def alive(self) -> bool:
         return self._proc is not None and self._proc.alive()
@@ -152,6 +146,23 @@ class QemuDevice(Device):
         tmp, self._tmp_log_dir = self._tmp_log_dir, None
         if remove_tmp_dir(tmp):
             self.log_path = None
+
+
+def link_build_mismatch(elf: Path, link: str) -> str | None:
+    """Why `elf` cannot serve `link`, or None: the semihosting link needs the emulator build and the USART link
+    the other; a mismatch would only show as a silent device, so it is refused with the fix before QEMU starts.
+    None too when the symbols cannot be read (no ELF: QEMU's start reports that)."""
+    try:
+        semihost_build = SEMIHOST_SYMBOL in _elf_symbols(elf)
+    except DeviceError:
+        return None
+    if link == "semihosting" and not semihost_build:
+        return (f"{elf.name} has no semihosting link: the QEMU semihosting link runs uwb-fw-semihost.elf "
+                "(`make stm32`; docs/qemu.md)")
+    if link != "semihosting" and semihost_build:
+        return (f"{elf.name} is the semihosting build: run it with the semihosting link (--qemu-link semihosting), "
+                "or the USART link with uwb-fw.elf")
+    return None
 
 
 def _elf_symbols(elf: Path) -> dict[str, int]:

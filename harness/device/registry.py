@@ -18,6 +18,7 @@ built (the pytest plugin imports this module in every pytest run).
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -80,7 +81,10 @@ def _serial(spec: DeviceSpec, firmware: Path) -> Device:  # noqa: ARG001 - the b
 
 
 def _qemu(spec: DeviceSpec, firmware: Path) -> Device:
-    from harness.device.qemu import QemuDevice, QemuOptions
+    from harness.device.qemu import QemuDevice, QemuOptions, link_build_mismatch
+    problem = link_build_mismatch(firmware, spec.qemu_link) if shutil.which("arm-none-eabi-nm") else None
+    if problem:
+        raise UsageError(problem)    # the wrong build for the link chosen: an input error, nothing started
     return QemuDevice(elf=firmware, log_dir=spec.log_dir, options=QemuOptions(link=spec.qemu_link))
 
 
@@ -123,6 +127,8 @@ def create_device(spec: DeviceSpec) -> Device:
     kind = kind_of(spec)
     if spec.qemu_link not in QEMU_LINKS:
         raise UsageError(f"unknown QEMU link {spec.qemu_link!r}; choose one of {', '.join(QEMU_LINKS)}")
+    if spec.qemu_link != "usart" and kind.name != "qemu":
+        raise UsageError(f"the {spec.qemu_link} link is QEMU's: use it with target qemu, not {kind.name}")
     firmware = spec.firmware_path()
     if kind.name == "host" and spec.firmware is None and not firmware.is_file():
         # no `make firmware` here (an installed package): the build from the shipped sources, cached per user

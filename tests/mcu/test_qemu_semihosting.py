@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from harness.device.qemu import QemuDevice, QemuOptions
 from harness.device.registry import DeviceSpec, create_device, open_device
 from harness.errors import DeviceError, UsageError
 from harness.paths import shared_data_dir
@@ -66,11 +67,14 @@ def test_shipped_image_has_no_semihosting_and_the_links_refuse_the_wrong_build(b
     semi = subprocess.run(["arm-none-eabi-objdump", "-d", str(builds / "uwb-fw-semihost.elf")], capture_output=True,
                           text=True, timeout=60, check=True).stdout
     assert "bkpt\t0x00ab" in semi and "bkpt" not in lst and "semihost" not in lst
-    with pytest.raises(DeviceError, match="has no semihosting link"):
-        create_device(DeviceSpec(target="qemu", firmware=builds / "uwb-fw.elf", qemu_link="semihosting",
-                                 log_dir=tmp_path)).start()
-    with pytest.raises(DeviceError, match="is the semihosting build"):
-        create_device(DeviceSpec(target="qemu", firmware=builds / "uwb-fw-semihost.elf", log_dir=tmp_path)).start()
+    with pytest.raises(UsageError, match="has no semihosting link"):     # an input error: exit 2
+        create_device(DeviceSpec(target="qemu", firmware=builds / "uwb-fw.elf", qemu_link="semihosting"))
+    with pytest.raises(UsageError, match="is the semihosting build"):
+        create_device(DeviceSpec(target="qemu", firmware=builds / "uwb-fw-semihost.elf"))
+    with pytest.raises(DeviceError, match="has no semihosting link"):      # a device built directly
+        QemuDevice(builds / "uwb-fw.elf", log_dir=tmp_path, options=QemuOptions(link="semihosting")).start()
     with pytest.raises(UsageError, match="unknown QEMU link 'jtag'"):
         create_device(DeviceSpec(target="qemu", qemu_link="jtag"))
+    with pytest.raises(UsageError, match="semihosting link is QEMU's: use it with target qemu, not host"):
+        create_device(DeviceSpec(qemu_link="semihosting"))
     assert DeviceSpec(target="qemu", qemu_link="semihosting").firmware_path() == builds / "uwb-fw-semihost.elf"
