@@ -35,8 +35,8 @@ DEFAULT_FLIGHT = Path("cf_usd") / "0425" / "0425-traj3"
 #: (label, `uwb-hil run` device options)
 TARGETS = (("host", ("--target", "host")), ("qemu usart", ("--target", "qemu", "--qemu-link", "usart")),
            ("qemu semihosting", ("--target", "qemu", "--qemu-link", "semihosting")))
-_TICKS_RE = re.compile(r"uwb-fw-semihost: link closed after (\d+) ticks")
-_CPU_RE = re.compile(r"harness: QEMU CPU time ([0-9.]+) s")
+TICKS_RE = re.compile(r"uwb-fw-semihost: link closed after (\d+) ticks")
+CPU_RE = re.compile(r"harness: QEMU CPU time ([0-9.]+) s")
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,7 @@ def replay(recording: Path, target: str, device_args: tuple[str, ...], n_bytes: 
     if out is None or "wall_s" not in out:
         raise RuntimeError(f"{target} replay of {recording.name} failed (exit {code}): {reason}")
     wall = float(out["wall_s"])
-    ticks, cpu = _TICKS_RE.search(log), _CPU_RE.search(log)
+    ticks, cpu = TICKS_RE.search(log), CPU_RE.search(log)
     return ReplayFigure(target, float(out["sim_s"]), wall, float(out["realtime_factor"]), n_bytes,
                         n_bytes / wall if wall > 0 else float("nan"),
                         float(out["accuracy"]["phases"]["flight"]["rmse"]),

@@ -59,6 +59,13 @@ def test_semihosting_replay_gives_the_usart_replays_results(builds: Path, tmp_pa
     assert acc_semi.n == acc_usart.n and abs(acc_semi.rmse - acc_usart.rmse) < 1e-6
     assert 0.05 < acc_usart.rmse < 1.0
     assert semi.wall_s < usart.wall_s / 3    # measured 0.1 s vs 7-8 s here (docs/qemu.md)
+    # what the bench reads from QEMU's log: the guest's instruction count at the end of input, QEMU's CPU time
+    from harness.bench.real_replay import CPU_RE, TICKS_RE
+    log = "".join(p.read_text() for p in (tmp_path / "semi").glob("qemu-*.log"))
+    ticks, cpu = TICKS_RE.search(log), CPU_RE.search(log)
+    assert ticks and cpu, log[-500:]
+    per_flight_s = int(ticks.group(1)) / semi.sim_s          # 6.77 M per flight second on the whole flight
+    assert 3e6 < per_flight_s < 15e6 and 0 < float(cpu.group(1)) < 30
 
 
 def test_shipped_image_has_no_semihosting_and_the_links_refuse_the_wrong_build(builds: Path, tmp_path: Path) -> None:
