@@ -17,6 +17,10 @@
 #include "board.h"
 #include "stm32f405_regs.h"
 
+#ifndef UWB_LINK_SEMIHOST
+#error "semihost_link.c is the emulator build's link only (uwb-fw-semihost.elf, make semihost)"
+#endif
+
 #define SYS_OPEN 0x01u
 #define SYS_WRITE0 0x04u
 #define SYS_WRITE 0x05u
@@ -56,12 +60,19 @@ static void count_ticks(void)
     ticks_seen = now;
 }
 
+static uint32_t append(char *dst, uint32_t n, const char *s)
+{
+    while (*s != '\0') {
+        dst[n++] = *s++;
+    }
+    return n;
+}
+
 static void semihost_exit(uint32_t reason)
 {
-    static const char prefix[] = "uwb-fw-semihost: link closed after ";
-    char text[sizeof prefix + 32u];
+    char text[64];
     char digits[21];
-    uint32_t n = 0u, k = 0u, i;
+    uint32_t n, k = 0u;
     uint64_t v;
     count_ticks();
     v = ticks_total;
@@ -69,17 +80,13 @@ static void semihost_exit(uint32_t reason)
         digits[k++] = (char)('0' + (int)(v % 10u));
         v /= 10u;
     } while (v != 0u);
-    for (i = 0u; prefix[i] != '\0'; i++) {
-        text[n++] = prefix[i];
-    }
+    n = append(text, 0u, "uwb-fw-semihost: link closed after ");
     while (k != 0u) {
         text[n++] = digits[--k];
     }
-    for (i = 0u; " ticks\n"[i] != '\0'; i++) {
-        text[n++] = " ticks\n"[i];
-    }
+    n = append(text, n, " ticks\n");
     text[n] = '\0';
-    (void)semihost(SYS_WRITE0, text);
+    (void)semihost(SYS_WRITE0, text); /* QEMU's semihosting console: its stdout, the device log */
     (void)semihost(SYS_EXIT, (const void *)reason); /* AArch32: the reason itself, not a block */
     for (;;) {
     }
