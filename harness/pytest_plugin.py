@@ -72,7 +72,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--uwb-firmware", default=None,
                     help=f"firmware: host binary for host (default {DEFAULT_FIRMWARE}), ELF for qemu "
                          f"(default {DEFAULT_STM32_ELF}); asan: {DEFAULT_ASAN_FIRMWARE}")
-    group.addoption("--uwb-qemu-link", choices=tuple(QEMU_LINKS), default="usart",
+    group.addoption("--uwb-qemu-link", choices=tuple(QEMU_LINKS), default=None,
                     help="qemu: the guest's link, the emulated USART (default) or semihosting (uwb-fw-semihost.elf, "
                          "whole blocks per trap: the fastest replays; docs/qemu.md)")
     group.addoption("--uwb-timeout", type=float, default=None,
@@ -273,7 +273,7 @@ def uwb_target(request: pytest.FixtureRequest, uwb_port: str | None) -> str:
 
 @pytest.fixture(scope=_device_scope)
 def uwb_firmware(request: pytest.FixtureRequest, uwb_target: str) -> Path:
-    link = str(request.config.getoption("uwb_qemu_link", "usart"))
+    link = str(request.config.getoption("uwb_qemu_link") or "usart")
     return Path(_param_or_option(request, "uwb_firmware", default_firmware(uwb_target, link)))
 
 
@@ -338,7 +338,7 @@ def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | 
     # the flash hook ran once for the session (uwb_flashed), not per device: no flash_cmd here
     spec = DeviceSpec(target=uwb_target, port=uwb_port if uwb_target == "serial" else None, baud=uwb_baud,
                       firmware=uwb_firmware, timeout_s=uwb_timeout, log_dir=log_dir,
-                      qemu_link=str(request.config.getoption("uwb_qemu_link", "usart")))
+                      qemu_link=str(request.config.getoption("uwb_qemu_link") or "usart"))
     device = _make_device(spec)
     suite_property("uwb_target", uwb_target)
     with started(device, uwb_timeout, uwb_expected_model_hash):
