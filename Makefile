@@ -109,7 +109,7 @@ chromium:
 	-bash scripts/ensure_chromium.sh
 
 stm32: arm-tools
-	$(MAKE) -C firmware_sim/stm32 fw selftest nnbench
+	$(MAKE) -C firmware_sim/stm32 fw selftest nnbench semihost
 
 size: stm32
 	@$(MAKE) -s -C firmware_sim/stm32 size

@@ -33,6 +33,10 @@ def add_device_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--firmware", default=None,
                    help=f"firmware to run: the host binary for host (default {DEFAULT_FIRMWARE}), "
                         f"the STM32F405 ELF for qemu (default {DEFAULT_STM32_ELF})")
+    g.add_argument("--qemu-link", choices=("usart", "semihosting"), default="usart",
+                   help="qemu only: the guest's link, the emulated USART (as a board's serial line; default) or "
+                        "semihosting (the emulator build uwb-fw-semihost.elf moving whole blocks: the fastest "
+                        "replays; docs/qemu.md)")
     g.add_argument("--timeout", type=options.timeout_s, default=5.0,
                    help="seconds of device silence before giving up (> 0)")
     g.add_argument("--log-dir", help="where device logs go")
@@ -83,7 +87,8 @@ def device_spec(args: argparse.Namespace) -> DeviceSpec:
     return DeviceSpec(target=target, port=port, baud=args.baud,
                       firmware=Path(args.firmware) if args.firmware else None,
                       timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None,
-                      flash_cmd=getattr(args, "flash_cmd", None) or None)
+                      flash_cmd=getattr(args, "flash_cmd", None) or None,
+                      qemu_link=getattr(args, "qemu_link", None) or "usart")
 
 
 def log_to_stderr(name: str) -> None:

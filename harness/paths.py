@@ -14,6 +14,8 @@ MODELS_DIR = FIRMWARE_DIR / "models"
 DEFAULT_FIRMWARE = FIRMWARE_BUILD_DIR / "uwb-fw"                  # the host build (`make firmware`)
 DEFAULT_ASAN_FIRMWARE = FIRMWARE_BUILD_DIR / "uwb-fw-asan"        # the same with ASan + UBSan (`make firmware`)
 DEFAULT_STM32_ELF = FIRMWARE_BUILD_DIR / "stm32" / "uwb-fw.elf"   # the STM32F405 image (`make stm32`)
+#: the same firmware with its link over ARM semihosting: QEMU only, never flashed (`make stm32`, docs/qemu.md)
+DEFAULT_STM32_SEMIHOST_ELF = FIRMWARE_BUILD_DIR / "stm32" / "uwb-fw-semihost.elf"
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"                # the recordings, beside the checkout
 
 

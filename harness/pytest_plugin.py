@@ -10,6 +10,7 @@ override by indirect parametrization (value resolution: indirect param -> comman
   --uwb-target    host | asan | serial | qemu (host, or serial when a port is given; the kinds of
                   harness/device/registry.py, which builds the device as the CLI does; `emulator` = host)
   --uwb-firmware  host firmware binary (<repo>/firmware_sim/build/uwb-fw), or the ELF for qemu
+  --uwb-qemu-link qemu: usart (default) or semihosting (uwb-fw-semihost.elf, docs/qemu.md)
   --uwb-timeout   seconds to wait for the device (5)
 
 Session options: --uwb-scope session|module|function (how long one device lives, as twister's
@@ -36,8 +37,8 @@ from typing import TYPE_CHECKING, Any, Iterator, List, Optional, Set, Tuple
 
 import pytest
 
-from harness.device.registry import (TARGET_CHOICES, TARGETS, DeviceSpec, canonical_target, create_device,
-                                     default_firmware, started)
+from harness.device.registry import (QEMU_LINKS, TARGET_CHOICES, TARGETS, DeviceSpec, canonical_target,
+                                     create_device, default_firmware, started)
 from harness.errors import UsageError, UwbHilError
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
@@ -71,6 +72,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--uwb-firmware", default=None,
                     help=f"firmware: host binary for host (default {DEFAULT_FIRMWARE}), ELF for qemu "
                          f"(default {DEFAULT_STM32_ELF}); asan: {DEFAULT_ASAN_FIRMWARE}")
+    group.addoption("--uwb-qemu-link", choices=tuple(QEMU_LINKS), default=None,
+                    help="qemu: the guest's link, the emulated USART (default) or semihosting (uwb-fw-semihost.elf, "
+                         "whole blocks per trap: the fastest replays; docs/qemu.md)")
     group.addoption("--uwb-timeout", type=float, default=None,
                     help=f"seconds to wait for the device (default {DEFAULT_TIMEOUT_S:g})")
     group.addoption("--uwb-scope", choices=SCOPES, default=None,
@@ -269,7 +273,8 @@ def uwb_target(request: pytest.FixtureRequest, uwb_port: str | None) -> str:
 
 @pytest.fixture(scope=_device_scope)
 def uwb_firmware(request: pytest.FixtureRequest, uwb_target: str) -> Path:
-    return Path(_param_or_option(request, "uwb_firmware", default_firmware(uwb_target)))
+    link = str(request.config.getoption("uwb_qemu_link") or "usart")
+    return Path(_param_or_option(request, "uwb_firmware", default_firmware(uwb_target, link)))
 
 
 @pytest.fixture(scope=_device_scope)
@@ -332,7 +337,8 @@ def uwb_device(request: pytest.FixtureRequest, uwb_target: str, uwb_port: str | 
     log_dir = tmp_path_factory.mktemp("uwb-device", numbered=True)
     # the flash hook ran once for the session (uwb_flashed), not per device: no flash_cmd here
     spec = DeviceSpec(target=uwb_target, port=uwb_port if uwb_target == "serial" else None, baud=uwb_baud,
-                      firmware=uwb_firmware, timeout_s=uwb_timeout, log_dir=log_dir)
+                      firmware=uwb_firmware, timeout_s=uwb_timeout, log_dir=log_dir,
+                      qemu_link=str(request.config.getoption("uwb_qemu_link") or "usart"))
     device = _make_device(spec)
     suite_property("uwb_target", uwb_target)
     with started(device, uwb_timeout, uwb_expected_model_hash):

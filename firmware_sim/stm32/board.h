@@ -48,6 +48,14 @@ void usart_rx_release(size_t n);
 uint32_t usart_rx_overruns(void);
 /* The RX interrupt's work (called from the vector in link_irq.S). */
 void link_rx_isr(void);
+/* Hand buffered replies to the host. The emulator's semihosting link (semihost_link.c, built with
+ * UWB_LINK_SEMIHOST into uwb-fw-semihost.elf only) buffers them; the USART transmits each byte as it
+ * is written, so there it is nothing and the flashed image carries no code for it. */
+#ifdef UWB_LINK_SEMIHOST
+void usart_flush(void);
+#else
+static inline void usart_flush(void) {}
+#endif
 
 /* ---- platform_stm32.c: the cost clock (platform.h). */
 void platform_stm32_init(const board_clocks_t *clk);

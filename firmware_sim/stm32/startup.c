@@ -124,6 +124,7 @@ void fault_report(const uint32_t *frame, uint32_t kind)
     usart_put_hex32(SCB_BFAR);
     usart_puts("\n");
     usart_write(&delim, 1);
+    usart_flush();
     cpu_irq_disable();
     for (;;) {
         cpu_wfi();

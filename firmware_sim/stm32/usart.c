@@ -145,25 +145,3 @@ void usart_write(const uint8_t *data, size_t n)
         USART_DR(LINK_BASE) = data[i];
     }
 }
-
-void usart_puts(const char *s)
-{
-    size_t n = 0;
-    while (s[n] != '\0') {
-        n++;
-    }
-    usart_write((const uint8_t *)s, n);
-}
-
-void usart_put_hex32(uint32_t v)
-{
-    static const char digits[] = "0123456789abcdef";
-    uint8_t buf[10];
-    unsigned i;
-    buf[0] = '0';
-    buf[1] = 'x';
-    for (i = 0; i < 8u; i++) {
-        buf[2u + i] = (uint8_t)digits[(v >> (28u - 4u * i)) & 0xFu];
-    }
-    usart_write(buf, sizeof buf);
-}

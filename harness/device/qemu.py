@@ -6,6 +6,10 @@ Start-up (serial="socket", the default):
   2. connect to S, then to the HMP monitor socket,
   3. wait until the monitor's `info chardev` shows the serial socket connected (QEMU accepts in its main
      loop: milliseconds), then `cont`.
+With link="semihosting" (QemuOptions.link) the guest is the emulator build uwb-fw-semihost.elf and its link is
+two FIFOs in QEMU's working directory, moved in whole blocks by ARM semihosting (SYS_READ/SYS_WRITE) instead of
+one byte per QEMU main-loop iteration: the same frames, the same firmware core (docs/qemu.md). The ELF must match
+the link: each build is recognised by its symbols before QEMU starts.
 The pty recipe of shared/reference/qemu-cortex-m4.md (serial="pty": `-serial pty`, parse "char device
 redirected to /dev/pts/N", open the pty raw, then wait 1.2 s because QEMU notices an opened slave only on
 its next 1 s poll and drops the guest's bytes until then) is kept as an option; the socket saves that
@@ -30,6 +34,8 @@ from harness.link.qemu_link import QemuPtyLink
 from harness.paths import DEFAULT_STM32_ELF
 
 DEFAULT_ELF = DEFAULT_STM32_ELF
+#: a symbol only the semihosting link's build defines (stm32/semihost_link.c)
+SEMIHOST_SYMBOL = "semihost_link_open"
 
 
 class QemuDevice(Device):
@@ -67,6 +73,7 @@ class QemuDevice(Device):
                               "(toolchain: scripts/ensure_arm_tools.sh)")
         if shutil.which(self.options.qemu) is None:
             raise DeviceError(f"{self.options.qemu} not found: run scripts/ensure_arm_tools.sh")
+        self._check_link_build()
         self.returncode = None
         self.log_path = self._new_log_path()
         proc = QemuProcess(self.elf, self.log_path, self.options)
@@ -77,7 +84,12 @@ class QemuDevice(Device):
             raise DeviceError(f"cannot start QEMU for {self.elf.name}: {exc}") from exc
         assert proc.serial_name is not None
         self._proc = proc
-        self._link = QemuPtyLink(proc.fd, proc.serial_name)
+        self._link = QemuPtyLink(proc.fd, proc.serial_name, write_fd=proc.write_fd)
+
+    def _check_link_build(self) -> None:
+        problem = link_build_mismatch(self.elf, self.options.link)
+        if problem:
+            raise DeviceError(problem)
 
     def alive(self) -> bool:
         return self._proc is not None and self._proc.alive()
@@ -118,6 +130,9 @@ class QemuDevice(Device):
     def stack_high_water(self) -> int:
         """Bytes of the main stack ever used (the firmware paints it at reset), read via the monitor."""
         proc = self.process
+        if self.options.link == "semihosting":
+            raise DeviceError("the stack high-water mark is read through QEMU's monitor, which does not answer while "
+                              "a semihosting guest waits for input: measure it with the USART link")
         lo, size = _symbol_range(self.elf, "_sstack", "_estack")
         words = proc.read_words(lo, size // 4)
         untouched = next((i for i, w in enumerate(words) if w != 0xA5A5A5A5), len(words))
@@ -133,12 +148,36 @@ class QemuDevice(Device):
             self.log_path = None
 
 
-def _symbol_range(elf: Path, lo_sym: str, hi_sym: str) -> tuple[int, int]:
+def link_build_mismatch(elf: Path, link: str) -> str | None:
+    """Why `elf` cannot serve `link`, or None: the semihosting link needs the emulator build and the USART link
+    the other; a mismatch would only show as a silent device, so it is refused with the fix before QEMU starts.
+    None too when the symbols cannot be read (no ELF: QEMU's start reports that)."""
+    try:
+        semihost_build = SEMIHOST_SYMBOL in _elf_symbols(elf)
+    except DeviceError:
+        return None
+    if link == "semihosting" and not semihost_build:
+        return (f"{elf.name} has no semihosting link: the QEMU semihosting link runs uwb-fw-semihost.elf "
+                "(`make stm32`; docs/qemu.md)")
+    if link != "semihosting" and semihost_build:
+        return (f"{elf.name} is the semihosting build: run it with the semihosting link (--qemu-link semihosting), "
+                "or the USART link with uwb-fw.elf")
+    return None
+
+
+def _elf_symbols(elf: Path) -> dict[str, int]:
     nm = shutil.which("arm-none-eabi-nm")
     if nm is None:
         raise DeviceError("arm-none-eabi-nm not found (scripts/ensure_arm_tools.sh)")
-    out = subprocess.run([nm, str(elf)], capture_output=True, text=True, timeout=30, check=True).stdout
-    syms = {parts[2]: int(parts[0], 16) for parts in (ln.split() for ln in out.splitlines()) if len(parts) == 3}
+    try:
+        out = subprocess.run([nm, str(elf)], capture_output=True, text=True, timeout=30, check=True).stdout
+    except (OSError, subprocess.SubprocessError) as exc:
+        raise DeviceError(f"cannot read the symbols of {elf}: {exc}") from exc
+    return {parts[2]: int(parts[0], 16) for parts in (ln.split() for ln in out.splitlines()) if len(parts) == 3}
+
+
+def _symbol_range(elf: Path, lo_sym: str, hi_sym: str) -> tuple[int, int]:
+    syms = _elf_symbols(elf)
     if lo_sym not in syms or hi_sym not in syms:
         raise DeviceError(f"{elf.name} has no {lo_sym}/{hi_sym} symbols")
     return syms[lo_sym], syms[hi_sym] - syms[lo_sym]

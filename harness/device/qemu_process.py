@@ -1,5 +1,7 @@
 """QemuProcess: qemu-system-arm with the STM32F405 firmware ELF, its HMP monitor and the host end of the guest's
-USART (a unix socket, or the pty of the older recipe). The device on top of it is harness/device/qemu.py."""
+link: the USART (a unix socket, or the pty of the older recipe), or, for the emulator build uwb-fw-semihost.elf,
+two FIFOs the guest reads and writes in whole blocks through ARM semihosting (link="semihosting", docs/qemu.md).
+The device on top of it is harness/device/qemu.py."""
 
 from __future__ import annotations
 
@@ -26,6 +28,11 @@ USART_BASES = (0x40011000, 0x40004400, 0x40004800, 0x40004C00, 0x40005000, 0x400
 _USART_CR1 = 0x0C
 _CR1_UE_RE = (1 << 13) | (1 << 2)
 _ANSI_RE = re.compile(rb"\x1b\[[0-9;]*[A-Za-z]")
+#: the guest's link: "usart" (the emulated USART, one byte per QEMU main-loop iteration) or "semihosting"
+#: (SYS_READ/SYS_WRITE of whole blocks on two FIFOs; only the emulator build uwb-fw-semihost.elf speaks it)
+LINKS = ("usart", "semihosting")
+#: the FIFOs of the semihosting link, in QEMU's working directory (names fixed in stm32/semihost_link.c)
+SEMIHOST_IN, SEMIHOST_OUT = "uwb-link.in", "uwb-link.out"
 
 
 class QemuError(DeviceError):
@@ -43,6 +50,7 @@ class QemuOptions:
     serial_index: int = 0            # 0 = USART1 (the firmware's default link), 2 = USART3
     start_timeout_s: float = 10.0    # QEMU must be up (socket / pty name) within this
     serial: str = "socket"           # host end of the USART: "socket" (unix socket) or "pty"
+    link: str = "usart"              # the guest's link (LINKS); "semihosting" needs uwb-fw-semihost.elf
     settle_s: float = 1.2            # pty only: > QEMU's 1 s pty poll, time for it to see the opened slave
     stop_timeout_s: float = 3.0
     qemu: str = "qemu-system-arm"
@@ -50,6 +58,11 @@ class QemuOptions:
     def command(self, elf: Path, monitor_path: Path, serial_path: Path | None = None) -> list[str]:
         cmd = [self.qemu, "-M", self.machine, "-display", "none", "-nodefaults",
                "-monitor", f"unix:{monitor_path},server=on,wait=off"]
+        if self.link not in LINKS:
+            raise QemuError(f"unknown QEMU link {self.link!r}: {' or '.join(LINKS)}")
+        if self.link == "semihosting":
+            return [*cmd, "-semihosting-config", "enable=on,target=native", "-kernel", str(elf.resolve()), "-S",
+                    *self._icount()]
         if self.serial == "socket":
             if serial_path is None:
                 raise QemuError("serial='socket' needs the socket path")
@@ -61,10 +74,10 @@ class QemuOptions:
             raise QemuError(f"unknown serial transport {self.serial!r}: 'socket' or 'pty'")
         # serial0..serialN: only the link's USART is connected, the ones before it are null.
         cmd += ["-serial", "null"] * self.serial_index + ["-serial", link]
-        cmd += ["-kernel", str(elf), "-S"]
-        if self.icount:
-            cmd += ["-icount", "shift=0,align=off"]
-        return cmd
+        return [*cmd, "-kernel", str(elf.resolve()), "-S", *self._icount()]
+
+    def _icount(self) -> list[str]:
+        return ["-icount", "shift=0,align=off"] if self.icount else []
 
 
 class QemuProcess:
@@ -75,8 +88,9 @@ class QemuProcess:
         self.log_path = Path(log_path)
         self.options = options
         self.proc: subprocess.Popen[bytes] | None = None
-        self.serial_name: str | None = None    # the host end: "/dev/pts/N" or "unix:<socket>"
-        self.fd: int = -1
+        self.serial_name: str | None = None    # the host end: "/dev/pts/N", "unix:<socket>" or "semihosting:<dir>"
+        self.fd: int = -1                      # the host end's fd (read and write; semihosting: read only)
+        self.write_fd: int = -1                # semihosting: the FIFO the guest reads (else fd)
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
         self._mon: socket.socket | None = None
         self._log: IO[bytes] | None = None
@@ -97,10 +111,16 @@ class QemuProcess:
         self._log.write(("$ " + " ".join(cmd) + "\n").encode())
         self._log.flush()
         try:
+            if self.options.link == "semihosting":
+                self._open_fifos(Path(self._tmp.name))
             self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=self._log,
-                                         stderr=subprocess.STDOUT, start_new_session=True)
+                                         stderr=subprocess.STDOUT, start_new_session=True, cwd=self._tmp.name)
             # QEMU runs in its own session: make sure it never outlives a harness that forgot stop().
             self._finalizer = weakref.finalize(self, _kill_quietly, self.proc)
+            if self.options.link == "semihosting":
+                self._mon = self._connect_monitor(mon_path)
+                self.monitor("cont")    # the FIFOs hold what the host writes before the guest opens them
+                return
             if self.options.serial == "socket":
                 self.fd = self._connect_serial(serial_path)
                 self.serial_name = f"unix:{serial_path}"
@@ -119,14 +139,56 @@ class QemuProcess:
             self.stop()
             raise
 
+    def _open_fifos(self, tmp: Path) -> None:
+        """The semihosting link's FIFOs, opened before QEMU starts so that the guest's SYS_OPENs never wait:
+        the one it writes read-only (a reader exists), the one it reads read-write (a writer exists, and
+        closing it is the guest's end of input)."""
+        os.mkfifo(tmp / SEMIHOST_IN)
+        os.mkfifo(tmp / SEMIHOST_OUT)
+        self.fd = os.open(tmp / SEMIHOST_OUT, os.O_RDONLY | os.O_NONBLOCK)
+        self.write_fd = os.open(tmp / SEMIHOST_IN, os.O_RDWR | os.O_NONBLOCK)
+        self.serial_name = f"semihosting:{tmp}"
+
+    def _end_semihosting(self, proc: subprocess.Popen[bytes]) -> None:
+        """Close the guest's input: it answers what is left, prints its instruction count and exits
+        (SYS_EXIT). Its output is drained meanwhile (a full FIFO would block it), bounded by stop_timeout_s.
+        While the guest waits in SYS_READ QEMU holds its big lock and its monitor does not answer, so
+        "quit" would not work before this."""
+        self._log_cpu_time(proc.pid)
+        os.close(self.write_fd)
+        self.write_fd = -1
+        deadline = time.monotonic() + self.options.stop_timeout_s
+        while proc.poll() is None and time.monotonic() < deadline and self.fd >= 0:
+            r, _, _ = select.select([self.fd], [], [], 0.05)
+            try:
+                if r and not os.read(self.fd, 65536):
+                    break
+            except OSError:
+                break
+
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
+
+    def _log_cpu_time(self, pid: int) -> None:
+        """The CPU seconds QEMU has used so far (user + system, /proc/PID/stat), as one line of its log: with the
+        guest's instruction count, which it prints at the end, the emulator's speed on this firmware, whatever
+        else loads the machine (harness/bench/real_replay.py)."""
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            cpu_s = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return
+        if self._log is not None:
+            self._log.write(f"harness: QEMU CPU time {cpu_s:.3f} s at the end of input\n".encode())
+            self._log.flush()
 
     def stop(self) -> None:
         if self._finalizer is not None:
             self._finalizer.detach()
             self._finalizer = None
         proc, self.proc = self.proc, None
+        if proc is not None and self.write_fd >= 0:
+            self._end_semihosting(proc)
         if proc is not None and proc.poll() is None:
             if self._mon is not None:
                 try:
@@ -145,9 +207,10 @@ class QemuProcess:
         if self._mon is not None:
             self._mon.close()
             self._mon = None
-        if self.fd >= 0:
-            os.close(self.fd)
-            self.fd = -1
+        for fd in (self.fd, self.write_fd):
+            if fd >= 0:
+                os.close(fd)
+        self.fd = self.write_fd = -1
         if self._log is not None:
             self._log.close()
             self._log = None

@@ -7,7 +7,8 @@ Kinds (`KINDS`, the `--target` / `--uwb-target` choices):
   asan      the same, built with AddressSanitizer + UBSan (firmware_sim/build/uwb-fw-asan): any memory or
             undefined-behaviour error ends the process, which the harness reports as DeviceDied
   serial    a running board on a serial port or pyserial URL (/dev/ttyACM0, rfc2217://host:port, ...)
-  qemu      the STM32F405 ELF in QEMU (firmware_sim/build/stm32/uwb-fw.elf)
+  qemu      the STM32F405 ELF in QEMU (firmware_sim/build/stm32/uwb-fw.elf); its link (`qemu_link`, --qemu-link) is
+            the emulated USART, or "semihosting": uwb-fw-semihost.elf moving whole blocks by ARM semihosting
 `create_device` checks the spec (a missing firmware or port is an input error, exit 2, before anything
 starts) and builds the device; `open_device` also runs the flash hook, starts it, takes its HELLO once and
 checks protocol and model, and always stops it (`started`, which the pytest plugin uses on the
@@ -17,6 +18,7 @@ built (the pytest plugin imports this module in every pytest run).
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -24,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from harness.errors import InputFileNotFound, UsageError
-from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
+from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, DEFAULT_STM32_SEMIHOST_ELF
 
 if TYPE_CHECKING:
     from harness.device.base import Device
@@ -42,6 +44,7 @@ class DeviceSpec:
     log_dir: Path | None = None
     flash_cmd: str | None = None     # run (shell) before the device starts, e.g. to flash the board
     flash_timeout_s: float = 600.0
+    qemu_link: str = "usart"         # qemu only: "usart" or "semihosting" (QEMU_LINKS)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "target", canonical_target(self.target))
@@ -51,7 +54,9 @@ class DeviceSpec:
         return "serial" if (self.port and self.target == "host") else self.target
 
     def firmware_path(self) -> Path:
-        return Path(self.firmware) if self.firmware is not None else default_firmware(self.resolved_target())
+        if self.firmware is not None:
+            return Path(self.firmware)
+        return default_firmware(self.resolved_target(), self.qemu_link)
 
 
 @dataclass(frozen=True)
@@ -76,8 +81,11 @@ def _serial(spec: DeviceSpec, firmware: Path) -> Device:  # noqa: ARG001 - the b
 
 
 def _qemu(spec: DeviceSpec, firmware: Path) -> Device:
-    from harness.device.qemu import QemuDevice
-    return QemuDevice(elf=firmware, log_dir=spec.log_dir)
+    from harness.device.qemu import QemuDevice, QemuOptions, link_build_mismatch
+    problem = link_build_mismatch(firmware, spec.qemu_link) if shutil.which("arm-none-eabi-nm") else None
+    if problem:
+        raise UsageError(problem)    # the wrong build for the link chosen: an input error, nothing started
+    return QemuDevice(elf=firmware, log_dir=spec.log_dir, options=QemuOptions(link=spec.qemu_link))
 
 
 KINDS: dict[str, DeviceKind] = {
@@ -89,6 +97,9 @@ KINDS: dict[str, DeviceKind] = {
                        "firmware ELF {path} not found: build it with `make stm32` or pass --firmware PATH", _qemu),
 }
 TARGETS = tuple(KINDS)
+#: the QEMU device's links (--qemu-link) and the firmware each runs by default: the emulated USART, or ARM
+#: semihosting (whole blocks per trap; the emulator-only build, docs/qemu.md)
+QEMU_LINKS = {"usart": DEFAULT_STM32_ELF, "semihosting": DEFAULT_STM32_SEMIHOST_ELF}
 #: old names still accepted wherever a target is chosen: "emulator" named the host build, while QEMU is the
 #: real emulator
 TARGET_ALIASES = {"emulator": "host"}
@@ -114,6 +125,10 @@ def create_device(spec: DeviceSpec) -> Device:
     firmware, when not built (an installed package), is compiled from the packaged sources on first use
     (harness/firmware_cache.py)."""
     kind = kind_of(spec)
+    if spec.qemu_link not in QEMU_LINKS:
+        raise UsageError(f"unknown QEMU link {spec.qemu_link!r}; choose one of {', '.join(QEMU_LINKS)}")
+    if spec.qemu_link != "usart" and kind.name != "qemu":
+        raise UsageError(f"the {spec.qemu_link} link is QEMU's: use it with target qemu, not {kind.name}")
     firmware = spec.firmware_path()
     if kind.name == "host" and spec.firmware is None and not firmware.is_file():
         # no `make firmware` here (an installed package): the build from the shipped sources, cached per user
@@ -124,8 +139,11 @@ def create_device(spec: DeviceSpec) -> Device:
     return kind.build(spec, firmware)
 
 
-def default_firmware(target: str) -> Path:
-    """The firmware image a kind runs when none is given (the host binary for a board: unused)."""
+def default_firmware(target: str, qemu_link: str = "usart") -> Path:
+    """The firmware image a kind runs when none is given (the host binary for a board: unused); for qemu, the
+    build its link needs."""
+    if target == "qemu" and qemu_link in QEMU_LINKS:
+        return QEMU_LINKS[qemu_link]
     kind = KINDS.get(target)
     return kind.firmware if kind is not None and kind.firmware is not None else DEFAULT_FIRMWARE
 
