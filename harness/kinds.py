@@ -109,12 +109,12 @@ TOF_MIN_COS, TOF_MAX_RANGE, TOF_STD_AT, TOF_STD_K = 0.1, 5.0, 2.5, 2.9213
 def _tof_model(x: MeasInput) -> ModelOut:
     """A downward range to the floor z = 0 from a ranger at t = config tof_x/y/z (body frame) of the point the
     state estimates, along the body's -z axis: h = (p_z + (R t)_z) / R22, H3 = (0, 0, 1 / R22) (mm_tof.c).
-    REJECTED_GEOMETRY when tipped (R22 <= 0.1) or the range is not one the ranger reports (0, 5 m)."""
+    REJECTED_GEOMETRY when tipped (R22 <= 0.1) or the range is not one the ranger reports [0, 5 m)."""
     R = np.asarray(x.R, dtype=np.float64)
     t = np.array([x.config.tof_x, x.config.tof_y, x.config.tof_z], dtype=np.float64)
     c = float(R[2, 2])
     s_z = float(x.p[2]) + float(R[2] @ t)
-    if not (c > TOF_MIN_COS and 0.0 < x.z < TOF_MAX_RANGE and np.isfinite(s_z)):
+    if not (c > TOF_MIN_COS and 0.0 <= x.z < TOF_MAX_RANGE and np.isfinite(s_z)):
         return int(Status.REJECTED_GEOMETRY), 0.0, np.zeros(3)
     return int(Status.ACCEPTED), s_z / c, np.array([0.0, 0.0, 1.0 / c])
 

@@ -188,7 +188,7 @@ class Config:
     lever_x: float  # TWR_ARM: the antenna's position in the body frame, from the body origin
     lever_y: float
     lever_z: float
-    std_tof: float  # TOF: range std at short range; it grows with the range as the Crazyflie's zranger2 model
+    std_tof: float  # TOF: range std at short range (0.01: a flow deck against the motion capture in flight); it grows with the range as the Crazyflie's VL53L1x model
     tof_x: float  # TOF: the ranger's position in the body frame, from the point the state estimates
     tof_y: float
     tof_z: float
@@ -611,7 +611,7 @@ CONFIG_FIELDS: tuple[ConfigField, ...] = (
     ConfigField('lever_x', 'f32', 0.0, unit='m', doc="TWR_ARM: the antenna's position in the body frame, from the body origin"),
     ConfigField('lever_y', 'f32', 0.0, unit='m'),
     ConfigField('lever_z', 'f32', 0.0, unit='m'),
-    ConfigField('std_tof', 'f32', 0.02, unit='m', doc="TOF: range std at short range; it grows with the range as the Crazyflie's zranger2 model", gt=0.0),
+    ConfigField('std_tof', 'f32', 0.01, unit='m', doc="TOF: range std at short range (0.01: a flow deck against the motion capture in flight); it grows with the range as the Crazyflie's VL53L1x model", gt=0.0),
     ConfigField('tof_x', 'f32', 0.0, unit='m', doc="TOF: the ranger's position in the body frame, from the point the state estimates"),
     ConfigField('tof_y', 'f32', 0.0, unit='m'),
     ConfigField('tof_z', 'f32', 0.0, unit='m'),
@@ -649,7 +649,7 @@ class EstimatorConfigBase:
     lever_x: float = 0.0  # TWR_ARM: the antenna's position in the body frame, from the body origin [m]
     lever_y: float = 0.0  # [m]
     lever_z: float = 0.0  # [m]
-    std_tof: float = 0.02  # TOF: range std at short range; it grows with the range as the Crazyflie's zranger2 model [m], > 0
+    std_tof: float = 0.01  # TOF: range std at short range (0.01: a flow deck against the motion capture in flight); it grows with the range as the Crazyflie's VL53L1x model [m], > 0
     tof_x: float = 0.0  # TOF: the ranger's position in the body frame, from the point the state estimates [m]
     tof_y: float = 0.0  # [m]
     tof_z: float = 0.0  # [m]

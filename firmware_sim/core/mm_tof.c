@@ -4,7 +4,8 @@
  * h = s_z / R22, R22 = cos(tilt) (the world z component of the body z axis), so
  *     h = (p_z + R[2][0] t_x + R[2][1] t_y + R[2][2] t_z) / R22,   H = [0, 0, 1 / R22].
  * The model holds only while the vehicle is not tipped far (R22 > MM_TOF_MIN_COS) and the range is one
- * the sensor reports (0 < z < MM_TOF_MAX_RANGE); otherwise REJECTED_GEOMETRY. Its std grows with the range
+ * the sensor reports (0 <= z < MM_TOF_MAX_RANGE: a ranger sitting on the floor reads 0, and the Crazyflie fuses
+ * every reading below its 5 m outlier limit); otherwise REJECTED_GEOMETRY. Its std grows with the range
  * as the Crazyflie's VL53L1x model: std_tof at short range, x 80 between 2.5 m and 4 m. It names no anchor:
  * the pipeline keeps its gate state in the sensor's own link (gate_kinematic.h GATE_KIN_SENSOR). */
 #include <math.h>
@@ -23,7 +24,7 @@ static int model(const mm_input_t *in, float *h, float H[3])
     *h = 0.0f;
     H[0] = H[1] = H[2] = 0.0f;
     /* negated comparisons: a NaN attitude, position or range is refused too */
-    if (!(c > MM_TOF_MIN_COS) || !(in->z > 0.0f && in->z < MM_TOF_MAX_RANGE) || !isfinite(s_z)) {
+    if (!(c > MM_TOF_MIN_COS) || !(in->z >= 0.0f && in->z < MM_TOF_MAX_RANGE) || !isfinite(s_z)) {
         return MM_DEGENERATE;
     }
     *h = s_z / c;
