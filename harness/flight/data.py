@@ -111,6 +111,12 @@ class UwbStream:
     def __len__(self) -> int:
         return int(self.t_us.shape[0])
 
+    def take(self, sel: Any) -> UwbStream:
+        """The measurements `sel` (a slice, mask or index array) selects, of the same kind."""
+        tv = self.true_value
+        return UwbStream(kind=self.kind, t_us=self.t_us[sel], anchor_a=self.anchor_a[sel], anchor_b=self.anchor_b[sel],
+                         value=self.value[sel], true_value=None if tv is None else tv[sel])
+
 
 @dataclass(frozen=True)
 class HeightStream:

@@ -58,6 +58,12 @@ def body_offset(logs: list[Path]) -> tuple[float, list[TofResiduals]]:
     return float(np.mean(np.concatenate([p.flight for p in per_log]))), per_log
 
 
+def describe(p: TofResiduals) -> str:
+    floor = f"mean {p.floor.mean():+.4f} m" if p.floor.size else "none"
+    return (f"{p.name:<14} in flight {p.flight.size:5d} readings, mean {p.flight.mean():+.4f} std "
+            f"{p.flight.std():.4f} m; on the floor {p.floor.size:4d}, {floor}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("logs", nargs="+", type=Path, help="Crazyflie uSD logs with estTOF and estPose")
@@ -67,10 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, OSError) as exc:
         print(f"tof_offset: error: {exc}", file=sys.stderr)
         return 2
-    for p in per_log:
-        print(f"{p.name:<14} in flight {p.flight.size:5d} readings, mean {p.flight.mean():+.4f} std "
-              f"{p.flight.std():.4f} m; on the floor {p.floor.size:4d}, mean {p.floor.mean():+.4f} m")
-    print(f"ranger body z offset (mean in flight over {len(per_log)} logs): {offset:+.4f} m")
+    print("\n".join([*(describe(p) for p in per_log),
+                     f"ranger body z offset (mean in flight over {len(per_log)} logs): {offset:+.4f} m"]))
     return 0
 
 
