@@ -104,6 +104,8 @@ def _twr_arm_model(x: MeasInput) -> ModelOut:
 #: TOF validity and std model (mm_tof.c): tilt cosine floor, the ranger's range limit [m], and the std
 #: std_tof (1 + exp(k (z - 2.5))), k = ln(80) / 1.5 (the Crazyflie's VL53L1x model)
 TOF_MIN_COS, TOF_MAX_RANGE, TOF_STD_AT, TOF_STD_K = 0.1, 5.0, 2.5, 2.9213
+#: a reading below this [m]: the vehicle sits on the floor (MM_TOF_FLOOR_BELOW)
+TOF_FLOOR_BELOW = 0.1
 
 
 def _tof_model(x: MeasInput) -> ModelOut:
@@ -143,6 +145,7 @@ class MeasurementKind:
     network: str | None = None         # the BiasModel attribute of the network that corrects it
     layouts: tuple[int, ...] = ()      # the network's input layouts (protocol enum layout)
     std_of: Callable[[MeasInput], float] | None = None   # the std of one measurement (None: std_field)
+    floor_below: float = 0.0           # a range to the floor: below this [m] the vehicle sits on it (0: none)
 
     @property
     def n_anchors(self) -> int:
@@ -196,7 +199,7 @@ KINDS: Mapping[int, MeasurementKind] = {k.code: k for k in (
     MeasurementKind(int(MeasKind.TWR_ARM), "twr_arm", "TWR (lever arm)", m.TwrArm, ("anchor_id",), "range",
                     "range", "std_twr", "chi2_twr", "a_max_twr", 1.0, _twr_arm_model),
     MeasurementKind(int(MeasKind.TOF), "tof", "ToF height", m.Tof, (), "range", "range", "std_tof", "chi2_twr",
-                    "a_max_twr", 1.0, _tof_model, std_of=_tof_std),
+                    "a_max_twr", 1.0, _tof_model, std_of=_tof_std, floor_below=TOF_FLOOR_BELOW),
 )}
 
 #: the kinds' keys, in table order (summaries and reports keyed by kind)

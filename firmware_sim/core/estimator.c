@@ -204,10 +204,11 @@ static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, u
 
 /* The start of every measurement: the CV prediction, the time rule's reference, and d_max, reported
  * whatever happens next (plots). The velocity norm is frame independent and the CV prediction does not
- * change the velocity. On the floor before take-off the links to low anchors read metres long for seconds:
- * the gates do not re-open there (no widening, no lock-out guard); the vehicle cannot have moved. */
+ * change the velocity. On the floor (before take-off, or as a range to the floor says) the links to low anchors
+ * read metres long for seconds: the gates do not re-open there (no widening, no lock-out guard); the vehicle
+ * cannot have moved. */
 static void begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, const uint8_t ids[2],
-                              estimator_result_t *out)
+                              float z, estimator_result_t *out)
 {
     const estimator_config_t *cfg = &est->cfg;
     const uint64_t t_ref = est->ekf.t_us;
@@ -219,8 +220,11 @@ static void begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t 
     est->has_uwb_time = 1;
     out->cost_predict = est->cost_predict;
     est->cost_predict = 0;
+    if (kind->floor_below > 0.0f) {
+        takeoff_on_floor_range(&est->takeoff, t_us, z < kind->floor_below);
+    }
     dt = gate_kinematic_window(&est->kin, t_us, ids[0], ids[1], t_ref, have_ref, cfg->gate_dt_min,
-                               !(cfg->mode == EST_MODE_IMU_THRUST && !est->takeoff.airborne));
+                               !takeoff_on_floor(&est->takeoff, cfg->mode == EST_MODE_IMU_THRUST, t_us));
     out->d_max = gate_kinematic_dmax(&est->ekf.x[EKF_PX], dt, mm_cfg(cfg, kind->a_max_off));
 }
 
@@ -238,7 +242,7 @@ static void process(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, cons
     uint32_t c0, c1, c2, c3;
     int rc;
 
-    begin_measurement(est, kind, t_us, ids, out);
+    begin_measurement(est, kind, t_us, ids, z, out);
     /* 1. measurement model */
     c0 = platform_cost_now();
     rc = kind->model(&in, &h, H);

@@ -50,6 +50,7 @@ typedef struct {
     float gate_factor;   /* the kinematic gate rejects |y| > gate_factor d_max */
     size_t net;          /* offsetof(bias_model_t, ...) of its network (bias_nn.h), or MM_NO_NET */
     mm_std_fn std_of;    /* NULL: the std is the field at std_off */
+    float floor_below;   /* a range to the floor: below this [m] the vehicle sits on it (takeoff.h); 0: none */
 } mm_kind_t;
 
 #define MM_DECLARE_ROW(name) extern const mm_kind_t mm_kind_##name;

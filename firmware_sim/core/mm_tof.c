@@ -6,7 +6,8 @@
  * The model holds only while the vehicle is not tipped far (R22 > MM_TOF_MIN_COS) and the range is one
  * the sensor reports (0 <= z < MM_TOF_MAX_RANGE: a ranger sitting on the floor reads 0, and the Crazyflie fuses
  * every reading below its 5 m outlier limit); otherwise REJECTED_GEOMETRY. Its std grows with the range
- * as the Crazyflie's VL53L1x model: std_tof at short range, x 80 between 2.5 m and 4 m. It names no anchor:
+ * as the Crazyflie's VL53L1x model: std_tof at short range, x 80 between 2.5 m and 4 m. A reading below
+ * MM_TOF_FLOOR_BELOW tells the pipeline the vehicle sits on the floor (takeoff.h). It names no anchor:
  * the pipeline keeps its gate state in the sensor's own link (gate_kinematic.h GATE_KIN_SENSOR). */
 #include <math.h>
 
@@ -16,6 +17,8 @@
 #define MM_TOF_MAX_RANGE 5.0f /* [m] the ranger's outlier limit (a VL53L1x reads up to 4 m) */
 #define MM_TOF_STD_AT 2.5f    /* [m] the std model: std_tof (1 + exp(k (z - 2.5))), */
 #define MM_TOF_STD_K 2.9213f  /* k = ln(80) / 1.5: the std 80 times larger at 4 m than at 2.5 m */
+/* [m] a reading below this: the vehicle sits on the floor (the shared logs: 0-26 mm there, >= 0.4 m in flight) */
+#define MM_TOF_FLOOR_BELOW 0.1f
 
 static int model(const mm_input_t *in, float *h, float H[3])
 {
@@ -39,4 +42,4 @@ static float std_of(const mm_input_t *in)
 
 const mm_kind_t mm_kind_tof = {MM_KIND_TOF, 0, model, offsetof(estimator_config_t, std_tof),
                                offsetof(estimator_config_t, chi2_twr), offsetof(estimator_config_t, a_max_twr),
-                               1.0f, MM_NO_NET, std_of};
+                               1.0f, MM_NO_NET, std_of, MM_TOF_FLOOR_BELOW};

@@ -300,7 +300,9 @@ class TwinEstimator:
         self._predict_cv_to(t_us)  # its supervisor check still sees the previous measurement's time (gap)
         self.t_uwb_us = t_us
         ekf = self.ekf
-        on_floor = c.mode == MODE_IMU_THRUST and not self.takeoff.airborne   # the gates do not re-open there
+        if kind.floor_below > 0.0:   # a range to the floor: does the vehicle sit on it?
+            self.takeoff.on_floor_range(t_us, np.float32(z) < np.float32(kind.floor_below))
+        on_floor = self.takeoff.on_floor(c.mode == MODE_IMU_THRUST, t_us)   # the gates do not re-open there
         dt = self.kin.window(t_us, ids, t_ref, c.gate_dt_min, widen=not on_floor)
         d_max = gates.kinematic_dmax(ekf.x[3:6], dt, kind.a_max(c))
 
