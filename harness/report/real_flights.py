@@ -34,10 +34,11 @@ ALL_LOGS = tuple(Path(r).name for r in (*CF_USD_LOS, *CF_USD_SHELF))            
 #: the configurations run on every log (resets) with and without ToF: label, stages, needs the network
 MAIN = (("UWB-only, outlier", ("--stages", "outlier", "--uwb-only"), False),
         ("IMU, outlier", ("--stages", "outlier"), False), ("IMU, none", ("--stages", "none"), False),
-        ("IMU, outlier+nn", ("--stages", "outlier+nn"), True), ("IMU, outlier+nn+states", ("--stages", "outlier+nn+states"), True))
+        ("IMU, outlier+nn", ("--stages", "outlier+nn"), True),
+        ("IMU, outlier+nn+monitor", ("--stages", "outlier+nn+monitor"), True),
+        ("IMU, outlier+nn+states", ("--stages", "outlier+nn+states"), True))
 #: evaluation flights only, without ToF
-EXTRA = (("IMU, outlier, UTIL lever arm", ("--stages", "outlier"), False),
-         ("IMU, outlier+nn+monitor", ("--stages", "outlier+nn+monitor"), True))
+EXTRA = (("IMU, outlier, UTIL lever arm", ("--stages", "outlier"), False),)
 DEFAULT_MODEL = REPO_ROOT / "firmware_sim" / "models" / "cf_tdoa_pose.npz"
 
 
@@ -111,14 +112,14 @@ def _f(x: Any, fmt: str = ".3f") -> str:
 
 
 def markdown(rows: list[Row]) -> str:
-    lines = ["| flight | configuration | flight RMSE [m] | xy | z | z mean error | attitude error (median) [deg] | "
-             "ground RMSE | resets | exit |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| flight | configuration | flight RMSE [m] | xy | z | z mean error | attitude error (median) [deg] "
+             "| ground RMSE | resets | exit |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         fl, gr = r.phase("flight"), r.phase("ground")
         att = ((((r.summary or {}).get("attitude") or {}).get("phases") or {}).get("flight") or {}).get("angle_p50_deg")
         lines.append(f"| {r.job.flight} | {r.job.config} | {_f(fl.get('rmse'))} | {_f(fl.get('rmse_xy'))} | "
-                     f"{_f(fl.get('rmse_z'))} | {_f(fl.get('z_mean_error'), '+.3f')} | {_f(att, '.1f')} | {_f(gr.get('rmse'))} | "
-                     f"{_f(_resets(r), 'd')} | {r.exit_code} |")
+                     f"{_f(fl.get('rmse_z'))} | {_f(fl.get('z_mean_error'), '+.3f')} | {_f(att, '.1f')} | "
+                     f"{_f(gr.get('rmse'))} | {_f(_resets(r), 'd')} | {r.exit_code} |")
     return "\n".join(lines)
 
 

@@ -72,10 +72,12 @@ def make_flight(src: RunSource) -> Flight:
     """The flight (measurement level): its ranges calibrated when `range_offset` is given, with HEIGHT
     pseudo-measurements when `height` is given."""
     if src.recording:
+        from harness.flight.formats.cf_usd_flight import TOF_DEFAULT
         from harness.flight.loaders import UsdOptions, load_recording
+        tof = TOF_DEFAULT if src.tof is None else src.tof
         flight = load_recording(Path(src.recording), anchors=Path(src.anchors) if src.anchors else None,
                                 constellation=src.constellation, check=not src.force,
-                                usd=UsdOptions.make(src.ignore_crc, src.lever_arm, src.tof))
+                                usd=UsdOptions.make(src.ignore_crc, src.lever_arm, tof))
     else:
         from harness.flight.scenarios import scenario_flight
         flight = scenario_flight(src.scenario, mode=src.mode, duration_s=src.duration, seed=src.seed)

@@ -45,8 +45,9 @@ QUAT_NORM_TOL = 0.01
 #: under the centre; z measured on the ten 0425 training flights in flight (`python -m harness.flight.tof_offset`,
 #: docs/real-flights.md "The ToF ranger")
 TOF_BODY = (0.0, 0.0, -0.039)
-#: `uwb-hil run --recording LOG` fuses the ranger unless --no-tof (docs/real-flights.md "The ToF ranger")
-TOF_DEFAULT = False
+#: `uwb-hil run --recording LOG` fuses the ranger unless --no-tof, as a Crazyflie with a flow deck does: with it
+#: no supervisor reset on any shared log in any configuration (docs/real-flights.md "The ToF ranger")
+TOF_DEFAULT = True
 
 
 @dataclass(frozen=True)
@@ -57,14 +58,13 @@ class UsdOptions:
     ignore_crc: bool = False
     lever_arm: tuple[float, float, float] = (float(TAG_LEVER_ARM[0]), float(TAG_LEVER_ARM[1]),
                                              float(TAG_LEVER_ARM[2]))
-    tof: bool = False     # the reader's own default: only what `run` streams follows TOF_DEFAULT
+    tof: bool = False     # the reader's own default (training, calibration): `run` follows TOF_DEFAULT
 
     @classmethod
     def make(cls, ignore_crc: bool = False, lever_arm: Sequence[float] | str | None = None,
-             tof: bool | None = None) -> UsdOptions:
+             tof: bool = False) -> UsdOptions:
         """From command-line values (lever_arm None = the default; a str = a calibration file of
-        `uwb-hil lever-arm`; tof None = TOF_DEFAULT)."""
-        tof = TOF_DEFAULT if tof is None else tof
+        `uwb-hil lever-arm`)."""
         if lever_arm is None:
             return cls(ignore_crc=bool(ignore_crc), tof=bool(tof))
         if isinstance(lever_arm, str):
