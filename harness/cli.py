@@ -70,6 +70,9 @@ def print_run(summary: dict[str, Any]) -> None:
     print(f"flight {summary['flight']}: {summary['measurements']} measurements, {summary['results']} results, "
           f"{summary['refused']} refused, {summary['lost']} lost; {summary['pacing']} replay at "
           f"{_fmt(summary['realtime_factor'], 1)}x real time")
+    if summary.get("auxiliary"):
+        aux = summary["auxiliary"]
+        print(f"  also fused: {aux['measurements']} {aux['kind']} measurements (not scored)")
     print(f"  position RMSE {_fmt(acc['rmse'])} m (xy {_fmt(acc['rmse_xy'])}, z {_fmt(acc['rmse_z'])}, "
           f"max {_fmt(acc['max_error'])}); accepted {acc['accepted']}, rejected kinematic "
           f"{acc['rejected_kinematic']}, chi2 {acc['rejected_chi2']}")

@@ -93,5 +93,7 @@ def test_shared_log_with_tof_never_resets(capsys: pytest.CaptureFixture[str]) ->
     summary = json.loads(out.out)
     assert rc == 0, out.err
     assert summary["health"]["divergences"] == 0
+    aux = load_recording(path, usd=UsdOptions(tof=True)).aux
+    assert aux is not None and summary["auxiliary"] == {"kind": "tof", "measurements": len(aux)}
     flight = summary["accuracy"]["phases"]["flight"]
     assert flight["rmse_z"] < 0.03 and abs(flight["z_mean_error"]) < 0.02 and flight["rmse"] < 0.35
