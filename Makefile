@@ -157,7 +157,7 @@ models: $(STAMP)
 
 # The estimator on the real Crazyflie flights (../shared/data/cf_usd), held out by flight: UWB-only vs IMU,
 # outlier rejection with and without the real-flight network, lever arm calibrated on training flights
-# (docs/real-flights.md; ~5 min on 2 cores). The network is built from the shared logs when missing.
+# (docs/real-flights.md; ~7 min on 2 cores: every shared log with and without the ToF ranger). The network is built from the shared logs when missing.
 .PHONY: real-flights
 real-flights: $(STAMP) firmware firmware_sim/models/cf_tdoa_pose.npz
 	$(PY) -m harness.report.real_flights

@@ -70,6 +70,9 @@ def print_run(summary: dict[str, Any]) -> None:
     print(f"flight {summary['flight']}: {summary['measurements']} measurements, {summary['results']} results, "
           f"{summary['refused']} refused, {summary['lost']} lost; {summary['pacing']} replay at "
           f"{_fmt(summary['realtime_factor'], 1)}x real time")
+    if summary.get("auxiliary"):
+        aux = summary["auxiliary"]
+        print(f"  also fused: {aux['measurements']} {aux['kind']} measurements (not scored)")
     print(f"  position RMSE {_fmt(acc['rmse'])} m (xy {_fmt(acc['rmse_xy'])}, z {_fmt(acc['rmse_z'])}, "
           f"max {_fmt(acc['max_error'])}); accepted {acc['accepted']}, rejected kinematic "
           f"{acc['rejected_kinematic']}, chi2 {acc['rejected_chi2']}")
@@ -202,6 +205,10 @@ def _add_flight_options(p: argparse.ArgumentParser, recorded: bool = True) -> No
                                        "uSD log, .npz)")
     g.add_argument("--anchors", help="anchor file for the recording (UTIL anchors.csv, survey .npz, YAML)")
     options.add_recording_read_options(g)
+    g.add_argument("--tof", action=argparse.BooleanOptionalAction, default=None,
+                   help="Crazyflie uSD logs: fuse the flow deck's downward ToF ranger (estTOF) with the UWB "
+                        "measurements (default: on when the log has ToF readings, as a Crazyflie with a flow deck; "
+                        "the paper's system had none: --no-tof; docs/real-flights.md)")
     g.add_argument("--range-offset", metavar="FILE.json",
                    help="TWR range-offset calibration (antenna delay) subtracted from the ranges before they are "
                         "streamed; fit one on recordings with ground truth: `uwb-hil range-offset`")

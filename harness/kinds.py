@@ -32,7 +32,7 @@ class MeasInput:
 
     p: np.ndarray                 # (3,) estimated position
     R: np.ndarray                 # (3, 3) estimated attitude, body -> world
-    a: np.ndarray                 # (3,) anchor A
+    a: np.ndarray | None          # (3,) anchor A (None: a kind without anchors)
     b: np.ndarray | None          # (3,) anchor B (two-anchor kinds)
     z: float                      # the measurement
     config: Any                   # harness.config.EstimatorConfig
@@ -81,11 +81,12 @@ def _outcome(model: tuple[float, np.ndarray] | None) -> ModelOut:
 
 
 def _twr_model(x: MeasInput) -> ModelOut:
+    assert x.a is not None
     return _outcome(twr(x.p, x.a))
 
 
 def _tdoa_model(x: MeasInput) -> ModelOut:
-    assert x.b is not None
+    assert x.a is not None and x.b is not None
     out = _outcome(tdoa(x.p, x.a, x.b))
     if out[0] == Status.ACCEPTED and not within_baseline(x.a, x.b, x.z):
         return int(Status.REJECTED_BASELINE), 0.0, np.zeros(3)
@@ -95,8 +96,34 @@ def _tdoa_model(x: MeasInput) -> ModelOut:
 def _twr_arm_model(x: MeasInput) -> ModelOut:
     """TWR from an antenna at lever arm l (config lever_x/y/z, body frame) of the body origin p the state
     estimates: h = |p + R l - a| (mm_twr_arm.c)."""
+    assert x.a is not None
     lever = np.array([x.config.lever_x, x.config.lever_y, x.config.lever_z], dtype=np.float64)
     return _outcome(twr(np.asarray(x.p) + np.asarray(x.R) @ lever, x.a))
+
+
+#: TOF validity and std model (mm_tof.c): tilt cosine floor, the ranger's range limit [m], and the std
+#: std_tof (1 + exp(k (z - 2.5))), k = ln(80) / 1.5 (the Crazyflie's VL53L1x model)
+TOF_MIN_COS, TOF_MAX_RANGE, TOF_STD_AT, TOF_STD_K = 0.1, 5.0, 2.5, 2.9213
+#: a reading below this [m]: the vehicle sits on the floor (MM_TOF_FLOOR_BELOW)
+TOF_FLOOR_BELOW = 0.1
+
+
+def _tof_model(x: MeasInput) -> ModelOut:
+    """A downward range to the floor z = 0 from a ranger at t = config tof_x/y/z (body frame) of the point the
+    state estimates, along the body's -z axis: h = (p_z + (R t)_z) / R22, H3 = (0, 0, 1 / R22) (mm_tof.c).
+    REJECTED_GEOMETRY when tipped (R22 <= 0.1) or the range is not one the ranger reports [0, 5 m)."""
+    R = np.asarray(x.R, dtype=np.float64)
+    t = np.array([x.config.tof_x, x.config.tof_y, x.config.tof_z], dtype=np.float64)
+    c = float(R[2, 2])
+    s_z = float(x.p[2]) + float(R[2] @ t)
+    if not (c > TOF_MIN_COS and 0.0 <= x.z < TOF_MAX_RANGE and np.isfinite(s_z)):
+        return int(Status.REJECTED_GEOMETRY), 0.0, np.zeros(3)
+    return int(Status.ACCEPTED), s_z / c, np.array([0.0, 0.0, 1.0 / c])
+
+
+def _tof_std(x: MeasInput) -> float:
+    """The ranger's std at its measured range (mm_tof.c std_of)."""
+    return float(x.config.std_tof) * (1.0 + float(np.exp(TOF_STD_K * (x.z - TOF_STD_AT))))
 
 
 @dataclass(frozen=True)
@@ -117,6 +144,8 @@ class MeasurementKind:
     model: Callable[[MeasInput], ModelOut]
     network: str | None = None         # the BiasModel attribute of the network that corrects it
     layouts: tuple[int, ...] = ()      # the network's input layouts (protocol enum layout)
+    std_of: Callable[[MeasInput], float] | None = None   # the std of one measurement (None: std_field)
+    floor_below: float = 0.0           # a range to the floor: below this [m] the vehicle sits on it (0: none)
 
     @property
     def n_anchors(self) -> int:
@@ -124,8 +153,8 @@ class MeasurementKind:
 
     @property
     def link(self) -> str:
-        """What one link is: an anchor, or a pair of them."""
-        return "anchor" if self.n_anchors == 1 else "pair"
+        """What one link is: an anchor, a pair of them, or (no anchor) the sensor itself."""
+        return ("sensor", "anchor", "pair")[self.n_anchors]
 
     def anchor_ids(self, uwb: Any) -> tuple[np.ndarray, ...]:
         """The anchor-id columns of a UwbStream its measurements use (A, or A and B)."""
@@ -144,6 +173,10 @@ class MeasurementKind:
 
     def std(self, config: Any) -> float:
         return float(getattr(config, self.std_field))
+
+    def meas_std(self, x: MeasInput) -> float:
+        """The std to fuse measurement x with (before any network's): the kind's own, or the config field."""
+        return self.std_of(x) if self.std_of is not None else self.std(x.config)
 
     def chi2(self, config: Any) -> float:
         return float(getattr(config, self.chi2_field))
@@ -165,6 +198,8 @@ KINDS: Mapping[int, MeasurementKind] = {k.code: k for k in (
                     (int(Layout.TDOA_POSE), int(Layout.TDOA_POS))),
     MeasurementKind(int(MeasKind.TWR_ARM), "twr_arm", "TWR (lever arm)", m.TwrArm, ("anchor_id",), "range",
                     "range", "std_twr", "chi2_twr", "a_max_twr", 1.0, _twr_arm_model),
+    MeasurementKind(int(MeasKind.TOF), "tof", "ToF height", m.Tof, (), "range", "range", "std_tof", "chi2_twr",
+                    "a_max_twr", 1.0, _tof_model, std_of=_tof_std, floor_below=TOF_FLOOR_BELOW),
 )}
 
 #: the kinds' keys, in table order (summaries and reports keyed by kind)

@@ -8,7 +8,7 @@ from typing import ClassVar
 
 from protocol.config_check import ConfigError, ConfigField, check_field  # noqa: F401
 
-PROTOCOL_VERSION = 10
+PROTOCOL_VERSION = 11
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -42,6 +42,7 @@ class MeasKind(enum.IntEnum):
     TWR = 1
     TDOA = 2
     TWR_ARM = 3
+    TOF = 4
 
 
 class Status(enum.IntEnum):
@@ -157,9 +158,9 @@ class Config:
     MSG_ID: ClassVar[int] = 0x02
     NAME: ClassVar[str] = 'CONFIG'
     DIRECTION: ClassVar[str] = 'to_device'
-    FORMAT: ClassVar[str] = '<BBBBffffffffffffffffffffff'
-    SIZE: ClassVar[int] = 92
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('tdoa_match', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'), ('lever_x', 'f32'), ('lever_y', 'f32'), ('lever_z', 'f32'))
+    FORMAT: ClassVar[str] = '<BBBBffffffffffffffffffffffffff'
+    SIZE: ClassVar[int] = 108
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('tdoa_match', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'), ('lever_x', 'f32'), ('lever_y', 'f32'), ('lever_z', 'f32'), ('std_tof', 'f32'), ('tof_x', 'f32'), ('tof_y', 'f32'), ('tof_z', 'f32'))
 
     mode: int  # estimator mode
     stages: int  # pipeline stages on
@@ -187,6 +188,10 @@ class Config:
     lever_x: float  # TWR_ARM: the antenna's position in the body frame, from the body origin
     lever_y: float
     lever_z: float
+    std_tof: float  # TOF: range std at short range (0.01: a flow deck against the motion capture in flight); it grows with the range as the Crazyflie's VL53L1x model
+    tof_x: float  # TOF: the ranger's position in the body frame, from the point the state estimates
+    tof_y: float
+    tof_z: float
 
 
 @dataclass(frozen=True)
@@ -272,6 +277,21 @@ class TwrArm:
 
     t_us: int
     anchor_id: int
+    range: float  # m
+
+
+@dataclass(frozen=True)
+class Tof:
+    """One downward range to the floor (a flow deck's ToF ranger along body -z, CONFIG tof_x/y/z). Answered by RESULT (or ERROR)."""
+
+    MSG_ID: ClassVar[int] = 0x0d
+    NAME: ClassVar[str] = 'TOF'
+    DIRECTION: ClassVar[str] = 'to_device'
+    FORMAT: ClassVar[str] = '<Qf'
+    SIZE: ClassVar[int] = 12
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('t_us', 'u64'), ('range', 'f32'))
+
+    t_us: int
     range: float  # m
 
 
@@ -560,7 +580,7 @@ class Control:
     compute: int  # device cost of the control step (cost_unit)
 
 
-MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, TwrArm, StatsReq, Radio, ClockReq, Height, Setpoint, HelloReply, Result, Stats, Error, RadioDrop, Clock, Control,)
+MESSAGE_TYPES: tuple[type, ...] = (Hello, Config, Anchor, Imu, Twr, Tdoa, TwrArm, Tof, StatsReq, Radio, ClockReq, Height, Setpoint, HelloReply, Result, Stats, Error, RadioDrop, Clock, Control,)
 MESSAGES_BY_ID: dict[int, type] = {cls.MSG_ID: cls for cls in MESSAGE_TYPES}
 
 
@@ -591,6 +611,10 @@ CONFIG_FIELDS: tuple[ConfigField, ...] = (
     ConfigField('lever_x', 'f32', 0.0, unit='m', doc="TWR_ARM: the antenna's position in the body frame, from the body origin"),
     ConfigField('lever_y', 'f32', 0.0, unit='m'),
     ConfigField('lever_z', 'f32', 0.0, unit='m'),
+    ConfigField('std_tof', 'f32', 0.01, unit='m', doc="TOF: range std at short range (0.01: a flow deck against the motion capture in flight); it grows with the range as the Crazyflie's VL53L1x model", gt=0.0),
+    ConfigField('tof_x', 'f32', 0.0, unit='m', doc="TOF: the ranger's position in the body frame, from the point the state estimates"),
+    ConfigField('tof_y', 'f32', 0.0, unit='m'),
+    ConfigField('tof_z', 'f32', 0.0, unit='m'),
     ConfigField('reset', 'u8', 1, doc='1: re-initialise the filter at init_pos', le=1.0, control=True),
 )
 
@@ -625,6 +649,10 @@ class EstimatorConfigBase:
     lever_x: float = 0.0  # TWR_ARM: the antenna's position in the body frame, from the body origin [m]
     lever_y: float = 0.0  # [m]
     lever_z: float = 0.0  # [m]
+    std_tof: float = 0.01  # TOF: range std at short range (0.01: a flow deck against the motion capture in flight); it grows with the range as the Crazyflie's VL53L1x model [m], > 0
+    tof_x: float = 0.0  # TOF: the ranger's position in the body frame, from the point the state estimates [m]
+    tof_y: float = 0.0  # [m]
+    tof_z: float = 0.0  # [m]
 
     def validate(self) -> None:
         """Raise ConfigError naming the first invalid field (the device refuses the same values)."""
@@ -661,4 +689,8 @@ class EstimatorConfigBase:
             lever_x=self.lever_x,
             lever_y=self.lever_y,
             lever_z=self.lever_z,
+            std_tof=self.std_tof,
+            tof_x=self.tof_x,
+            tof_y=self.tof_y,
+            tof_z=self.tof_z,
         )

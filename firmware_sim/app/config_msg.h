@@ -34,6 +34,10 @@ static inline void config_from_msg(const uwb_config_t *m, estimator_config_t *cf
     cfg->lever_x = m->lever_x;
     cfg->lever_y = m->lever_y;
     cfg->lever_z = m->lever_z;
+    cfg->std_tof = m->std_tof;
+    cfg->tof_x = m->tof_x;
+    cfg->tof_y = m->tof_y;
+    cfg->tof_z = m->tof_z;
 }
 
 /* 1 if the message's own fields (reset) are valid. */

@@ -141,10 +141,10 @@ static void predict_cv_to(estimator_t *est, uint64_t t_us)
 }
 
 /* The network's bias correction of a measurement (0 without a network, stage or pair), and in `std` the
- * standard deviation to fuse it with: the configured one, or with NN_STD the network's own std of what it
- * leaves when it predicts one. */
+ * standard deviation to fuse it with: the configured one (or the kind's own of the measurement), or with
+ * NN_STD the network's own std of what it leaves when it predicts one. */
 static float corrected_bias(estimator_t *est, const mm_kind_t *kind, const uint8_t ids[2],
-                            const float *const anchors[2], float *std)
+                            const float *const anchors[2], const mm_input_t *in, float *std)
 {
     const estimator_config_t *cfg = &est->cfg;
     const bias_nn_t *net = NULL;
@@ -152,8 +152,8 @@ static float corrected_bias(estimator_t *est, const mm_kind_t *kind, const uint8
     if (est->model != NULL && kind->net != MM_NO_NET) {
         memcpy(&net, (const char *)est->model + kind->net, sizeof net);
     }
-    *std = mm_cfg(cfg, kind->std_off);
-    if ((cfg->stages & EST_STAGE_NN_MONITOR) && !nn_monitor_enabled(&est->nnmon, ids[0], ids[1])) {
+    *std = kind->std_of != NULL ? kind->std_of(in) : mm_cfg(cfg, kind->std_off);
+    if (net != NULL && (cfg->stages & EST_STAGE_NN_MONITOR) && !nn_monitor_enabled(&est->nnmon, ids[0], ids[1])) {
         net = NULL; /* the monitor switched this pair's correction off */
     }
     bias = nn_bias(est, net, anchors[0], anchors[1], *std, &std_nn);
@@ -192,7 +192,7 @@ static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, u
     }
     ekf_scalar_apply(ekf, m);
     ekf_finalize(ekf);
-    if (est->cfg.stages & EST_STAGE_BIAS_STATES) {
+    if ((est->cfg.stages & EST_STAGE_BIAS_STATES) && ids[0] < BIAS_ST_ANCHORS) {
         bias_states_update(&est->bstates, ids[0], ids[1], y, m->S);
     }
     gate_kinematic_fused(&est->kin, t_us, ids[0], ids[1]);
@@ -204,10 +204,11 @@ static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, u
 
 /* The start of every measurement: the CV prediction, the time rule's reference, and d_max, reported
  * whatever happens next (plots). The velocity norm is frame independent and the CV prediction does not
- * change the velocity. On the floor before take-off the links to low anchors read metres long for seconds:
- * the gates do not re-open there (no widening, no lock-out guard); the vehicle cannot have moved. */
+ * change the velocity. On the floor (before take-off, or as a range to the floor says) the links to low anchors
+ * read metres long for seconds: the gates do not re-open there (no widening, no lock-out guard); the vehicle
+ * cannot have moved. */
 static void begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, const uint8_t ids[2],
-                              estimator_result_t *out)
+                              float z, estimator_result_t *out)
 {
     const estimator_config_t *cfg = &est->cfg;
     const uint64_t t_ref = est->ekf.t_us;
@@ -219,8 +220,11 @@ static void begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t 
     est->has_uwb_time = 1;
     out->cost_predict = est->cost_predict;
     est->cost_predict = 0;
+    if (kind->floor_below > 0.0f) {
+        takeoff_on_floor_range(&est->takeoff, t_us, z < kind->floor_below);
+    }
     dt = gate_kinematic_window(&est->kin, t_us, ids[0], ids[1], t_ref, have_ref, cfg->gate_dt_min,
-                               !(cfg->mode == EST_MODE_IMU_THRUST && !est->takeoff.airborne));
+                               !takeoff_on_floor(&est->takeoff, cfg->mode == EST_MODE_IMU_THRUST, t_us));
     out->d_max = gate_kinematic_dmax(&est->ekf.x[EKF_PX], dt, mm_cfg(cfg, kind->a_max_off));
 }
 
@@ -238,7 +242,7 @@ static void process(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, cons
     uint32_t c0, c1, c2, c3;
     int rc;
 
-    begin_measurement(est, kind, t_us, ids, out);
+    begin_measurement(est, kind, t_us, ids, z, out);
     /* 1. measurement model */
     c0 = platform_cost_now();
     rc = kind->model(&in, &h, H);
@@ -253,8 +257,8 @@ static void process(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, cons
     }
     /* 2. bias: the network's, and with BIAS_STATES the slowly varying rest, from the innovations of
      * earlier measurements */
-    bias = corrected_bias(est, kind, ids, anchors, &std);
-    if (cfg->stages & EST_STAGE_BIAS_STATES) {
+    bias = corrected_bias(est, kind, ids, anchors, &in, &std);
+    if ((cfg->stages & EST_STAGE_BIAS_STATES) && kind->n_anchors > 0) {
         bias_states_predict(&est->bstates, t_us, ids[0], ids[1], &b_st, &var_st);
     }
     y = (z - bias - b_st) - h;
@@ -283,18 +287,19 @@ static void process(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, cons
 }
 
 /* The per-anchor state (gate, pair monitor, bias states) is kept by slot: the slot index goes down the
- * pipeline in place of the id. */
+ * pipeline in place of the id. A kind that names no anchor (a sensor) is its own link: slot
+ * GATE_KIN_SENSOR, no anchor position, no bias states. */
 int estimator_on_meas(estimator_t *est, uint8_t kind, uint64_t t_us, const uint8_t anchor_ids[2], float z,
                       estimator_result_t *out)
 {
     const mm_kind_t *row = mm_kind(kind);
-    uint8_t slots[2];
-    const float *anchors[2];
+    uint8_t slots[2] = {GATE_KIN_SENSOR, GATE_KIN_SENSOR};
+    const float *anchors[2] = {NULL, NULL};
     int k;
     if (row == NULL) {
         return EST_ERR_UNKNOWN_KIND;
     }
-    for (k = 0; k < 2; k++) {
+    for (k = 0; k < 2 && row->n_anchors > 0; k++) {
         const int s = estimator_anchor_slot(est, anchor_ids[k < row->n_anchors ? k : 0], t_us);
         if (s < 0) {
             return EST_ERR_UNKNOWN_ANCHOR;

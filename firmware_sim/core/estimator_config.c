@@ -31,6 +31,10 @@ static const estimator_config_t defaults = {
     .lever_x = 0.0f,
     .lever_y = 0.0f,
     .lever_z = 0.0f,
+    .std_tof = 0.01f,
+    .tof_x = 0.0f,
+    .tof_y = 0.0f,
+    .tof_z = 0.0f,
 };
 
 void estimator_default_config(estimator_config_t *cfg)
@@ -51,12 +55,13 @@ int estimator_config_valid(const estimator_config_t *cfg)
         return 0;
     }
     {
-        const float v[12] = {
+        const float v[13] = {
             cfg->std_twr, cfg->std_tdoa, cfg->a_max_twr, cfg->a_max_tdoa,
             cfg->gate_dt_min, cfg->chi2_twr, cfg->chi2_tdoa, cfg->proc_cv_acc,
             cfg->init_std_xy, cfg->init_std_z, cfg->sup_max_speed, cfg->sup_max_var,
+            cfg->std_tof,
         };
-        for (i = 0; i < 12u; i++) {
+        for (i = 0; i < 13u; i++) {
             if (!(isfinite(v[i]) && v[i] > 0.0f)) {
                 return 0;
             }
@@ -73,11 +78,12 @@ int estimator_config_valid(const estimator_config_t *cfg)
         }
     }
     {
-        const float v[7] = {
+        const float v[10] = {
             cfg->init_x, cfg->init_y, cfg->init_z, cfg->nn_min_z,
-            cfg->lever_x, cfg->lever_y, cfg->lever_z,
+            cfg->lever_x, cfg->lever_y, cfg->lever_z, cfg->tof_x,
+            cfg->tof_y, cfg->tof_z,
         };
-        for (i = 0; i < 7u; i++) {
+        for (i = 0; i < 10u; i++) {
             if (!(isfinite(v[i]))) {
                 return 0;
             }
@@ -112,4 +118,8 @@ const estimator_config_field_t estimator_config_fields[ESTIMATOR_CONFIG_N_FIELDS
     {"lever_x", (uint16_t)offsetof(estimator_config_t, lever_x), 1},
     {"lever_y", (uint16_t)offsetof(estimator_config_t, lever_y), 1},
     {"lever_z", (uint16_t)offsetof(estimator_config_t, lever_z), 1},
+    {"std_tof", (uint16_t)offsetof(estimator_config_t, std_tof), 1},
+    {"tof_x", (uint16_t)offsetof(estimator_config_t, tof_x), 1},
+    {"tof_y", (uint16_t)offsetof(estimator_config_t, tof_y), 1},
+    {"tof_z", (uint16_t)offsetof(estimator_config_t, tof_z), 1},
 };

@@ -32,9 +32,13 @@ typedef struct {
     float lever_x; /* TWR_ARM: the antenna's position in the body frame, from the body origin [m] */
     float lever_y; /* [m] */
     float lever_z; /* [m] */
+    float std_tof; /* TOF: range std at short range (0.01: a flow deck against the motion capture in flight); it grows with the range as the Crazyflie's VL53L1x model [m], > 0 */
+    float tof_x; /* TOF: the ranger's position in the body frame, from the point the state estimates [m] */
+    float tof_y; /* [m] */
+    float tof_z; /* [m] */
 } estimator_config_t;
 
-#define ESTIMATOR_CONFIG_N_FIELDS 25u
+#define ESTIMATOR_CONFIG_N_FIELDS 29u
 
 /* The power-up values (harness/config.py EstimatorConfig's defaults). */
 void estimator_default_config(estimator_config_t *cfg);

@@ -27,7 +27,7 @@ float gate_kinematic_window(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, ui
                             int have_ref, float dt_min, int widen)
 {
     int64_t since_us, rej_a = 0, rej_b = 0;
-    if (id_a < GATE_KIN_ANCHORS && id_b < GATE_KIN_ANCHORS) {
+    if (id_a < GATE_KIN_LINKS && id_b < GATE_KIN_LINKS) {
         rej_a = anchor_rejected_us(g, id_a);
         rej_b = anchor_rejected_us(g, id_b);
         g->t_anchor_seen_us[id_a] = t_us;
@@ -54,9 +54,13 @@ float gate_kinematic_window(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, ui
 void gate_kinematic_fused(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint8_t id_b)
 {
     unsigned i;
+    if (id_a == GATE_KIN_SENSOR) {
+        g->t_anchor_fused_us[GATE_KIN_SENSOR] = t_us;
+        return;
+    }
     if (!g->has_fused) {
-        /* The first fusion starts every anchor's clock: one rejected from then on accrues time. */
-        for (i = 0; i < GATE_KIN_ANCHORS; i++) {
+        /* The first fusion starts every link's clock: one rejected from then on accrues time. */
+        for (i = 0; i < GATE_KIN_LINKS; i++) {
             g->t_anchor_fused_us[i] = t_us;
         }
         g->has_fused = 1;

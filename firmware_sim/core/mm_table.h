@@ -8,9 +8,10 @@ enum {
     MM_KIND_TWR = 1,
     MM_KIND_TDOA = 2,
     MM_KIND_TWR_ARM = 3,
+    MM_KIND_TOF = 4,
 };
-#define MM_KIND_END 4 /* every kind code is below it */
+#define MM_KIND_END 5 /* every kind code is below it */
 
-#define MM_KIND_ROWS(X) X(twr) X(tdoa) X(twr_arm)
+#define MM_KIND_ROWS(X) X(twr) X(tdoa) X(twr_arm) X(tof)
 
 #endif

@@ -45,4 +45,4 @@ static int model(const mm_input_t *in, float *h, float H[3])
 
 const mm_kind_t mm_kind_tdoa = {MM_KIND_TDOA, 2, model, offsetof(estimator_config_t, std_tdoa),
                                 offsetof(estimator_config_t, chi2_tdoa), offsetof(estimator_config_t, a_max_tdoa),
-                                2.0f, offsetof(bias_model_t, tdoa)};
+                                2.0f, offsetof(bias_model_t, tdoa), NULL, 0.0f};

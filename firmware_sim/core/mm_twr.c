@@ -30,4 +30,4 @@ static int model(const mm_input_t *in, float *h, float H[3])
 
 const mm_kind_t mm_kind_twr = {MM_KIND_TWR, 1, model, offsetof(estimator_config_t, std_twr),
                                offsetof(estimator_config_t, chi2_twr), offsetof(estimator_config_t, a_max_twr),
-                               1.0f, offsetof(bias_model_t, twr)};
+                               1.0f, offsetof(bias_model_t, twr), NULL, 0.0f};

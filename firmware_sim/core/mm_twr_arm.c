@@ -19,4 +19,4 @@ static int model(const mm_input_t *in, float *h, float H[3])
 
 const mm_kind_t mm_kind_twr_arm = {MM_KIND_TWR_ARM, 1, model, offsetof(estimator_config_t, std_twr),
                                    offsetof(estimator_config_t, chi2_twr), offsetof(estimator_config_t, a_max_twr),
-                                   1.0f, MM_NO_NET};
+                                   1.0f, MM_NO_NET, NULL, 0.0f};

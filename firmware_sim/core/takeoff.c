@@ -26,3 +26,17 @@ int takeoff_on_imu(takeoff_t *d, uint64_t t_us, float acc_z, float r22)
     }
     return d->airborne;
 }
+
+void takeoff_on_floor_range(takeoff_t *d, uint64_t t_us, int on_floor)
+{
+    d->floor = (uint8_t)(on_floor != 0);
+    d->t_floor_us = t_us;
+}
+
+int takeoff_on_floor(const takeoff_t *d, int imu_thrust, uint64_t t_us)
+{
+    if (imu_thrust && !d->airborne) {
+        return 1;
+    }
+    return d->floor && t_us >= d->t_floor_us && t_us - d->t_floor_us < TAKEOFF_FLOOR_HOLD_US;
+}

@@ -11,12 +11,17 @@
 #define TAKEOFF_TAU_S 1.0f     /* leak of the integral: a bias of the accelerometer stays below the threshold */
 #define TAKEOFF_CLIMB_V 0.3f   /* m/s of climb, from the accelerometer alone, that counts as take-off */
 #define TAKEOFF_MAX_DT_S 0.1f  /* a longer gap between IMU samples integrates nothing */
+/* A range to the floor (a kind with mm_kind_t.floor_below: the ToF ranger) below its row's bound says the
+ * vehicle sits on the floor, in any mode and after a landing too; it holds for this long [us] after it. */
+#define TAKEOFF_FLOOR_HOLD_US 200000u
 
 typedef struct {
     float climb_v;     /* leaky integral of the vertical specific force minus g [m/s] */
     uint64_t t_us;     /* previous IMU sample */
     uint8_t has_time;
     uint8_t airborne;  /* set once the climb was seen; cleared only with the filter (a new flight) */
+    uint8_t floor;     /* the last range to the floor said: on the floor */
+    uint64_t t_floor_us; /* when */
 } takeoff_t;
 
 void takeoff_reset(takeoff_t *d);
@@ -24,5 +29,12 @@ void takeoff_reset(takeoff_t *d);
 /* One IMU sample at t_us: acc_z the thrust-axis specific force [m/s^2], r22 = R[2][2] of the attitude
  * (how much of the body z axis points up). Returns d->airborne. */
 int takeoff_on_imu(takeoff_t *d, uint64_t t_us, float acc_z, float r22);
+
+/* A range to the floor at t_us said the vehicle sits on it (on_floor = 1) or not. */
+void takeoff_on_floor_range(takeoff_t *d, uint64_t t_us, int on_floor);
+
+/* On the floor at t_us: the quadrotor model before its take-off (imu_thrust), or a range to the floor said so
+ * within TAKEOFF_FLOOR_HOLD_US. */
+int takeoff_on_floor(const takeoff_t *d, int imu_thrust, uint64_t t_us);
 
 #endif

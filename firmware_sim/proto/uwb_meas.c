@@ -29,6 +29,12 @@ int uwb_meas_decode(const uwb_msg_t *msg, uwb_meas_t *out)
         out->t_us = msg->u.twr_arm.t_us;
         out->value = msg->u.twr_arm.range;
         return 1;
+    case UWB_MSG_TOF:
+        out->kind = UWB_MEAS_KIND_TOF;
+        out->n_anchors = 0;
+        out->t_us = msg->u.tof.t_us;
+        out->value = msg->u.tof.range;
+        return 1;
     default:
         return 0;
     }

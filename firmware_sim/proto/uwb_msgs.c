@@ -98,6 +98,7 @@ int uwb_payload_len(uint8_t type)
     case UWB_MSG_TWR: return (int)UWB_MSG_TWR_LEN;
     case UWB_MSG_TDOA: return (int)UWB_MSG_TDOA_LEN;
     case UWB_MSG_TWR_ARM: return (int)UWB_MSG_TWR_ARM_LEN;
+    case UWB_MSG_TOF: return (int)UWB_MSG_TOF_LEN;
     case UWB_MSG_STATS_REQ: return (int)UWB_MSG_STATS_REQ_LEN;
     case UWB_MSG_RADIO: return (int)UWB_MSG_RADIO_LEN;
     case UWB_MSG_CLOCK_REQ: return (int)UWB_MSG_CLOCK_REQ_LEN;
@@ -152,6 +153,10 @@ static void unpack_config(const uint8_t *p, uwb_config_t *m)
     m->lever_x = get_f32(p + 80);
     m->lever_y = get_f32(p + 84);
     m->lever_z = get_f32(p + 88);
+    m->std_tof = get_f32(p + 92);
+    m->tof_x = get_f32(p + 96);
+    m->tof_y = get_f32(p + 100);
+    m->tof_z = get_f32(p + 104);
 }
 
 static void pack_config(const uwb_config_t *m, uint8_t *p)
@@ -182,6 +187,10 @@ static void pack_config(const uwb_config_t *m, uint8_t *p)
     put_f32(p + 80, m->lever_x);
     put_f32(p + 84, m->lever_y);
     put_f32(p + 88, m->lever_z);
+    put_f32(p + 92, m->std_tof);
+    put_f32(p + 96, m->tof_x);
+    put_f32(p + 100, m->tof_y);
+    put_f32(p + 104, m->tof_z);
 }
 
 static void unpack_anchor(const uint8_t *p, uwb_anchor_t *m)
@@ -264,6 +273,18 @@ static void pack_twr_arm(const uwb_twr_arm_t *m, uint8_t *p)
     put_u64(p + 0, m->t_us);
     p[8] = m->anchor_id;
     put_f32(p + 9, m->range);
+}
+
+static void unpack_tof(const uint8_t *p, uwb_tof_t *m)
+{
+    m->t_us = get_u64(p + 0);
+    m->range = get_f32(p + 8);
+}
+
+static void pack_tof(const uwb_tof_t *m, uint8_t *p)
+{
+    put_u64(p + 0, m->t_us);
+    put_f32(p + 8, m->range);
 }
 
 static void unpack_radio(const uint8_t *p, uwb_radio_t *m)
@@ -644,6 +665,7 @@ uwb_decode_status_t uwb_body_decode(const uint8_t *body, size_t n, uwb_msg_t *ou
     case UWB_MSG_TWR: unpack_twr(p, &out->u.twr); break;
     case UWB_MSG_TDOA: unpack_tdoa(p, &out->u.tdoa); break;
     case UWB_MSG_TWR_ARM: unpack_twr_arm(p, &out->u.twr_arm); break;
+    case UWB_MSG_TOF: unpack_tof(p, &out->u.tof); break;
     case UWB_MSG_RADIO: unpack_radio(p, &out->u.radio); break;
     case UWB_MSG_CLOCK_REQ: unpack_clock_req(p, &out->u.clock_req); break;
     case UWB_MSG_HEIGHT: unpack_height(p, &out->u.height); break;
@@ -677,6 +699,7 @@ size_t uwb_body_encode(const uwb_msg_t *msg, uint8_t *body)
     case UWB_MSG_TWR: pack_twr(&msg->u.twr, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_TDOA: pack_tdoa(&msg->u.tdoa, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_TWR_ARM: pack_twr_arm(&msg->u.twr_arm, body + UWB_HEADER_SIZE); break;
+    case UWB_MSG_TOF: pack_tof(&msg->u.tof, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_RADIO: pack_radio(&msg->u.radio, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_CLOCK_REQ: pack_clock_req(&msg->u.clock_req, body + UWB_HEADER_SIZE); break;
     case UWB_MSG_HEIGHT: pack_height(&msg->u.height, body + UWB_HEADER_SIZE); break;
@@ -699,7 +722,7 @@ int uwb_msg_finite(const uwb_msg_t *msg)
 {
     switch (msg->type) {
     case UWB_MSG_CONFIG:
-        return isfinite(msg->u.config.std_twr) && isfinite(msg->u.config.std_tdoa) && isfinite(msg->u.config.a_max_twr) && isfinite(msg->u.config.a_max_tdoa) && isfinite(msg->u.config.gate_dt_min) && isfinite(msg->u.config.chi2_twr) && isfinite(msg->u.config.chi2_tdoa) && isfinite(msg->u.config.proc_acc_xy) && isfinite(msg->u.config.proc_acc_z) && isfinite(msg->u.config.proc_cv_acc) && isfinite(msg->u.config.init_x) && isfinite(msg->u.config.init_y) && isfinite(msg->u.config.init_z) && isfinite(msg->u.config.init_std_xy) && isfinite(msg->u.config.init_std_z) && isfinite(msg->u.config.nn_min_z) && isfinite(msg->u.config.sup_margin) && isfinite(msg->u.config.sup_max_speed) && isfinite(msg->u.config.sup_max_var) && isfinite(msg->u.config.lever_x) && isfinite(msg->u.config.lever_y) && isfinite(msg->u.config.lever_z);
+        return isfinite(msg->u.config.std_twr) && isfinite(msg->u.config.std_tdoa) && isfinite(msg->u.config.a_max_twr) && isfinite(msg->u.config.a_max_tdoa) && isfinite(msg->u.config.gate_dt_min) && isfinite(msg->u.config.chi2_twr) && isfinite(msg->u.config.chi2_tdoa) && isfinite(msg->u.config.proc_acc_xy) && isfinite(msg->u.config.proc_acc_z) && isfinite(msg->u.config.proc_cv_acc) && isfinite(msg->u.config.init_x) && isfinite(msg->u.config.init_y) && isfinite(msg->u.config.init_z) && isfinite(msg->u.config.init_std_xy) && isfinite(msg->u.config.init_std_z) && isfinite(msg->u.config.nn_min_z) && isfinite(msg->u.config.sup_margin) && isfinite(msg->u.config.sup_max_speed) && isfinite(msg->u.config.sup_max_var) && isfinite(msg->u.config.lever_x) && isfinite(msg->u.config.lever_y) && isfinite(msg->u.config.lever_z) && isfinite(msg->u.config.std_tof) && isfinite(msg->u.config.tof_x) && isfinite(msg->u.config.tof_y) && isfinite(msg->u.config.tof_z);
     case UWB_MSG_ANCHOR:
         return isfinite(msg->u.anchor.x) && isfinite(msg->u.anchor.y) && isfinite(msg->u.anchor.z);
     case UWB_MSG_IMU:
@@ -710,6 +733,8 @@ int uwb_msg_finite(const uwb_msg_t *msg)
         return isfinite(msg->u.tdoa.diff);
     case UWB_MSG_TWR_ARM:
         return isfinite(msg->u.twr_arm.range);
+    case UWB_MSG_TOF:
+        return isfinite(msg->u.tof.range);
     case UWB_MSG_HEIGHT:
         return isfinite(msg->u.height.z) && isfinite(msg->u.height.std);
     case UWB_MSG_SETPOINT:

@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 10u
+#define UWB_PROTO_VERSION 11u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -35,6 +35,7 @@ enum {
     UWB_MEAS_KIND_TWR = 1,
     UWB_MEAS_KIND_TDOA = 2,
     UWB_MEAS_KIND_TWR_ARM = 3,
+    UWB_MEAS_KIND_TOF = 4,
 };
 
 /* What happened to a measurement (RESULT.status) */
@@ -129,7 +130,7 @@ typedef struct {
 
 /* CONFIG (to_device): Estimator configuration. Refused as a whole (ERROR BAD_CONFIG) if any value is invalid. */
 #define UWB_MSG_CONFIG 0x02u
-#define UWB_MSG_CONFIG_LEN 92u
+#define UWB_MSG_CONFIG_LEN 108u
 typedef struct {
     uint8_t mode;
     uint8_t stages;
@@ -157,6 +158,10 @@ typedef struct {
     float lever_x;
     float lever_y;
     float lever_z;
+    float std_tof;
+    float tof_x;
+    float tof_y;
+    float tof_z;
 } uwb_config_t;
 
 /* ANCHOR (to_device): Anchor position, as the LPP short packet ANCHOR_POSITION (id + 3 x float32). */
@@ -209,6 +214,14 @@ typedef struct {
     uint8_t anchor_id;
     float range;
 } uwb_twr_arm_t;
+
+/* TOF (to_device): One downward range to the floor (a flow deck's ToF ranger along body -z, CONFIG tof_x/y/z). Answered by RESULT (or ERROR). */
+#define UWB_MSG_TOF 0x0Du
+#define UWB_MSG_TOF_LEN 12u
+typedef struct {
+    uint64_t t_us;
+    float range;
+} uwb_tof_t;
 
 /* STATS_REQ (to_device): Ask for the counters. Answered by STATS. */
 #define UWB_MSG_STATS_REQ 0x07u
@@ -422,6 +435,7 @@ typedef struct {
         uwb_twr_t twr;
         uwb_tdoa_t tdoa;
         uwb_twr_arm_t twr_arm;
+        uwb_tof_t tof;
         uwb_radio_t radio;
         uwb_clock_req_t clock_req;
         uwb_height_t height;

@@ -3,6 +3,7 @@
 #include <string.h>
 
 #include "estimator_fixture.h"
+#include "mm_table.h"
 #include "robust_update.h"
 
 static void test_statuses(void)
@@ -101,6 +102,36 @@ static void test_chi2_lockout_guard(void)
     CHECK(rejected == 2 && first_accept == 2);
 }
 
+/* A range to the floor below the TOF row's floor_below (the ranger on the floor, takeoff.h) keeps the lock-out
+ * guard closed in any mode: anchor 0's links, 1 m long, stay rejected; readings in the air let them in again. */
+static void test_floor_range_keeps_the_guard_closed(void)
+{
+    estimator_result_t r;
+    const float p0[3] = {0.5f, -0.5f, 1.0f};
+    const uint8_t none[2] = {0, 0};
+    uint64_t t = 10000;
+    int k, j, accepted = 0;
+    setup(EST_MODE_IMU, EST_STAGE_CHI2_GATE, p0[0], p0[1], p0[2]);
+    est.cfg.tof_z = -0.98f; /* the ranger reads 0.02 m at the estimate's height */
+    for (k = 0; k < 80; k++, t += 10000) {
+        CHECK(estimator_on_twr(&est, t, (uint8_t)(k % 8), range_to(&est, (uint8_t)(k % 8), p0), &r) == EST_OK);
+    }
+    for (k = 0; k < 12; k++) {
+        t += 10000;
+        CHECK(estimator_on_meas(&est, MM_KIND_TOF, t, none, k < 6 ? 0.02f : 0.5f, &r) == EST_OK);
+        CHECK(k >= 6 || r.status == EST_ACCEPTED);
+        t += 10000;
+        CHECK(estimator_on_twr(&est, t, 0, range_to(&est, 0, p0) + 1.0f, &r) == EST_OK);
+        CHECK(k >= 6 || r.status == EST_REJECTED_CHI2);
+        accepted += k >= 6 && r.status == EST_ACCEPTED;
+        for (j = 1; j < 8; j++) {
+            t += 10000;
+            CHECK(estimator_on_twr(&est, t, (uint8_t)j, range_to(&est, (uint8_t)j, p0), &r) == EST_OK);
+        }
+    }
+    CHECK(accepted > 0);
+}
+
 static void test_gate_dt_references(void)
 {
     estimator_result_t r;
@@ -164,6 +195,7 @@ int main(void)
     RUN(test_statuses);
     RUN(test_gate_dt_references);
     RUN(test_chi2_lockout_guard);
+    RUN(test_floor_range_keeps_the_guard_closed);
     RUN(test_robust_update);
     return UNIT_DONE();
 }

@@ -146,6 +146,7 @@ static void test_bad_config_refused_and_state_kept(void)
     m.u.config.sup_margin = 10.0f;
     m.u.config.sup_max_speed = 10.0f;
     m.u.config.sup_max_var = 50.0f;
+    m.u.config.std_tof = 0.02f;
     send(&m);
     replies(UWB_MSG_ERROR, &r, &n);
     CHECK(n == 1 && r.u.error.code == UWB_ERROR_CODE_BAD_CONFIG);

@@ -131,6 +131,7 @@ static void test_firmware_config_reset_and_control_refused(void)
     m.u.config.sup_margin = 10.0f;
     m.u.config.sup_max_speed = 10.0f;
     m.u.config.sup_max_var = 50.0f;
+    m.u.config.std_tof = 0.02f;
     send_msg(UWB_MSG_CONFIG, 49, &m);
     CHECK(sink.len == 0);   /* accepted: no reply */
     CHECK(!fw.ctl.has_time && fw.ctl.p.mass > 0.0f);

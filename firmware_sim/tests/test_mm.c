@@ -1,5 +1,6 @@
 /* Measurement models: h and H at hand-checked points, H against central finite differences of h,
  * degenerate geometry (tag on an anchor, coinciding anchors, NaN) at the 1e-6 m boundary. */
+#include "mm_kinds.h"
 #include "mm_tdoa.h"
 #include "mm_twr.h"
 #include "unit.h"
@@ -98,6 +99,44 @@ static void test_degenerate_tdoa(void)
     CHECK(mm_tdoa(p, a, b, &h, H) == MM_OK);
 }
 
+/* TOF (mm_tof.c): the range along the body's -z axis from the ranger at tof_x/y/z to the floor; a sensor's
+ * row (no anchor, its own std); tipped, out of range or NaN -> MM_DEGENERATE. */
+static void test_tof_row(void)
+{
+    const mm_kind_t *row = mm_kind(MM_KIND_TOF);
+    const float level[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    const float c = 0.8f, s = 0.6f; /* rolled: cos 0.8 */
+    const float rolled[3][3] = {{1, 0, 0}, {0, 0.8f, -0.6f}, {0, 0.6f, 0.8f}};
+    const float p[3] = {0.3f, -0.2f, 1.0f};
+    estimator_config_t cfg;
+    mm_input_t in = {p, level, NULL, NULL, 0.9f, &cfg};
+    float h, H[3];
+    estimator_default_config(&cfg);
+    cfg.tof_x = 0.02f;
+    cfg.tof_y = 0.05f;
+    cfg.tof_z = -0.1f;
+    CHECK(row != NULL && row->n_anchors == 0 && row->net == MM_NO_NET && row->std_of != NULL);
+    CHECK(row->model(&in, &h, H) == MM_OK);
+    CHECK_NEAR(h, 0.9, 1e-6); /* 1.0 - 0.1, level */
+    CHECK(H[0] == 0.0f && H[1] == 0.0f && H[2] == 1.0f);
+    in.R = rolled; /* ranger at z = 1 + 0.6 * 0.05 + 0.8 * -0.1 = 0.95, range 0.95 / 0.8 */
+    CHECK(row->model(&in, &h, H) == MM_OK);
+    CHECK_NEAR(h, (1.0 + s * 0.05 - c * 0.1) / c, 1e-6);
+    CHECK_NEAR(H[2], 1.0 / c, 1e-6);
+    CHECK_NEAR(row->std_of(&in), cfg.std_tof * (1.0 + exp(2.9213 * (0.9 - 2.5))), 1e-7);
+    in.z = 0.0f; /* on the floor */
+    CHECK(row->model(&in, &h, H) == MM_OK);
+    in.z = 5.0f; /* beyond the ranger's limit */
+    CHECK(row->model(&in, &h, H) == MM_DEGENERATE);
+    in.z = -0.01f;
+    CHECK(row->model(&in, &h, H) == MM_DEGENERATE);
+    in.z = NAN;
+    CHECK(row->model(&in, &h, H) == MM_DEGENERATE);
+    in.z = 0.9f;
+    cfg.tof_z = NAN;
+    CHECK(row->model(&in, &h, H) == MM_DEGENERATE && h == 0.0f && H[2] == 0.0f);
+}
+
 int main(void)
 {
     RUN(test_twr_values);
@@ -105,5 +144,6 @@ int main(void)
     RUN(test_jacobians_vs_finite_differences);
     RUN(test_degenerate_twr);
     RUN(test_degenerate_tdoa);
+    RUN(test_tof_row);
     return UNIT_DONE();
 }

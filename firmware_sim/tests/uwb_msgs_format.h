@@ -64,6 +64,10 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_f32(out + w, cap - w, "lever_x", msg->u.config.lever_x);
         w += fmt_f32(out + w, cap - w, "lever_y", msg->u.config.lever_y);
         w += fmt_f32(out + w, cap - w, "lever_z", msg->u.config.lever_z);
+        w += fmt_f32(out + w, cap - w, "std_tof", msg->u.config.std_tof);
+        w += fmt_f32(out + w, cap - w, "tof_x", msg->u.config.tof_x);
+        w += fmt_f32(out + w, cap - w, "tof_y", msg->u.config.tof_y);
+        w += fmt_f32(out + w, cap - w, "tof_z", msg->u.config.tof_z);
         break;
     case UWB_MSG_ANCHOR:
         w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.anchor.anchor_id);
@@ -95,6 +99,10 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_u64(out + w, cap - w, "t_us", (unsigned long long)msg->u.twr_arm.t_us);
         w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.twr_arm.anchor_id);
         w += fmt_f32(out + w, cap - w, "range", msg->u.twr_arm.range);
+        break;
+    case UWB_MSG_TOF:
+        w += fmt_u64(out + w, cap - w, "t_us", (unsigned long long)msg->u.tof.t_us);
+        w += fmt_f32(out + w, cap - w, "range", msg->u.tof.range);
         break;
     case UWB_MSG_STATS_REQ:
         break;

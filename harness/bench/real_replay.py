@@ -71,8 +71,9 @@ def link_bytes(recording: Path) -> int:
 
 def replay(recording: Path, target: str, device_args: tuple[str, ...], n_bytes: int, timeout_s: float) -> ReplayFigure:
     with tempfile.TemporaryDirectory(prefix="uwb-real-replay-") as logs:
-        code, out, reason = run_json((str(recording), "--stages", "outlier", *device_args, "--log-dir", logs),
-                                     timeout_s)
+        # --no-tof: the paper's system, the frames link_bytes counts
+        code, out, reason = run_json((str(recording), "--stages", "outlier", "--no-tof", *device_args, "--log-dir",
+                                      logs), timeout_s)
         log = "".join(p.read_text(errors="replace") for p in sorted(Path(logs).glob("qemu-*.log")))
     if out is None or "wall_s" not in out:
         raise RuntimeError(f"{target} replay of {recording.name} failed (exit {code}): {reason}")

@@ -17,6 +17,7 @@ from protocol.messages import MeasKind
 
 KIND_TWR = int(MeasKind.TWR)     # protocol enum meas_kind, as plain ints
 KIND_TDOA = int(MeasKind.TDOA)
+KIND_TOF = int(MeasKind.TOF)
 
 
 class Source(IntEnum):
@@ -24,11 +25,13 @@ class Source(IntEnum):
     IMU = 0
     UWB = 1
     HEIGHT = 2
+    AUX = 3      # a second measurement stream of another kind (Flight.aux: the ToF ranger)
 
 
-#: the one event-ordering rule: by time, and at equal times IMU, then HEIGHT, then UWB, so a measurement
-#: sees every IMU sample and height up to its time (the device handles frames in stream order)
-SOURCE_ORDER: tuple[Source, ...] = (Source.IMU, Source.HEIGHT, Source.UWB)
+#: the one event-ordering rule: by time, and at equal times IMU, then HEIGHT, then AUX, then UWB, so a
+#: measurement sees every IMU sample, height and auxiliary measurement up to its time (the device handles
+#: frames in stream order)
+SOURCE_ORDER: tuple[Source, ...] = (Source.IMU, Source.HEIGHT, Source.AUX, Source.UWB)
 
 
 def merge_order(times: Mapping[Source, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -107,6 +110,12 @@ class UwbStream:
 
     def __len__(self) -> int:
         return int(self.t_us.shape[0])
+
+    def take(self, sel: Any) -> UwbStream:
+        """The measurements `sel` (a slice, mask or index array) selects, of the same kind."""
+        tv = self.true_value
+        return UwbStream(kind=self.kind, t_us=self.t_us[sel], anchor_a=self.anchor_a[sel], anchor_b=self.anchor_b[sel],
+                         value=self.value[sel], true_value=None if tv is None else tv[sel])
 
 
 @dataclass(frozen=True)
@@ -193,6 +202,9 @@ class Flight:
     meta: dict[str, object] = field(default_factory=dict)
     radio: RadioStream | None = None
     height: HeightStream | None = None
+    # measurements of another kind streamed with the flight and fused, but not scored (no row in the results:
+    # their RESULTs are not kept), e.g. a flow deck's ToF ranger (KIND_TOF)
+    aux: UwbStream | None = None
 
     @property
     def has_imu(self) -> bool:
@@ -213,11 +225,9 @@ class Flight:
                 raise FlightError(f"{self.name}: uwb.{name} must have shape ({m},)")
         if m and np.any(np.diff(u.t_us) < 0):
             raise FlightError(f"{self.name}: UWB timestamps go backwards")
-        known = set(int(i) for i in self.anchors.ids)
-        used = set(int(i) for ids in kind_of(u.kind).anchor_ids(u) for i in np.unique(ids))
-        missing = used - known
-        if missing:
-            raise FlightError(f"{self.name}: measurements name unknown anchors {sorted(missing)}")
+        for what, stream in (("measurements", u), ("auxiliary measurements", self.aux)):
+            if stream is not None:
+                self._check_stream(what, stream)
         for what, arr in self._device_values():
             _check_float32(self.name, what, arr)
         if self.imu is not None and len(self.imu) and np.any(np.diff(self.imu.t_us) < 0):
@@ -229,9 +239,19 @@ class Flight:
             if not (np.all(np.isfinite(h.z)) and np.isfinite(h.std) and h.std > 0):
                 raise FlightError(f"{self.name}: heights must be finite and their std > 0")
 
+    def _check_stream(self, what: str, s: UwbStream) -> None:
+        if len(s) and np.any(np.diff(s.t_us) < 0):
+            raise FlightError(f"{self.name}: {what}: timestamps go backwards")
+        known = set(int(i) for i in self.anchors.ids)
+        missing = set(int(i) for ids in kind_of(s.kind).anchor_ids(s) for i in np.unique(ids)) - known
+        if missing:
+            raise FlightError(f"{self.name}: {what} name unknown anchors {sorted(missing)}")
+
     def _device_values(self) -> list[tuple[str, np.ndarray]]:
         """The values that travel to the device as 32-bit floats."""
         out = [("uwb value", self.uwb.value), ("anchor position", self.anchors.positions)]
+        if self.aux is not None:
+            out.append(("auxiliary value", self.aux.value))
         if self.imu is not None:
             out += [("IMU acceleration", self.imu.acc), ("IMU rate", self.imu.gyro)]
         return out
@@ -249,6 +269,8 @@ class Flight:
             times[Source.IMU] = self.imu.t_us
         if self.height is not None:
             times[Source.HEIGHT] = self.height.t_us
+        if self.aux is not None:
+            times[Source.AUX] = self.aux.t_us
         t, src, order = merge_order(times)
         idx = np.concatenate([np.arange(len(times.get(s, ()))) for s in SOURCE_ORDER])
         return t[order], src[order], idx[order]

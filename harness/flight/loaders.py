@@ -111,8 +111,7 @@ def time_slice(flight: Flight, start_s: float, end_s: float) -> Flight:
     m = (u.t_us >= lo) & (u.t_us < hi)
     if not m.any():
         raise InputError(f"{flight.name}: no UWB measurement between {start_s} s and {end_s} s")
-    uwb = replace(u, t_us=u.t_us[m], anchor_a=u.anchor_a[m], anchor_b=u.anchor_b[m], value=u.value[m],
-                  true_value=u.true_value[m] if u.true_value is not None else None)
+    uwb = u.take(m)
     tr = flight.truth
     i0 = max(int(np.searchsorted(tr.t_us, lo, side="right")) - 1, 0)
     i1 = min(int(np.searchsorted(tr.t_us, hi, side="left")) + 1, len(tr.t_us))
@@ -123,9 +122,12 @@ def time_slice(flight: Flight, start_s: float, end_s: float) -> Flight:
     if imu is not None:
         k = (imu.t_us >= lo) & (imu.t_us < hi)
         imu = replace(imu, t_us=imu.t_us[k], acc=imu.acc[k], gyro=imu.gyro[k])
+    aux = flight.aux
+    if aux is not None:
+        aux = aux.take((aux.t_us >= lo) & (aux.t_us < hi))
     meta = dict(flight.meta, slice_s=[float(start_s), float(end_s)])
     return Flight(name=f"{flight.name}[{start_s:g}-{end_s:g}s]", anchors=flight.anchors, uwb=uwb, truth=truth,
-                  imu=imu, meta=meta)
+                  imu=imu, meta=meta, aux=aux)
 
 
 def find_anchor_file(recording: Path) -> Path | None:

@@ -91,4 +91,4 @@ def radio_from_recording(flight: Flight, protocol: str = "tdoa3", lead_us: int =
     meta = dict(flight.meta)
     meta["radio"] = {"protocol": protocol, "synthesised_from": "recorded differences", "packets": n}
     return Flight(name=f"{flight.name}-radio-{protocol}", anchors=flight.anchors, uwb=flight.uwb, truth=flight.truth,
-                  imu=flight.imu, meta=meta, radio=radio)
+                  imu=flight.imu, meta=meta, radio=radio, aux=flight.aux)

@@ -20,6 +20,9 @@ def config_for(flight: Flight, base: EstimatorConfig | None = None, stages: int 
     imu_mode = MODE_IMU_THRUST if flight.meta.get("vehicle") == "quadrotor" else MODE_IMU
     mode = MODE_UWB_ONLY if (uwb_only or not flight.has_imu) else imu_mode
     cfg = replace(cfg, mode=mode).with_init(*p0)
+    if flight.aux is not None and "tof_offset_m" in flight.meta:   # the ranger's offset from the state's point
+        tx, ty, tz = (float(v) for v in flight.meta["tof_offset_m"])   # type: ignore[attr-defined]
+        cfg = replace(cfg, tof_x=tx, tof_y=ty, tof_z=tz)
     if stages is not None:
         cfg = cfg.with_stages(stages)
     return cfg

@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 from harness.flight.data import Flight
+from harness.kinds import kind_of
 from harness.report.metrics import DEFAULT_BUDGET_S, run_summary
 from harness.report.phases import DEFAULT_FLIGHT_ABOVE_M, add_phases
 from harness.stream.streamer import RunResult, Streamer
@@ -36,6 +37,8 @@ def summarize_run(run: RunResult, flight: Flight, identity: Identity, config: st
     summary["device"] = {**identity.as_dict(), **(connection or {})}
     if "range_offset" in flight.meta:
         summary["range_offset"] = flight.meta["range_offset"]
+    if flight.aux is not None:      # fused, not scored (the ToF ranger of a Crazyflie log)
+        summary["auxiliary"] = {"kind": kind_of(flight.aux.kind).key, "measurements": len(flight.aux)}
     warnings = flight.meta.get("warnings")     # the reader's (a CRC mismatch loaded with --ignore-crc, ...)
     if isinstance(warnings, list) and warnings:
         summary["warnings"] = [str(w) for w in warnings]

@@ -40,6 +40,7 @@ class RunSource:
     range_offset: str | None = None     # a range-offset calibration file (harness/flight/range_offset.py)
     ignore_crc: bool = False            # Crazyflie uSD logs: load despite a CRC mismatch
     lever_arm: Sequence[float] | str | None = None   # uSD logs: the tag's lever arm or its calibration file
+    tof: bool | None = None             # uSD logs: fuse the ToF ranger (None: the default, TOF_DEFAULT)
     flight_above: float = DEFAULT_FLIGHT_ABOVE_M   # truth z [m] below which a measurement is in the ground phase
 
     @classmethod
@@ -71,10 +72,12 @@ def make_flight(src: RunSource) -> Flight:
     """The flight (measurement level): its ranges calibrated when `range_offset` is given, with HEIGHT
     pseudo-measurements when `height` is given."""
     if src.recording:
+        from harness.flight.formats.cf_usd_flight import TOF_DEFAULT
         from harness.flight.loaders import UsdOptions, load_recording
+        tof = TOF_DEFAULT if src.tof is None else src.tof
         flight = load_recording(Path(src.recording), anchors=Path(src.anchors) if src.anchors else None,
                                 constellation=src.constellation, check=not src.force,
-                                usd=UsdOptions.make(src.ignore_crc, src.lever_arm))
+                                usd=UsdOptions.make(src.ignore_crc, src.lever_arm, tof))
     else:
         from harness.flight.scenarios import scenario_flight
         flight = scenario_flight(src.scenario, mode=src.mode, duration_s=src.duration, seed=src.seed)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.errors import InputError
-from harness.flight.data import Flight, Source, merge_order
+from harness.flight.data import SOURCE_ORDER, Flight, Source, merge_order
 from harness.kinds import kind_of
 from protocol.batch import encode_rows
 from protocol import messages as m
@@ -34,7 +34,8 @@ def frame_count(flight: Flight, include_imu: bool = True, radio: bool = False) -
         raise InputError(f"{flight.name}: no radio-level stream (simulate_radio / radio_from_recording)")
     n_imu = len(flight.imu) if (include_imu and flight.has_imu and flight.imu is not None) else 0
     n_uwb = len(flight.radio.t_us) if (radio and flight.radio is not None) else len(flight.uwb)
-    return n_imu + n_uwb + (len(flight.height) if flight.height is not None else 0)
+    n_aux = len(flight.aux) if flight.aux is not None else 0
+    return n_imu + n_uwb + (len(flight.height) if flight.height is not None else 0) + n_aux
 
 
 def _radio_rows(flight: Flight, seqs: np.ndarray) -> np.ndarray:
@@ -46,29 +47,30 @@ def _radio_rows(flight: Flight, seqs: np.ndarray) -> np.ndarray:
 
 
 def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = False) -> PreparedFlight:
-    """Encode every IMU sample, HEIGHT pseudo-measurement and UWB measurement of the flight, merged in time
-    order (flight/data.py merge_order: IMU, then HEIGHT, then UWB at equal times). radio: the flight's radio
-    packets (RADIO frames) take the place of its measurements."""
+    """Encode every IMU sample, HEIGHT pseudo-measurement, auxiliary and UWB measurement of the flight, merged
+    in time order (flight/data.py merge_order: IMU, HEIGHT, AUX, then UWB at equal times). radio: the flight's
+    radio packets (RADIO frames) take the place of its measurements (the auxiliary ones are still sent)."""
     n_frames = frame_count(flight, include_imu, radio)
-    u = flight.uwb
+    u, aux = flight.uwb, flight.aux
     imu = flight.imu if (include_imu and flight.has_imu) else None
     hgt = flight.height
-    n_imu = len(imu) if imu is not None else 0
     uwb_t = flight.radio.t_us if (radio and flight.radio is not None) else u.t_us
-    n_uwb = len(uwb_t)
-    n_h = len(hgt) if hgt is not None else 0
     times = {Source.UWB: uwb_t}
     if imu is not None:
         times[Source.IMU] = imu.t_us
     if hgt is not None:
         times[Source.HEIGHT] = hgt.t_us
-    t, _, order = merge_order(times)               # rows: IMU, then HEIGHT, then UWB (SOURCE_ORDER)
+    if aux is not None:
+        times[Source.AUX] = aux.t_us
+    t, _, order = merge_order(times)               # rows: IMU, HEIGHT, AUX, then UWB (SOURCE_ORDER)
     assert len(order) == n_frames
     pos_of = np.empty_like(order)
     pos_of[order] = np.arange(len(order))          # stream position of each source row
     seqs = (seq0 + pos_of) & 0xFFFF
-    imu_rows_of, hgt_rows_of = slice(0, n_imu), slice(n_imu, n_imu + n_h)
-    uwb_rows_of = slice(n_imu + n_h, n_imu + n_h + n_uwb)
+    bounds = np.cumsum([0] + [len(times.get(src, ())) for src in SOURCE_ORDER])
+    rows_of = {src: slice(int(bounds[k]), int(bounds[k + 1])) for k, src in enumerate(SOURCE_ORDER)}
+    imu_rows_of, hgt_rows_of, uwb_rows_of = rows_of[Source.IMU], rows_of[Source.HEIGHT], rows_of[Source.UWB]
+    n_imu, n_h = imu_rows_of.stop - imu_rows_of.start, hgt_rows_of.stop - hgt_rows_of.start
 
     if radio:
         uwb_rows = _radio_rows(flight, seqs[uwb_rows_of])
@@ -83,6 +85,10 @@ def prepare(flight: Flight, seq0: int, include_imu: bool = True, radio: bool = F
     if hgt is not None:
         parts.append((hgt_rows_of, encode_rows(m.Height, {
             "t_us": hgt.t_us, "z": hgt.z, "std": np.full(n_h, hgt.std)}, seqs[hgt_rows_of])))
+    if aux is not None:
+        aux_kind = kind_of(aux.kind)
+        parts.append((rows_of[Source.AUX], encode_rows(aux_kind.message, aux_kind.wire_columns(aux),
+                                                       seqs[rows_of[Source.AUX]])))
     sizes = np.empty(len(order), dtype=np.int64)
     for rows_of, rows in parts:
         sizes[pos_of[rows_of]] = rows.shape[1]

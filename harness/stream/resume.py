@@ -136,9 +136,17 @@ def split_flight(flight: Flight, k0: int) -> tuple[Flight | None, Flight | None]
         return replace(imu, **{f.name: getattr(imu, f.name)[mask] for f in fields(imu)
                                if isinstance(getattr(imu, f.name), np.ndarray) and getattr(imu, f.name).shape[:1] == (n,)})
 
+    def take_aux(before: bool) -> Any:
+        a = flight.aux     # auxiliary measurements go before a measurement with the same time stamp, as IMU samples
+        if a is None:
+            return None
+        k = int(np.searchsorted(a.t_us, t_cut, side="right"))
+        return a.take(slice(0, k) if before else slice(k, len(a)))
+
     imu_t = flight.imu.t_us if flight.imu is not None else np.zeros(0, np.int64)
-    prefix = replace(flight, uwb=take_uwb(slice(0, k0)), imu=take_imu(imu_t <= t_cut))
-    suffix = replace(flight, uwb=take_uwb(slice(k0, m_total)), imu=take_imu(imu_t > t_cut)) if k0 < m_total else None
+    prefix = replace(flight, uwb=take_uwb(slice(0, k0)), imu=take_imu(imu_t <= t_cut), aux=take_aux(True))
+    suffix = replace(flight, uwb=take_uwb(slice(k0, m_total)), imu=take_imu(imu_t > t_cut),
+                     aux=take_aux(False)) if k0 < m_total else None
     return prefix, suffix
 
 

@@ -83,29 +83,12 @@ class TwinState:
 
 @dataclass(frozen=True)
 class TwinResult:
-    """Outcome of one measurement (the fields of the RESULT message, plus the Mahalanobis distance).
-
-    Attributes
-    ----------
-    status : int
-        ACCEPTED, REJECTED_KINEMATIC, REJECTED_CHI2, REJECTED_GEOMETRY or REJECTED_BASELINE.
-    innovation : float
-        ``y = z - bias - h(x)`` before the update (0 for geometry).
-    innovation_var : float
-        ``S = H P H^T + R`` (0 for geometry).
-    bias : float
-        What was subtracted [m]: the network's correction, plus the link's bias states (BIAS_STATES).
-    d_max : float
-        Kinematic bound [m], reported whether the gate is on or not.
-    gain : ndarray, shape (3,)
-        Position rows of K (zero unless accepted).
-    mahalanobis : float
-        ``|y| / sqrt(S)`` (0 for geometry).
-    pos, vel, quat, var : ndarray, shapes (3,), (3,), (4,), (9,)
-        Estimate after the measurement.
-    flags : int
-        Supervisor events (FLAG_*) since the previous result.
-    """
+    """Outcome of one measurement (the fields of the RESULT message, plus the Mahalanobis distance): status
+    (ACCEPTED, REJECTED_KINEMATIC / CHI2 / GEOMETRY / BASELINE); innovation ``y = z - bias - h(x)`` before the
+    update and its variance ``S = H P H^T + R`` (0 for geometry); bias, what was subtracted [m] (the network's
+    correction plus the link's bias states); d_max, the kinematic bound [m], gate on or off; gain, the position
+    rows of K (zero unless accepted); mahalanobis ``|y| / sqrt(S)``; pos (3,), vel (3,), quat (4,), var (9,),
+    the estimate after the measurement; flags, supervisor events (FLAG_*) since the previous result."""
 
     status: int
     innovation: float
@@ -207,14 +190,16 @@ class TwinEstimator:
             self._supervise()
 
     def on_meas(self, kind: int, t_us: int, ids: tuple[int, ...], z: float) -> TwinResult:
-        """One measurement of any kind (harness/kinds.py) naming anchors ``ids`` (A, or A and B), as
-        estimator_on_meas(). Per-anchor state (gates, monitor, bias states) is kept by slot."""
+        """One measurement of any kind (harness/kinds.py) naming anchors ``ids`` (A, or A and B, or none), as
+        estimator_on_meas(). Per-anchor state (gates, monitor, bias states) is kept by slot; a kind without
+        anchors (a sensor) is its own link (gates.SENSOR_SLOT)."""
         row = kind_of(kind)
         ids = tuple(int(i) for i in ids[:row.n_anchors]) * (2 if row.n_anchors == 1 else 1)
-        slots = (self._slot(ids[0], t_us), self._slot(ids[1], t_us))
+        slots = (self._slot(ids[0], t_us), self._slot(ids[1], t_us)) if ids else (gates.SENSOR_SLOT,) * 2
         self._check_uwb_time(int(t_us))
+        a = self.anchors[ids[0]] if ids else None
         b = self.anchors[ids[1]] if row.n_anchors > 1 else None
-        return self._process(row, int(t_us), slots, self.anchors[ids[0]], b, float(z))
+        return self._process(row, int(t_us), slots, a, b, float(z))
 
     def on_twr(self, t_us: int, anchor: int, rng: float) -> TwinResult:
         """One two-way range to ``anchor``."""
@@ -287,12 +272,12 @@ class TwinEstimator:
         self.flags |= FLAG_HEIGHT_FUSED
         self._supervise()
 
-    def _bias(self, net: BiasNet | None, anchor_a: np.ndarray, anchor_b: np.ndarray | None,
+    def _bias(self, net: BiasNet | None, anchor_a: np.ndarray | None, anchor_b: np.ndarray | None,
               cfg_std: float) -> tuple[float, float]:
         """(bias, predicted std or 0), as nn_bias() in estimator.c: faded to 0 outside the network's
         training range (when the network tells it, ``ood_excess``), the std moved to cfg_std alike."""
         c = self.config
-        if not (c.stages & STAGE_BIAS_NN) or net is None or not (self.ekf.x[2] > c.nn_min_z):
+        if not (c.stages & STAGE_BIAS_NN) or net is None or anchor_a is None or not (self.ekf.x[2] > c.nn_min_z):
             return 0.0, 0.0
         f = features(int(net.layout), self.ekf.x[POS], self.ekf.rpy(), anchor_a,
                      anchor_b if anchor_b is not None else anchor_a)
@@ -308,32 +293,36 @@ class TwinEstimator:
             std = fade * std + (1.0 - fade) * cfg_std
         return fade * float(bias), float(std)
 
-    def _process(self, kind: MeasurementKind, t_us: int, ids: tuple[int, int], anchor_a: np.ndarray,
+    def _process(self, kind: MeasurementKind, t_us: int, ids: tuple[int, int], anchor_a: np.ndarray | None,
                  anchor_b: np.ndarray | None, z: float) -> TwinResult:
         c, ekf = self.config, self.ekf
         t_ref = ekf.t_us  # IMU mode: last prediction; UWB-only: state time before this prediction
         self._predict_cv_to(t_us)  # its supervisor check still sees the previous measurement's time (gap)
         self.t_uwb_us = t_us
         ekf = self.ekf
-        on_floor = c.mode == MODE_IMU_THRUST and not self.takeoff.airborne   # the gates do not re-open there
+        if kind.floor_below > 0.0:   # a range to the floor: does the vehicle sit on it?
+            self.takeoff.on_floor_range(t_us, np.float32(z) < np.float32(kind.floor_below))
+        on_floor = self.takeoff.on_floor(c.mode == MODE_IMU_THRUST, t_us)   # the gates do not re-open there
         dt = self.kin.window(t_us, ids, t_ref, c.gate_dt_min, widen=not on_floor)
         d_max = gates.kinematic_dmax(ekf.x[3:6], dt, kind.a_max(c))
 
-        status, h, H3 = kind.model(MeasInput(ekf.x[POS], ekf.R, anchor_a, anchor_b, z, c))
+        inp = MeasInput(ekf.x[POS], ekf.R, anchor_a, anchor_b, z, c)
+        status, h, H3 = kind.model(inp)
         if status != ACCEPTED:
             self.baseline_rejects += status == REJECTED_BASELINE
             return self._result(status, 0.0, 0.0, 0.0, d_max, np.zeros(3), 0.0)
 
         net = kind.net(self.model)
-        if c.stages & STAGE_NN_MONITOR and not self.nnmon.enabled(*ids):
+        if net is not None and c.stages & STAGE_NN_MONITOR and not self.nnmon.enabled(*ids):
             net = None  # the monitor switched this pair's correction off
-        bias, std_nn = self._bias(net, anchor_a, anchor_b, kind.std(c))
-        # BIAS_STATES: the slowly varying rest, from the innovations of earlier measurements
-        b_st, var_st = self.bstates.predict(t_us, *ids) if c.stages & STAGE_BIAS_STATES else (0.0, 0.0)
+        bias, std_nn = self._bias(net, anchor_a, anchor_b, kind.meas_std(inp))
+        # BIAS_STATES: the slowly varying rest, from the innovations of earlier measurements (links to anchors)
+        states = bool(c.stages & STAGE_BIAS_STATES) and kind.n_anchors > 0
+        b_st, var_st = self.bstates.predict(t_us, *ids) if states else (0.0, 0.0)
         y = (z - bias - b_st) - h
 
         # NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std
-        std = std_nn if (c.stages & STAGE_NN_STD and std_nn > 0.0) else kind.std(c)
+        std = std_nn if (c.stages & STAGE_NN_STD and std_nn > 0.0) else kind.meas_std(inp)
         upd = ekf.prepare(H3, y, std * std + var_st)
         status = self._gate_status(kind, y, d_max, upd.S)
         # the monitor compares what the filter sees with and without the correction, whatever the gates said
@@ -348,7 +337,7 @@ class TwinEstimator:
                     upd = ekf.prepare(H3, y, r_w)
             ekf.apply(upd)
             ekf.finalize()
-            if c.stages & STAGE_BIAS_STATES:
+            if states:
                 self.bstates.update(ids[0], ids[1], y, upd.S)
             self.kin.fused(t_us, ids)
             gain = upd.K[POS].copy()
@@ -380,7 +369,8 @@ class TwinEstimator:
 
 
 def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None = None) -> list[TwinResult]:
-    """Feed ``flight.events()`` through a fresh twin; one TwinResult per UWB measurement."""
+    """Feed ``flight.events()`` through a fresh twin; one TwinResult per UWB measurement (the auxiliary
+    measurements are fused, their results not kept)."""
     twin = TwinEstimator(config, flight.anchors.as_dict(), model)
     u = flight.uwb
     ids = np.stack([u.anchor_a, u.anchor_b], axis=1)
@@ -394,6 +384,10 @@ def run_flight(flight: "Flight", config: EstimatorConfig, model: object | None =
         elif source == Source.HEIGHT:
             assert hgt is not None
             twin.on_height(t_us, float(hgt.z[i]), float(hgt.std))
+        elif source == Source.AUX:
+            assert flight.aux is not None
+            a = flight.aux
+            twin.on_meas(a.kind, t_us, (int(a.anchor_a[i]), int(a.anchor_b[i])), float(a.value[i]))
         else:
             out.append(twin.on_meas(u.kind, t_us, tuple(ids[i]), float(u.value[i])))
     return out

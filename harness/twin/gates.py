@@ -8,6 +8,11 @@ import numpy as np
 
 from protocol.messages import MAX_ANCHORS
 
+#: a kind without anchors (a sensor: the ToF ranger) is its own link, in the slot after the anchors'
+#: (gate_kinematic.h GATE_KIN_SENSOR)
+SENSOR_SLOT = MAX_ANCHORS
+LINKS = MAX_ANCHORS + 1
+
 
 @dataclass
 class KinematicGate:
@@ -16,15 +21,15 @@ class KinematicGate:
 
     t_fused_us: int | None = None    # last UWB measurement fused (None: none since the reset)
     # per anchor: when last measured / last part of a fused measurement (0 = never)
-    t_anchor_seen_us: list[int] = field(default_factory=lambda: [0] * MAX_ANCHORS)
-    t_anchor_fused_us: list[int] = field(default_factory=lambda: [0] * MAX_ANCHORS)
+    t_anchor_seen_us: list[int] = field(default_factory=lambda: [0] * LINKS)
+    t_anchor_fused_us: list[int] = field(default_factory=lambda: [0] * LINKS)
     rejected_us: int = 0             # set by window(): how long its anchors' links had been rejected
 
     def reset(self) -> None:
         """Nothing fused yet (a new flight)."""
         self.t_fused_us = None
-        self.t_anchor_seen_us = [0] * MAX_ANCHORS
-        self.t_anchor_fused_us = [0] * MAX_ANCHORS
+        self.t_anchor_seen_us = [0] * LINKS
+        self.t_anchor_fused_us = [0] * LINKS
 
     def _rejected_us(self, i: int) -> int:
         """How long anchor i's links had been rejected up to its previous measurement."""
@@ -35,7 +40,7 @@ class KinematicGate:
         """The gate's dt [s] for a measurement at t_us between anchors ids (TWR: the same twice), t_ref the
         filter's reference time (None: none yet); marks the anchors as measured (gate_kinematic_window).
         widen=False: the nominal window only, rejected_us = 0 (a vehicle on the floor)."""
-        valid = all(0 <= i < MAX_ANCHORS for i in ids)
+        valid = all(0 <= i < LINKS for i in ids)
         rejected = max(self._rejected_us(i) for i in ids) if (valid and widen) else 0
         self.rejected_us = rejected
         for i in ids if valid else ():
@@ -48,12 +53,16 @@ class KinematicGate:
         return kinematic_dt(since + rejected, dt_min)
 
     def fused(self, t_us: int, ids: tuple[int, int]) -> None:
-        """The measurement at t_us between ids was fused (gate_kinematic_fused)."""
+        """The measurement at t_us between ids was fused (gate_kinematic_fused); a sensor's sets only its own
+        link's time (it is no UWB measurement)."""
+        if ids[0] == SENSOR_SLOT:
+            self.t_anchor_fused_us[SENSOR_SLOT] = t_us
+            return
         if self.t_fused_us is None:
-            self.t_anchor_fused_us = [t_us] * MAX_ANCHORS   # the first fusion starts every anchor's clock
+            self.t_anchor_fused_us = [t_us] * LINKS   # the first fusion starts every link's clock
         self.t_fused_us = t_us
         for i in ids:
-            if 0 <= i < MAX_ANCHORS:
+            if 0 <= i < LINKS:
                 self.t_anchor_fused_us[i] = t_us
 
 

@@ -10,6 +10,7 @@ from harness.twin.ekf import GRAVITY
 TAU_S = 1.0        # TAKEOFF_TAU_S
 CLIMB_V = 0.3      # TAKEOFF_CLIMB_V [m/s]
 MAX_DT_S = 0.1     # TAKEOFF_MAX_DT_S
+FLOOR_HOLD_US = 200_000   # TAKEOFF_FLOOR_HOLD_US: a range to the floor's "on the floor" holds this long
 
 
 @dataclass
@@ -17,6 +18,8 @@ class TakeoffDetector:
     climb_v: float = 0.0
     t_us: int | None = None
     airborne: bool = False
+    floor: bool = False            # the last range to the floor said: on the floor
+    t_floor_us: int = 0
 
     def on_imu(self, t_us: int, acc_z: float, r22: float) -> bool:
         """One IMU sample: acc_z the thrust-axis specific force [m/s^2], r22 = R[2][2] of the attitude."""
@@ -28,3 +31,13 @@ class TakeoffDetector:
         if self.climb_v > CLIMB_V:
             self.airborne = True
         return self.airborne
+
+    def on_floor_range(self, t_us: int, on_floor: bool) -> None:
+        """A range to the floor (a kind with floor_below: the ToF ranger) at t_us said on the floor or not."""
+        self.floor, self.t_floor_us = bool(on_floor), int(t_us)
+
+    def on_floor(self, imu_thrust: bool, t_us: int) -> bool:
+        """The quadrotor model before its take-off, or a range to the floor said so within FLOOR_HOLD_US."""
+        if imu_thrust and not self.airborne:
+            return True
+        return self.floor and 0 <= t_us - self.t_floor_us < FLOOR_HOLD_US

@@ -67,10 +67,12 @@ class UsdWriter:
 
 
 def hover_log(version: int = 2, seconds: float = 2.0, pose: bool = True, tdoa: bool = True,
-              twr: bool = False, extra: bool = True, acc_z: float = 1.0, gyro_z: float = 5.0) -> UsdWriter:
+              twr: bool = False, extra: bool = True, acc_z: float = 1.0, gyro_z: float = 5.0,
+              tof_mm: int | None = None) -> UsdWriter:
     """A tag hovering at (0.5, -0.3, 1.2) m, yawed 90 deg, level: IMU at 500 Hz (acc_z g, gyro_z deg/s), pose at
     100 Hz, TDoA2 pairs (k, k+1 mod 8) at 200 Hz with exact distance differences of the tag (+ the
-    default lever arm rotated by the yaw), TWR to anchor k at 200 Hz. Times in whole ms (version 1)."""
+    default lever arm rotated by the yaw), TWR to anchor k at 200 Hz, ToF ranges of tof_mm at 25 Hz. Times in
+    whole ms (version 1)."""
     w = UsdWriter(version=version)
     qz = math.sin(math.pi / 4)
     qw = math.cos(math.pi / 4)
@@ -91,6 +93,8 @@ def hover_log(version: int = 2, seconds: float = 2.0, pose: bool = True, tdoa: b
         if twr and k % 5 == 3:
             a = (k // 5) % 8
             w.add(t, "estDistance", a, _dist(tag, ANCHOR_POS[a]))
+        if tof_mm is not None and k % 40 == 7:
+            w.add(t, "estTOF", tof_mm)
         if extra and k % 20 == 0:
             w.add(t, "estBarometer", 101.3)
     return w

@@ -8,6 +8,8 @@ Events used (names as the firmware logs them; units converted to SI):
     estAcceleration  acc.x/y/z [g] -> x 9.81 m/s^2, interpolated to the gyro's timestamps
     estPose          locSrv.x/y/z [m], locSrv.qx/qy/qz/qw (mocap pose as received on board) -> Truth,
                      moved from the vehicle's origin to the UWB tag by the lever arm (body frame)
+    estTOF           range.zrange [mm] -> m: the flow deck's downward ToF ranger   -> Flight.aux KIND_TOF
+                     (with UsdOptions.tof; its offset from the tag point in meta["tof_offset_m"])
 
 Every other event type is skipped and counted in meta["ignored_events"]; types not in KNOWN_UNUSED (the
 Crazyflie's other estimator inputs) also give a warning in meta["warnings"].
@@ -21,44 +23,55 @@ from typing import Sequence
 
 import numpy as np
 
-from harness.flight.data import KIND_TDOA, KIND_TWR, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
+from harness.flight.data import KIND_TDOA, KIND_TOF, KIND_TWR, Anchors, Flight, FlightError, ImuStream, Truth, UwbStream
 from harness.flight.formats.cf_usd import UsdLog, read_usd_log
 from harness.flight.formats.common import (RecordingError, anchor_positions, imu_on_gyro_times, quat_to_rotmat,
                                            repeated_rows)
 from harness.flight.formats.util import DEG, GRAVITY, TAG_LEVER_ARM
 
 TDOA, TWR, POSE, ACC, GYRO = "estTDOA", "estDistance", "estPose", "estAcceleration", "estGyroscope"
-VARIABLES = {TDOA: ("idA", "idB", "distanceDiff"), TWR: ("id", "distance"),
+TOF = "estTOF"
+VARIABLES = {TDOA: ("idA", "idB", "distanceDiff"), TWR: ("id", "distance"), TOF: ("range.zrange",),
              POSE: ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw"),
              ACC: ("acc.x", "acc.y", "acc.z"), GYRO: ("gyro.x", "gyro.y", "gyro.z")}
 #: logged by the Crazyflie's estimator but not used here: skipped quietly (others are skipped with a warning)
-KNOWN_UNUSED = frozenset({"estBarometer", "estTOF", "estFlow", "estPosition", "estAbsoluteHeight", "estYawError",
+KNOWN_UNUSED = frozenset({"estBarometer", "estFlow", "estPosition", "estAbsoluteHeight", "estYawError",
                           "estSweepAngle", "estHeading", "estMotor"})
 #: TDoA2 measures consecutive anchors (idB = idA + 1 mod N) except after a lost packet; TDoA3 any pair
 #: (about 1 in N - 1 consecutive). The shared logs: 0.95-0.996 (TDoA2) against 0.16-0.18 (TDoA3).
 TDOA2_MIN_CONSECUTIVE = 0.8
 QUAT_NORM_TOL = 0.01
+#: the ToF ranger's position in the body frame, from the vehicle's origin (the mocap pose) [m]: a flow deck
+#: under the centre; z measured on the ten 0425 training flights in flight (`python -m harness.flight.tof_offset`,
+#: docs/real-flights.md "The ToF ranger")
+TOF_BODY = (0.0, 0.0, -0.039)
+#: `uwb-hil run --recording LOG` fuses the ranger unless --no-tof, as a Crazyflie with a flow deck does: with it
+#: no supervisor reset on any shared log in any configuration (docs/real-flights.md "The ToF ranger")
+TOF_DEFAULT = True
 
 
 @dataclass(frozen=True)
 class UsdOptions:
-    """How a uSD log is read: accept a CRC mismatch (still reported), the tag's lever arm (body frame, m)."""
+    """How a uSD log is read: accept a CRC mismatch (still reported), the tag's lever arm (body frame, m), and
+    whether the ToF ranger's measurements (estTOF) go to the estimator (Flight.aux)."""
 
     ignore_crc: bool = False
     lever_arm: tuple[float, float, float] = (float(TAG_LEVER_ARM[0]), float(TAG_LEVER_ARM[1]),
                                              float(TAG_LEVER_ARM[2]))
+    tof: bool = False     # the reader's own default (training, calibration): `run` follows TOF_DEFAULT
 
     @classmethod
-    def make(cls, ignore_crc: bool = False, lever_arm: Sequence[float] | str | None = None) -> UsdOptions:
+    def make(cls, ignore_crc: bool = False, lever_arm: Sequence[float] | str | None = None,
+             tof: bool = False) -> UsdOptions:
         """From command-line values (lever_arm None = the default; a str = a calibration file of
         `uwb-hil lever-arm`)."""
         if lever_arm is None:
-            return cls(ignore_crc=bool(ignore_crc))
+            return cls(ignore_crc=bool(ignore_crc), tof=bool(tof))
         if isinstance(lever_arm, str):
             from harness.flight.lever_arm import load_lever_arm
             lever_arm = load_lever_arm(Path(lever_arm))
         x, y, z = (float(v) for v in lever_arm)
-        return cls(ignore_crc=bool(ignore_crc), lever_arm=(x, y, z))
+        return cls(ignore_crc=bool(ignore_crc), lever_arm=(x, y, z), tof=bool(tof))
 
 
 def load_cf_usd(path: Path | str, anchors: Anchors, options: UsdOptions = UsdOptions()) -> Flight:
@@ -84,15 +97,27 @@ def load_cf_usd(path: Path | str, anchors: Anchors, options: UsdOptions = UsdOpt
         "tdoa_mode": tdoa_mode(uwb, anchors) if uwb.kind == KIND_TDOA else None,
         "tag_lever_arm_m": [float(v) for v in options.lever_arm],
         "lever_arm_assumption": "rotated by the logged mocap attitude (estPose quaternion)",
+        "tof_offset_m": [float(b - a) for a, b in zip(options.lever_arm, TOF_BODY)],   # ranger - tag point
         "events": {name: log.count(name) for name in sorted(log.events)},
         "ignored_events": ignored, "crc_ok": log.crc_ok, "dropped": dropped, "warnings": warnings,
     }
-    flight = Flight(name=path.name, anchors=anchors, uwb=uwb, truth=truth, imu=imu, meta=meta)
+    aux = tof_stream(log, truth) if options.tof and log.count(TOF) else None
+    flight = Flight(name=path.name, anchors=anchors, uwb=uwb, truth=truth, imu=imu, meta=meta, aux=aux)
     try:
         flight.validate()
     except FlightError as exc:  # pragma: no cover - the checks above are stricter
         raise RecordingError(str(exc), path=path) from None
     return flight
+
+
+def tof_stream(log: UsdLog, truth: Truth) -> UwbStream:
+    """The ranger's readings within the truth's time span, mm -> m (every reading: the estimator's model
+    refuses those out of its range)."""
+    t = _times(log, TOF)
+    value = _column(log, TOF, VARIABLES[TOF])[:, 0] * 1e-3
+    keep = (t >= truth.t_us[0]) & (t <= truth.t_us[-1])
+    none = np.full(int(keep.sum()), -1, dtype=np.int64)
+    return UwbStream(kind=KIND_TOF, t_us=t[keep].astype(np.int64), anchor_a=none, anchor_b=none, value=value[keep])
 
 
 def tdoa_mode(uwb: UwbStream, anchors: Anchors) -> str:
