@@ -80,7 +80,7 @@ void fw_on_radio(firmware_t *fw, const uwb_msg_t *in)
     }
     fw->stats.radio_meas++;
     memset(&er, 0, sizeof er);
-    rc = estimator_on_tdoa(&fw->est, r->t_us, meas.anchor_a, meas.anchor_b, (float)meas.diff, &er);
+    rc = estimator_on_tdoa(&fw->est, r->t_us, meas.anchor_a, meas.anchor_b, tdoa_metres_f(meas.ticks), &er);
     t1 = platform_cost_now();
     if (rc != EST_OK) {
         fw_refuse_measurement(fw, in, rc, (uint32_t)meas.anchor_a | ((uint32_t)meas.anchor_b << 8));
@@ -99,7 +99,7 @@ void fw_on_clock_req(firmware_t *fw, const uwb_msg_t *in)
     if (a != NULL) {
         out.u.clock.known = 1;
         out.u.clock.bucket = a->bucket;
-        out.u.clock.skew_ppm = a->cc > 0.0 ? (float)((a->cc - 1.0) * 1e6) : 0.0f;
+        out.u.clock.skew_ppm = tdoa_skew_ppm(a);
         out.u.clock.packets = a->packets;
     }
     fw_send_msg(fw, &out);

@@ -116,21 +116,18 @@ static void store_remotes(tdoa_anchor_t *a, const lps_packet_t *pkt, uint32_t no
     }
 }
 
-/* The bucket rule on candidate = trunc32(rx - rx_prev) / trunc32(tx - tx_prev) (-1 when the TX
- * interval is 0). Needs a previous packet (both its stamps non-zero). Returns 1 if reliable. */
+/* The bucket rule on candidate = trunc32(rx - rx_prev) / trunc32(tx - tx_prev), in the integer arithmetic
+ * of tdoa_clock.h (the same values as double; a ratio outside [0.5, 2), a zero TX interval included, is
+ * never reliable). Needs a previous packet (both its stamps non-zero). Returns 1 if reliable. */
 static int clock_update(tdoa_anchor_t *a, uint64_t rx_ts, uint32_t tx_ts)
 {
-    uint32_t drx, dtx;
-    double cand, dev;
+    uint64_t cand;
     if (a->rx_ts == 0 || a->tx_ts == 0) {
         return 0;
     }
-    drx = (uint32_t)(rx_ts - a->rx_ts);
-    dtx = tx_ts - a->tx_ts;
-    cand = dtx == 0 ? -1.0 : (double)drx / (double)dtx;
-    dev = cand - a->cc;
-    if (dev < TDOA_CC_ACCEPTED_NOISE && dev > -TDOA_CC_ACCEPTED_NOISE) {
-        a->cc = TDOA_CC_FILTER * a->cc + (1.0 - TDOA_CC_FILTER) * cand;
+    cand = tdoa_clock_ratio((uint32_t)(rx_ts - a->rx_ts), tx_ts - a->tx_ts);
+    if (cand != 0 && tdoa_clock_near(cand, a->cc)) {
+        a->cc = tdoa_clock_filter(a->cc, cand);
         if (a->bucket < TDOA_CC_BUCKET_MAX) {
             a->bucket++;
         }
@@ -138,7 +135,7 @@ static int clock_update(tdoa_anchor_t *a, uint64_t rx_ts, uint32_t tx_ts)
     }
     if (a->bucket > 0) {
         a->bucket--;
-    } else if (cand > 1.0 - TDOA_CC_MAX_DEVIATION && cand < 1.0 + TDOA_CC_MAX_DEVIATION) {
+    } else if (cand > TDOA_CC_LOW_FX && cand < TDOA_CC_HIGH_FX) {
         a->cc = cand;
     }
     return 0;
@@ -198,8 +195,23 @@ static int64_t tdoa_ticks(const tdoa_anchor_t *an, const tdoa_anchor_t *ar, uint
 {
     const uint32_t drx = (uint32_t)(rx_ts - ar->rx_ts);
     const uint32_t dtx = tx_ts - rx_ar_by_an;
-    const int64_t delta = (int64_t)tof + (int64_t)dtx;
-    return (int64_t)((double)drx - (double)delta * an->cc);
+    return tdoa_clock_ticks(drx, (uint64_t)tof + dtx, an->cc);
+}
+
+double tdoa_metres(int64_t ticks)
+{
+    return TDOA_SPEED_OF_LIGHT * (double)ticks / TDOA_TS_FREQ;
+}
+
+float tdoa_metres_f(int64_t ticks)
+{
+    return (float)ticks * TDOA_METRES_PER_TICK_F;
+}
+
+float tdoa_skew_ppm(const tdoa_anchor_t *a)
+{
+    /* (cc - 1) 1e6 with cc in units of 2^-53 */
+    return a->cc != 0 ? (float)(int64_t)(a->cc - TDOA_CC_ONE) * (1e6f / 9007199254740992.0f) : 0.0f;
 }
 
 int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sender, uint64_t rx_ts,
@@ -211,7 +223,7 @@ int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sende
     rx_ts &= TDOA_MASK40;
     an->packets++;
     store_remotes(an, pkt, now_ms);
-    if (clock_update(an, rx_ts, pkt->tx_ts) && an->cc > 0.0) {
+    if (clock_update(an, rx_ts, pkt->tx_ts) && an->cc != 0) {
         const int youngest = match == TDOA_MATCH_YOUNGEST || (match == TDOA_MATCH_AUTO && pkt->type == LPS_TYPE_TDOA2);
         uint16_t tof = 0;
         uint32_t rx_ar = 0;
@@ -221,7 +233,6 @@ int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sende
             out->anchor_a = ar->id;
             out->anchor_b = sender;
             out->ticks = tdoa_ticks(an, ar, rx_ar, rx_ts, pkt->tx_ts, tof);
-            out->diff = TDOA_SPEED_OF_LIGHT * (double)out->ticks / TDOA_TS_FREQ;
             rc = TDOA_MEASUREMENT;
         }
     }

@@ -87,7 +87,9 @@ class AnchorCtx:
             return False
         drx = (rx_ts - self.rx_ts) % WRAP32
         dtx = (tx_ts - self.tx_ts) % WRAP32
-        cand = -1.0 if dtx == 0 else drx / dtx
+        # a ratio outside [0.5, 2) (a zero TX interval too) is no clock ratio: never reliable, never stored
+        # (the C's integer arithmetic, tdoa_clock.h, holds ratios in [0.5, 2] only; inside it, it equals this)
+        cand = drx / dtx if dtx != 0 and dtx <= 2 * drx and drx < 2 * dtx else -1.0
         dev = cand - self.cc
         if -CC_ACCEPTED_NOISE < dev < CC_ACCEPTED_NOISE:
             self.cc = CC_FILTER * self.cc + (1.0 - CC_FILTER) * cand
