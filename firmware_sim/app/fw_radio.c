@@ -23,16 +23,19 @@ static void radio_drop(firmware_t *fw, const uwb_msg_t *in, uint8_t reason)
 /* Checks the frame itself: length, 40-bit timestamp, zero padding. */
 static int radio_frame_ok(const uwb_radio_t *r)
 {
-    size_t i;
+    size_t i = r->length;
+    uint32_t any = 0, w;
     if (r->length > sizeof r->payload || (r->rx_ts >> 40) != 0) {
         return 0;
     }
-    for (i = r->length; i < sizeof r->payload; i++) {
-        if (r->payload[i] != 0) {
-            return 0;
-        }
+    for (; i % 4u != 0 && i < sizeof r->payload; i++) {
+        any |= r->payload[i];
     }
-    return 1;
+    for (; i + 4u <= sizeof r->payload; i += 4u) {   /* the padding four bytes at a time */
+        memcpy(&w, &r->payload[i], sizeof w);
+        any |= w;
+    }
+    return any == 0;
 }
 
 /* The drop reason of a measurement the engine formed whose positions are not both valid now (0: valid). */

@@ -3,6 +3,7 @@
 #include <string.h>
 
 #include "estimator.h"
+#include "time_ms.h"
 
 /* The slot holding id, or -1. */
 static int anchor_slot(const estimator_t *est, uint8_t id)
@@ -39,6 +40,10 @@ static int store_anchor(estimator_t *est, uint8_t id, const float pos[3], uint8_
     if (slot >= 0 && src == EST_ANCHOR_RADIO && est->anchor_src[slot] == EST_ANCHOR_HOST) {
         return EST_OK; /* positions configured by the host stay */
     }
+    if (slot >= 0 && est->anchor_src[slot] == src && memcmp(est->anchors[slot], pos, 3 * sizeof pos[0]) == 0) {
+        est->anchor_ms[slot] = ms;   /* the same position again (every LPP packet): the box stays */
+        return EST_OK;
+    }
     slot = slot >= 0 ? slot : anchor_new_slot(est);
     if (slot < 0) {
         return EST_ERR_BAD_ANCHOR_ID;
@@ -67,14 +72,14 @@ int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3])
 
 int estimator_set_radio_anchor(estimator_t *est, uint8_t id, const float pos[3], uint64_t t_us)
 {
-    return store_anchor(est, id, pos, EST_ANCHOR_RADIO, (uint32_t)(t_us / 1000u));
+    return store_anchor(est, id, pos, EST_ANCHOR_RADIO, uwb_ms_of_us(t_us));
 }
 
 int estimator_anchor_slot(const estimator_t *est, uint8_t id, uint64_t t_us)
 {
     const int slot = anchor_slot(est, id);
     if (slot < 0 || (est->anchor_src[slot] == EST_ANCHOR_RADIO &&
-                     (uint32_t)(t_us / 1000u) - est->anchor_ms[slot] >= ESTIMATOR_RADIO_POS_VALID_MS)) {
+                     uwb_ms_of_us(t_us) - est->anchor_ms[slot] >= ESTIMATOR_RADIO_POS_VALID_MS)) {
         return -1;
     }
     return slot;

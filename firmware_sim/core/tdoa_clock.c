@@ -6,6 +6,9 @@
 
 static unsigned bitlen64(uint64_t v)
 {
+#if defined(__GNUC__)
+    return v == 0 ? 0u : 64u - (unsigned)__builtin_clzll(v);   /* CLZ on the M4 */
+#else
     unsigned n = 0, s;
     for (s = 32; s > 0; s >>= 1) {
         if (v >> s) {
@@ -14,6 +17,7 @@ static unsigned bitlen64(uint64_t v)
         }
     }
     return n + (unsigned)v;
+#endif
 }
 
 /* hi:lo = a b (64 x 64 -> 128 bits) */

@@ -2,6 +2,8 @@
 
 #include <string.h>
 
+#include "time_ms.h"
+
 void tdoa_engine_init(tdoa_engine_t *e)
 {
     memset(e, 0, sizeof *e);
@@ -9,7 +11,7 @@ void tdoa_engine_init(tdoa_engine_t *e)
 
 uint32_t tdoa_engine_ms(uint64_t t_us)
 {
-    return (uint32_t)(t_us / 1000u);
+    return uwb_ms_of_us(t_us);
 }
 
 static tdoa_anchor_t *find(tdoa_engine_t *e, uint8_t id)

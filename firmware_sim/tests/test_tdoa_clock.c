@@ -5,6 +5,7 @@
 
 #include "tdoa_clock.h"
 #include "tdoa_engine.h"
+#include "time_ms.h"
 #include "unit.h"
 
 #define N_RANDOM 400000
@@ -113,8 +114,24 @@ static void test_ticks(void)
           (int64_t)(0.0 - (double)(0xFFFFFFFFull + 65535u) * 2.0));
 }
 
+static void test_ms_of_us(void)
+{
+    static const uint64_t edge[] = {0u, 999u, 1000u, 0xFFFFFFFFull, 0x100000000ull, 4294967296000ull - 1u,
+                                    4294967296000ull, 0xFFFFFFFFFFFFFFFFull};
+    unsigned i, bad = 0;
+    for (i = 0; i < sizeof edge / sizeof edge[0]; i++) {
+        bad += uwb_ms_of_us(edge[i]) != (uint32_t)(edge[i] / 1000u);
+    }
+    for (i = 0; i < N_RANDOM; i++) {
+        const uint64_t t = next() >> (next() % 64u);
+        bad += uwb_ms_of_us(t) != (uint32_t)(t / 1000u);
+    }
+    CHECK(bad == 0);
+}
+
 int main(void)
 {
+    RUN(test_ms_of_us);
     RUN(test_ratio);
     RUN(test_near_and_bounds);
     RUN(test_filter);
