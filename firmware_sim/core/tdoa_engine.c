@@ -58,18 +58,51 @@ static tdoa_anchor_t *get_or_create(tdoa_engine_t *e, uint8_t id, uint32_t now_m
     return a;
 }
 
-/* Slot for id in a table of n (ids, end_ms): the first slot holding id, else the first one that
- * expires earliest. Unused slots hold id 0 and end 0. */
-static unsigned slot_for(const uint8_t *ids, const uint32_t *end_ms, unsigned n, uint8_t id)
+/* The remote and ToF tables have 16 slots: find_id compares four ids per step. */
+typedef char tdoa_tables_hold_16[(TDOA_REMOTE_COUNT == 16u && TDOA_TOF_COUNT == 16u) ? 1 : -1];
+
+static unsigned ctz32(uint32_t v)
 {
-    unsigned k, best = 0;
-    uint32_t earliest = 0xFFFFFFFFu;
-    for (k = 0; k < n; k++) {
-        if (ids[k] == id) {
-            return k;
+#if defined(__GNUC__)
+    return (unsigned)__builtin_ctz(v);
+#else
+    unsigned n = 0;
+    while (!(v & 1u)) {
+        v >>= 1;
+        n++;
+    }
+    return n;
+#endif
+}
+
+/* The first of 16 slots holding id, or -1. In each word of four ids, id ^ word has a zero byte where
+ * they are equal; (x - 0x01..) & ~x & 0x80.. marks the lowest zero byte exactly. */
+static int find_id(const uint8_t *ids, uint8_t id)
+{
+    const uint32_t pat = 0x01010101u * id;
+    unsigned w;
+    for (w = 0; w < 16u; w += 4u) {
+        const uint32_t x = ((uint32_t)ids[w] | ((uint32_t)ids[w + 1] << 8) | ((uint32_t)ids[w + 2] << 16) |
+                            ((uint32_t)ids[w + 3] << 24)) ^ pat;
+        const uint32_t z = (x - 0x01010101u) & ~x & 0x80808080u;
+        if (z != 0) {
+            return (int)(w + ctz32(z) / 8u);
         }
-        if (end_ms[k] < earliest) {
-            earliest = end_ms[k];
+    }
+    return -1;
+}
+
+/* Slot for id in a table of 16 (ids, end_ms): the first slot holding id, else the first one that
+ * expires earliest. Unused slots hold id 0 and end 0. */
+static unsigned slot_for(const uint8_t *ids, const uint32_t *end_ms, uint8_t id)
+{
+    const int found = find_id(ids, id);
+    unsigned k, best = 0;
+    if (found >= 0) {
+        return (unsigned)found;
+    }
+    for (k = 1; k < 16u; k++) {
+        if (end_ms[k] < end_ms[best]) {
             best = k;
         }
     }
@@ -77,20 +110,15 @@ static unsigned slot_for(const uint8_t *ids, const uint32_t *end_ms, unsigned n,
 }
 
 /* Index of id's live entry (the first slot holding id, if it has not expired), or -1. */
-static int live(const uint8_t *ids, const uint32_t *end_ms, unsigned n, uint8_t id, uint32_t now_ms)
+static int live(const uint8_t *ids, const uint32_t *end_ms, uint8_t id, uint32_t now_ms)
 {
-    unsigned k;
-    for (k = 0; k < n; k++) {
-        if (ids[k] == id) {
-            return end_ms[k] > now_ms ? (int)k : -1;
-        }
-    }
-    return -1;
+    const int k = find_id(ids, id);
+    return k >= 0 && end_ms[k] > now_ms ? k : -1;
 }
 
 static uint16_t tof_of(const tdoa_anchor_t *a, uint8_t id, uint32_t now_ms)
 {
-    const int k = live(a->tof.id, a->tof.end_ms, TDOA_TOF_COUNT, id, now_ms);
+    const int k = live(a->tof.id, a->tof.end_ms, id, now_ms);
     return k < 0 ? 0u : a->tof.tof[k];
 }
 
@@ -102,7 +130,7 @@ static void store_remotes(tdoa_anchor_t *a, const lps_packet_t *pkt, uint32_t no
         const lps_remote_t *rm = &pkt->remote[r];
         if (rm->rx_ts != 0) {
             tdoa_remote_t *d = &a->remote;
-            const unsigned k = slot_for(d->id, d->end_ms, TDOA_REMOTE_COUNT, rm->id);
+            const unsigned k = slot_for(d->id, d->end_ms, rm->id);
             d->id[k] = rm->id;
             d->seq[k] = rm->seq;
             d->rx_ts[k] = rm->rx_ts;
@@ -110,7 +138,7 @@ static void store_remotes(tdoa_anchor_t *a, const lps_packet_t *pkt, uint32_t no
         }
         if (rm->tof != 0) {
             tdoa_tofs_t *t = &a->tof;
-            const unsigned k = slot_for(t->id, t->end_ms, TDOA_TOF_COUNT, rm->id);
+            const unsigned k = slot_for(t->id, t->end_ms, rm->id);
             t->id[k] = rm->id;
             t->tof[k] = rm->tof;
             t->end_ms[k] = now_ms + TDOA_TOF_VALID_MS;
