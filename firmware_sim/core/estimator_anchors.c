@@ -3,13 +3,20 @@
 #include <string.h>
 
 #include "estimator.h"
+#include "id_table.h"
 #include "time_ms.h"
+
+/* The table has 16 slots: id_table_first compares four ids per step. */
+typedef char anchor_table_holds_16[ESTIMATOR_MAX_ANCHORS == 16 ? 1 : -1];
 
 /* The slot holding id, or -1. */
 static int anchor_slot(const estimator_t *est, uint8_t id)
 {
-    int i;
-    for (i = 0; i < (int)ESTIMATOR_MAX_ANCHORS; i++) {
+    int i = id_table_first(est->anchor_id, id);
+    if (i < 0 || ((est->anchor_known >> i) & 1u)) {
+        return i;
+    }
+    for (i++; i < (int)ESTIMATOR_MAX_ANCHORS; i++) {   /* an unused slot held it: look further */
         if (((est->anchor_known >> i) & 1u) && est->anchor_id[i] == id) {
             return i;
         }

@@ -2,6 +2,7 @@
 
 #include <string.h>
 
+#include "id_table.h"
 #include "time_ms.h"
 
 void tdoa_engine_init(tdoa_engine_t *e)
@@ -58,45 +59,14 @@ static tdoa_anchor_t *get_or_create(tdoa_engine_t *e, uint8_t id, uint32_t now_m
     return a;
 }
 
-/* The remote and ToF tables have 16 slots: find_id compares four ids per step. */
+/* The remote and ToF tables have 16 slots: id_table_first compares four ids per step. */
 typedef char tdoa_tables_hold_16[(TDOA_REMOTE_COUNT == 16u && TDOA_TOF_COUNT == 16u) ? 1 : -1];
-
-static unsigned ctz32(uint32_t v)
-{
-#if defined(__GNUC__)
-    return (unsigned)__builtin_ctz(v);
-#else
-    unsigned n = 0;
-    while (!(v & 1u)) {
-        v >>= 1;
-        n++;
-    }
-    return n;
-#endif
-}
-
-/* The first of 16 slots holding id, or -1. In each word of four ids, id ^ word has a zero byte where
- * they are equal; (x - 0x01..) & ~x & 0x80.. marks the lowest zero byte exactly. */
-static int find_id(const uint8_t *ids, uint8_t id)
-{
-    const uint32_t pat = 0x01010101u * id;
-    unsigned w;
-    for (w = 0; w < 16u; w += 4u) {
-        const uint32_t x = ((uint32_t)ids[w] | ((uint32_t)ids[w + 1] << 8) | ((uint32_t)ids[w + 2] << 16) |
-                            ((uint32_t)ids[w + 3] << 24)) ^ pat;
-        const uint32_t z = (x - 0x01010101u) & ~x & 0x80808080u;
-        if (z != 0) {
-            return (int)(w + ctz32(z) / 8u);
-        }
-    }
-    return -1;
-}
 
 /* Slot for id in a table of 16 (ids, end_ms): the first slot holding id, else the first one that
  * expires earliest. Unused slots hold id 0 and end 0. */
 static unsigned slot_for(const uint8_t *ids, const uint32_t *end_ms, uint8_t id)
 {
-    const int found = find_id(ids, id);
+    const int found = id_table_first(ids, id);
     unsigned k, best = 0;
     if (found >= 0) {
         return (unsigned)found;
@@ -112,7 +82,7 @@ static unsigned slot_for(const uint8_t *ids, const uint32_t *end_ms, uint8_t id)
 /* Index of id's live entry (the first slot holding id, if it has not expired), or -1. */
 static int live(const uint8_t *ids, const uint32_t *end_ms, uint8_t id, uint32_t now_ms)
 {
-    const int k = find_id(ids, id);
+    const int k = id_table_first(ids, id);
     return k >= 0 && end_ms[k] > now_ms ? k : -1;
 }
 
