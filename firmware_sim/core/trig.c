@@ -48,7 +48,7 @@ static float reduce(float x, int *q)
     uint32_t u;
     float r;
     memcpy(&u, &x, sizeof u);
-    if ((u & 0x7FFFFFFFu) < 0x39800000u) {   /* |x| < 2^-12: sin x = x, cos x = 1 in float (x^2/2 < 2^-25) */
+    if ((u & 0x7FFFFFFFu) < 0x3F490FDBu) {   /* |x| < pi/4: already reduced (the EKF's half rotation angles) */
         *q = 0;
         return x;
     }
