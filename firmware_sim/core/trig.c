@@ -11,6 +11,8 @@
 #define TWO_OVER_PI 0.636619772f
 #define SMALL_LIMIT 6000.0f
 #define PIO2_2M62 3.40612167487e-19f   /* pi/2 2^-62 */
+#define PIO4_BITS 0x3F490FDBu          /* |x| below this (pi/4 in float): no reduction */
+#define NONFINITE_BITS 0x7F800000u
 
 /* Bits of 2/pi after 16 zero bits: table bit t (from the top of word 0) is 2/pi's bit of weight 2^(15 - t). */
 static const uint32_t two_over_pi_bits[7] = {0x0000A2F9u, 0x836E4E44u, 0x1529FC27u, 0x57D1F534u,
@@ -48,7 +50,7 @@ static float reduce(float x, int *q)
     uint32_t u;
     float r;
     memcpy(&u, &x, sizeof u);
-    if ((u & 0x7FFFFFFFu) < 0x3F490FDBu) {   /* |x| < pi/4: already reduced (the EKF's half rotation angles) */
+    if ((u & 0x7FFFFFFFu) < PIO4_BITS) {   /* |x| < pi/4: already reduced */
         *q = 0;
         return x;
     }
@@ -95,18 +97,21 @@ static float sin_quadrant(float r, int q)
     }
 }
 
-static int finite_arg(float x)
+static uint32_t abs_bits(float x)
 {
     uint32_t u;
     memcpy(&u, &x, sizeof u);
-    return (u & 0x7F800000u) != 0x7F800000u;
+    return u & 0x7FFFFFFFu;
 }
 
 float trig_sinf(float x)
 {
     int q;
     float r;
-    if (!finite_arg(x)) {
+    if (abs_bits(x) < PIO4_BITS) {
+        return sin_poly(x);   /* the EKF's half rotation angles */
+    }
+    if (abs_bits(x) >= NONFINITE_BITS) {
         return x - x;
     }
     r = reduce(x, &q);
@@ -117,7 +122,10 @@ float trig_cosf(float x)
 {
     int q;
     float r;
-    if (!finite_arg(x)) {
+    if (abs_bits(x) < PIO4_BITS) {
+        return cos_poly(x);
+    }
+    if (abs_bits(x) >= NONFINITE_BITS) {
         return x - x;
     }
     r = reduce(x, &q);
@@ -128,7 +136,7 @@ float trig_tanf(float x)
 {
     int q;
     float r;
-    if (!finite_arg(x)) {
+    if (abs_bits(x) >= NONFINITE_BITS) {
         return x - x;
     }
     r = reduce(x, &q);
