@@ -89,12 +89,8 @@ static float cos_poly(float r)
 /* sin(x + q pi/2) from r = the reduced x */
 static float sin_quadrant(float r, int q)
 {
-    switch (q & 3) {
-    case 0: return sin_poly(r);
-    case 1: return cos_poly(r);
-    case 2: return -sin_poly(r);
-    default: return -cos_poly(r);
-    }
+    const float s = (q & 1) ? cos_poly(r) : sin_poly(r);
+    return (q & 2) ? -s : s;
 }
 
 static uint32_t abs_bits(float x)
