@@ -1,5 +1,6 @@
 """Twin of firmware_sim/core/tdoa_engine.c: the tag's TDoA engine (float64, Python integers for the
-32/40-bit tick arithmetic). Same storage slots, expiry in whole ms, bucket rule, matching ("random": the
+32/40-bit tick arithmetic; the C computes the clock correction in integers that give exactly these float64
+values, firmware_sim/core/tdoa_clock.h). Same storage slots, expiry in whole ms, bucket rule, matching ("random": the
 rotating start; "youngest") and whole-tick truncation as the C, so both form the same measurements from
 the same packets (tests/unit/test_tdoa_engine.py); both form what a Crazyflie's tag forms (docs/radio.md)."""
 
