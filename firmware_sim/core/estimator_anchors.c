@@ -40,6 +40,15 @@ static int anchor_new_slot(const estimator_t *est)
     return best;
 }
 
+/* 1 if the two positions are the same bit for bit (no libc memcmp in the image for three words) */
+static int same_bits(const float a[3], const float b[3])
+{
+    uint32_t x[3], y[3];
+    memcpy(x, a, sizeof x);
+    memcpy(y, b, sizeof y);
+    return x[0] == y[0] && x[1] == y[1] && x[2] == y[2];
+}
+
 static int store_anchor(estimator_t *est, uint8_t id, const float pos[3], uint8_t src, uint32_t ms)
 {
     unsigned i, k;
@@ -47,7 +56,7 @@ static int store_anchor(estimator_t *est, uint8_t id, const float pos[3], uint8_
     if (slot >= 0 && src == EST_ANCHOR_RADIO && est->anchor_src[slot] == EST_ANCHOR_HOST) {
         return EST_OK; /* positions configured by the host stay */
     }
-    if (slot >= 0 && est->anchor_src[slot] == src && memcmp(est->anchors[slot], pos, 3 * sizeof pos[0]) == 0) {
+    if (slot >= 0 && est->anchor_src[slot] == src && same_bits(est->anchors[slot], pos)) {
         est->anchor_ms[slot] = ms;   /* the same position again (every LPP packet): the box stays */
         return EST_OK;
     }
