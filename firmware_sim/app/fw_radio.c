@@ -23,16 +23,19 @@ static void radio_drop(firmware_t *fw, const uwb_msg_t *in, uint8_t reason)
 /* Checks the frame itself: length, 40-bit timestamp, zero padding. */
 static int radio_frame_ok(const uwb_radio_t *r)
 {
-    size_t i;
+    size_t i = r->length;
+    uint32_t any = 0, w;
     if (r->length > sizeof r->payload || (r->rx_ts >> 40) != 0) {
         return 0;
     }
-    for (i = r->length; i < sizeof r->payload; i++) {
-        if (r->payload[i] != 0) {
-            return 0;
-        }
+    for (; i % 4u != 0 && i < sizeof r->payload; i++) {
+        any |= r->payload[i];
     }
-    return 1;
+    for (; i + 4u <= sizeof r->payload; i += 4u) {   /* the padding four bytes at a time */
+        memcpy(&w, &r->payload[i], sizeof w);
+        any |= w;
+    }
+    return any == 0;
 }
 
 /* The drop reason of a measurement the engine formed whose positions are not both valid now (0: valid). */
@@ -80,7 +83,7 @@ void fw_on_radio(firmware_t *fw, const uwb_msg_t *in)
     }
     fw->stats.radio_meas++;
     memset(&er, 0, sizeof er);
-    rc = estimator_on_tdoa(&fw->est, r->t_us, meas.anchor_a, meas.anchor_b, (float)meas.diff, &er);
+    rc = estimator_on_tdoa(&fw->est, r->t_us, meas.anchor_a, meas.anchor_b, tdoa_metres_f(meas.ticks), &er);
     t1 = platform_cost_now();
     if (rc != EST_OK) {
         fw_refuse_measurement(fw, in, rc, (uint32_t)meas.anchor_a | ((uint32_t)meas.anchor_b << 8));
@@ -99,7 +102,7 @@ void fw_on_clock_req(firmware_t *fw, const uwb_msg_t *in)
     if (a != NULL) {
         out.u.clock.known = 1;
         out.u.clock.bucket = a->bucket;
-        out.u.clock.skew_ppm = a->cc > 0.0 ? (float)((a->cc - 1.0) * 1e6) : 0.0f;
+        out.u.clock.skew_ppm = tdoa_skew_ppm(a);
         out.u.clock.packets = a->packets;
     }
     fw_send_msg(fw, &out);

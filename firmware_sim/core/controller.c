@@ -2,6 +2,7 @@
 #include <string.h>
 
 #include "controller.h"
+#include "trig.h"
 
 #define CTL_GRAVITY 9.81f
 
@@ -147,7 +148,7 @@ static uint8_t desired_acc(controller_t *c, const ctl_setpoint_t *sp, const ctl_
     }
     {
         const float h = sqrtf(a[0] * a[0] + a[1] * a[1]);
-        const float h_max = a[2] * tanf(p->max_tilt);
+        const float h_max = a[2] * trig_tanf(p->max_tilt);
         if (h > h_max) {
             a[0] *= h_max / h;
             a[1] *= h_max / h;
@@ -168,8 +169,8 @@ static void attitude_error(const float R[3][3], const float a[3], float yaw, flo
     for (i = 0; i < 3; i++) {
         zd[i] = a[i] / n;
     }
-    xc[0] = cosf(yaw);
-    xc[1] = sinf(yaw);
+    xc[0] = trig_cosf(yaw);
+    xc[1] = trig_sinf(yaw);
     xc[2] = 0.0f;
     cross(zd, xc, yd);
     n = sqrtf(yd[0] * yd[0] + yd[1] * yd[1] + yd[2] * yd[2]);

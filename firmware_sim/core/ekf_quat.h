@@ -5,6 +5,8 @@
 
 #include <math.h>
 
+#include "trig.h"
+
 static inline void quat_to_rot(const float q[4], float R[3][3])
 {
     const float w = q[0], x = q[1], y = q[2], z = q[3];
@@ -24,8 +26,8 @@ static inline void quat_rotate_body(float q[4], const float v[3])
 {
     const float theta = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
     /* sin(theta/2)/theta -> 1/2 as theta -> 0: avoid 0/0 for tiny rotations. */
-    const float s = theta > 1e-6f ? sinf(0.5f * theta) / theta : 0.5f;
-    const float dw = cosf(0.5f * theta), dx = s * v[0], dy = s * v[1], dz = s * v[2];
+    const float s = theta > 1e-6f ? trig_sinf(0.5f * theta) / theta : 0.5f;
+    const float dw = trig_cosf(0.5f * theta), dx = s * v[0], dy = s * v[1], dz = s * v[2];
     const float w = q[0], x = q[1], y = q[2], z = q[3];
     float n;
     q[0] = w * dw - x * dx - y * dy - z * dz;

@@ -3,12 +3,20 @@
 #include <string.h>
 
 #include "estimator.h"
+#include "id_table.h"
+#include "time_ms.h"
+
+/* The table has 16 slots: id_table_first compares four ids per step. */
+typedef char anchor_table_holds_16[ESTIMATOR_MAX_ANCHORS == 16 ? 1 : -1];
 
 /* The slot holding id, or -1. */
 static int anchor_slot(const estimator_t *est, uint8_t id)
 {
-    int i;
-    for (i = 0; i < (int)ESTIMATOR_MAX_ANCHORS; i++) {
+    int i = id_table_first(est->anchor_id, id);
+    if (i < 0 || ((est->anchor_known >> i) & 1u)) {
+        return i;
+    }
+    for (i++; i < (int)ESTIMATOR_MAX_ANCHORS; i++) {   /* an unused slot held it: look further */
         if (((est->anchor_known >> i) & 1u) && est->anchor_id[i] == id) {
             return i;
         }
@@ -32,12 +40,25 @@ static int anchor_new_slot(const estimator_t *est)
     return best;
 }
 
+/* 1 if the two positions are the same bit for bit (no libc memcmp in the image for three words) */
+static int same_bits(const float a[3], const float b[3])
+{
+    uint32_t x[3], y[3];
+    memcpy(x, a, sizeof x);
+    memcpy(y, b, sizeof y);
+    return x[0] == y[0] && x[1] == y[1] && x[2] == y[2];
+}
+
 static int store_anchor(estimator_t *est, uint8_t id, const float pos[3], uint8_t src, uint32_t ms)
 {
     unsigned i, k;
     int slot = anchor_slot(est, id);
     if (slot >= 0 && src == EST_ANCHOR_RADIO && est->anchor_src[slot] == EST_ANCHOR_HOST) {
         return EST_OK; /* positions configured by the host stay */
+    }
+    if (slot >= 0 && est->anchor_src[slot] == src && same_bits(est->anchors[slot], pos)) {
+        est->anchor_ms[slot] = ms;   /* the same position again (every LPP packet): the box stays */
+        return EST_OK;
     }
     slot = slot >= 0 ? slot : anchor_new_slot(est);
     if (slot < 0) {
@@ -67,14 +88,14 @@ int estimator_set_anchor(estimator_t *est, uint8_t id, const float pos[3])
 
 int estimator_set_radio_anchor(estimator_t *est, uint8_t id, const float pos[3], uint64_t t_us)
 {
-    return store_anchor(est, id, pos, EST_ANCHOR_RADIO, (uint32_t)(t_us / 1000u));
+    return store_anchor(est, id, pos, EST_ANCHOR_RADIO, uwb_ms_of_us(t_us));
 }
 
 int estimator_anchor_slot(const estimator_t *est, uint8_t id, uint64_t t_us)
 {
     const int slot = anchor_slot(est, id);
     if (slot < 0 || (est->anchor_src[slot] == EST_ANCHOR_RADIO &&
-                     (uint32_t)(t_us / 1000u) - est->anchor_ms[slot] >= ESTIMATOR_RADIO_POS_VALID_MS)) {
+                     uwb_ms_of_us(t_us) - est->anchor_ms[slot] >= ESTIMATOR_RADIO_POS_VALID_MS)) {
         return -1;
     }
     return slot;

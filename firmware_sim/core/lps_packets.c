@@ -99,7 +99,13 @@ static int parse_tdoa3(const uint8_t *p, size_t n, uint8_t sender, lps_packet_t 
 
 int lps_parse(const uint8_t *payload, size_t n, uint8_t sender, lps_packet_t *out)
 {
-    memset(out, 0, sizeof *out);
+    /* everything but the remote entries, which are written up to n_remote */
+    out->type = 0;
+    out->seq = 0;
+    out->tx_ts = 0;
+    out->n_remote = 0;
+    out->has_pos = 0;
+    memset(out->pos, 0, sizeof out->pos);
     if (n == 0) {
         return LPS_ERR_MALFORMED;
     }

@@ -2,6 +2,9 @@
 
 #include <string.h>
 
+#include "id_table.h"
+#include "time_ms.h"
+
 void tdoa_engine_init(tdoa_engine_t *e)
 {
     memset(e, 0, sizeof *e);
@@ -9,7 +12,7 @@ void tdoa_engine_init(tdoa_engine_t *e)
 
 uint32_t tdoa_engine_ms(uint64_t t_us)
 {
-    return (uint32_t)(t_us / 1000u);
+    return uwb_ms_of_us(t_us);
 }
 
 static tdoa_anchor_t *find(tdoa_engine_t *e, uint8_t id)
@@ -56,18 +59,20 @@ static tdoa_anchor_t *get_or_create(tdoa_engine_t *e, uint8_t id, uint32_t now_m
     return a;
 }
 
-/* Slot for id in a table of n (ids, end_ms): the first slot holding id, else the first one that
+/* The remote and ToF tables have 16 slots: id_table_first compares four ids per step. */
+typedef char tdoa_tables_hold_16[(TDOA_REMOTE_COUNT == 16u && TDOA_TOF_COUNT == 16u) ? 1 : -1];
+
+/* Slot for id in a table of 16 (ids, end_ms): the first slot holding id, else the first one that
  * expires earliest. Unused slots hold id 0 and end 0. */
-static unsigned slot_for(const uint8_t *ids, const uint32_t *end_ms, unsigned n, uint8_t id)
+static unsigned slot_for(const uint8_t *ids, const uint32_t *end_ms, uint8_t id)
 {
+    const int found = id_table_first(ids, id);
     unsigned k, best = 0;
-    uint32_t earliest = 0xFFFFFFFFu;
-    for (k = 0; k < n; k++) {
-        if (ids[k] == id) {
-            return k;
-        }
-        if (end_ms[k] < earliest) {
-            earliest = end_ms[k];
+    if (found >= 0) {
+        return (unsigned)found;
+    }
+    for (k = 1; k < 16u; k++) {
+        if (end_ms[k] < end_ms[best]) {
             best = k;
         }
     }
@@ -75,20 +80,15 @@ static unsigned slot_for(const uint8_t *ids, const uint32_t *end_ms, unsigned n,
 }
 
 /* Index of id's live entry (the first slot holding id, if it has not expired), or -1. */
-static int live(const uint8_t *ids, const uint32_t *end_ms, unsigned n, uint8_t id, uint32_t now_ms)
+static int live(const uint8_t *ids, const uint32_t *end_ms, uint8_t id, uint32_t now_ms)
 {
-    unsigned k;
-    for (k = 0; k < n; k++) {
-        if (ids[k] == id) {
-            return end_ms[k] > now_ms ? (int)k : -1;
-        }
-    }
-    return -1;
+    const int k = id_table_first(ids, id);
+    return k >= 0 && end_ms[k] > now_ms ? k : -1;
 }
 
 static uint16_t tof_of(const tdoa_anchor_t *a, uint8_t id, uint32_t now_ms)
 {
-    const int k = live(a->tof.id, a->tof.end_ms, TDOA_TOF_COUNT, id, now_ms);
+    const int k = live(a->tof.id, a->tof.end_ms, id, now_ms);
     return k < 0 ? 0u : a->tof.tof[k];
 }
 
@@ -100,7 +100,7 @@ static void store_remotes(tdoa_anchor_t *a, const lps_packet_t *pkt, uint32_t no
         const lps_remote_t *rm = &pkt->remote[r];
         if (rm->rx_ts != 0) {
             tdoa_remote_t *d = &a->remote;
-            const unsigned k = slot_for(d->id, d->end_ms, TDOA_REMOTE_COUNT, rm->id);
+            const unsigned k = slot_for(d->id, d->end_ms, rm->id);
             d->id[k] = rm->id;
             d->seq[k] = rm->seq;
             d->rx_ts[k] = rm->rx_ts;
@@ -108,7 +108,7 @@ static void store_remotes(tdoa_anchor_t *a, const lps_packet_t *pkt, uint32_t no
         }
         if (rm->tof != 0) {
             tdoa_tofs_t *t = &a->tof;
-            const unsigned k = slot_for(t->id, t->end_ms, TDOA_TOF_COUNT, rm->id);
+            const unsigned k = slot_for(t->id, t->end_ms, rm->id);
             t->id[k] = rm->id;
             t->tof[k] = rm->tof;
             t->end_ms[k] = now_ms + TDOA_TOF_VALID_MS;
@@ -116,21 +116,18 @@ static void store_remotes(tdoa_anchor_t *a, const lps_packet_t *pkt, uint32_t no
     }
 }
 
-/* The bucket rule on candidate = trunc32(rx - rx_prev) / trunc32(tx - tx_prev) (-1 when the TX
- * interval is 0). Needs a previous packet (both its stamps non-zero). Returns 1 if reliable. */
+/* The bucket rule on candidate = trunc32(rx - rx_prev) / trunc32(tx - tx_prev), in the integer arithmetic
+ * of tdoa_clock.h (the same values as double; a ratio outside [0.5, 2), a zero TX interval included, is
+ * never reliable). Needs a previous packet (both its stamps non-zero). Returns 1 if reliable. */
 static int clock_update(tdoa_anchor_t *a, uint64_t rx_ts, uint32_t tx_ts)
 {
-    uint32_t drx, dtx;
-    double cand, dev;
+    uint64_t cand;
     if (a->rx_ts == 0 || a->tx_ts == 0) {
         return 0;
     }
-    drx = (uint32_t)(rx_ts - a->rx_ts);
-    dtx = tx_ts - a->tx_ts;
-    cand = dtx == 0 ? -1.0 : (double)drx / (double)dtx;
-    dev = cand - a->cc;
-    if (dev < TDOA_CC_ACCEPTED_NOISE && dev > -TDOA_CC_ACCEPTED_NOISE) {
-        a->cc = TDOA_CC_FILTER * a->cc + (1.0 - TDOA_CC_FILTER) * cand;
+    cand = tdoa_clock_ratio((uint32_t)(rx_ts - a->rx_ts), tx_ts - a->tx_ts);
+    if (cand != 0 && tdoa_clock_near(cand, a->cc)) {
+        a->cc = tdoa_clock_filter(a->cc, cand);
         if (a->bucket < TDOA_CC_BUCKET_MAX) {
             a->bucket++;
         }
@@ -138,7 +135,7 @@ static int clock_update(tdoa_anchor_t *a, uint64_t rx_ts, uint32_t tx_ts)
     }
     if (a->bucket > 0) {
         a->bucket--;
-    } else if (cand > 1.0 - TDOA_CC_MAX_DEVIATION && cand < 1.0 + TDOA_CC_MAX_DEVIATION) {
+    } else if (cand > TDOA_CC_LOW_FX && cand < TDOA_CC_HIGH_FX) {
         a->cc = cand;
     }
     return 0;
@@ -198,8 +195,23 @@ static int64_t tdoa_ticks(const tdoa_anchor_t *an, const tdoa_anchor_t *ar, uint
 {
     const uint32_t drx = (uint32_t)(rx_ts - ar->rx_ts);
     const uint32_t dtx = tx_ts - rx_ar_by_an;
-    const int64_t delta = (int64_t)tof + (int64_t)dtx;
-    return (int64_t)((double)drx - (double)delta * an->cc);
+    return tdoa_clock_ticks(drx, (uint64_t)tof + dtx, an->cc);
+}
+
+double tdoa_metres(int64_t ticks)
+{
+    return TDOA_SPEED_OF_LIGHT * (double)ticks / TDOA_TS_FREQ;
+}
+
+float tdoa_metres_f(int64_t ticks)
+{
+    return (float)ticks * TDOA_METRES_PER_TICK_F;
+}
+
+float tdoa_skew_ppm(const tdoa_anchor_t *a)
+{
+    /* (cc - 1) 1e6 with cc in units of 2^-53 */
+    return a->cc != 0 ? (float)(int64_t)(a->cc - TDOA_CC_ONE) * (1e6f / 9007199254740992.0f) : 0.0f;
 }
 
 int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sender, uint64_t rx_ts,
@@ -211,7 +223,7 @@ int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sende
     rx_ts &= TDOA_MASK40;
     an->packets++;
     store_remotes(an, pkt, now_ms);
-    if (clock_update(an, rx_ts, pkt->tx_ts) && an->cc > 0.0) {
+    if (clock_update(an, rx_ts, pkt->tx_ts) && an->cc != 0) {
         const int youngest = match == TDOA_MATCH_YOUNGEST || (match == TDOA_MATCH_AUTO && pkt->type == LPS_TYPE_TDOA2);
         uint16_t tof = 0;
         uint32_t rx_ar = 0;
@@ -221,7 +233,6 @@ int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sende
             out->anchor_a = ar->id;
             out->anchor_b = sender;
             out->ticks = tdoa_ticks(an, ar, rx_ar, rx_ts, pkt->tx_ts, tof);
-            out->diff = TDOA_SPEED_OF_LIGHT * (double)out->ticks / TDOA_TS_FREQ;
             rc = TDOA_MEASUREMENT;
         }
     }

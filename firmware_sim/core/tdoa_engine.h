@@ -12,6 +12,7 @@
 #include <stdint.h>
 
 #include "lps_packets.h"
+#include "tdoa_clock.h"
 
 #define TDOA_STORAGE_COUNT 16u            /* anchor contexts */
 #define TDOA_REMOTE_COUNT 16u             /* remote RX data per anchor */
@@ -20,9 +21,13 @@
 #define TDOA_TOF_VALID_MS 2000u           /* remote ToFs expire [ms] */
 #define TDOA_TS_FREQ 63.8976e9            /* DW1000 ticks per second */
 #define TDOA_SPEED_OF_LIGHT 299792458.0
-#define TDOA_CC_ACCEPTED_NOISE 0.03e-6    /* candidate within this of the estimate: reliable sample */
-#define TDOA_CC_MAX_DEVIATION 20e-6       /* a fresh estimate must be within this of 1 */
-#define TDOA_CC_FILTER 0.1                /* weight of the old estimate */
+#define TDOA_METRES_PER_TICK_F ((float)(TDOA_SPEED_OF_LIGHT / TDOA_TS_FREQ))   /* folded at compile time */
+/* clock correction (tdoa_clock.h holds these in its integer units): a candidate within 0.03e-6 of the
+ * estimate is a reliable sample, filtered with weight 0.1 on the old estimate; a fresh estimate must be
+ * within 20e-6 of 1 */
+#define TDOA_CC_ACCEPTED_NOISE 0.03e-6
+#define TDOA_CC_MAX_DEVIATION 20e-6
+#define TDOA_CC_FILTER 0.1
 #define TDOA_CC_BUCKET_MAX 4u
 #define TDOA_MASK32 0xFFFFFFFFull
 #define TDOA_MASK40 0xFFFFFFFFFFull
@@ -62,7 +67,8 @@ typedef struct {
     uint32_t tx_ts;               /* its anchor TX time (32 bits; 0 = none), */
     uint32_t last_ms;             /* and when (tag time, ms) */
     uint32_t packets;
-    double cc;                    /* clock correction: d(tag clock) / d(anchor clock); 0 = unknown */
+    uint64_t cc;                  /* clock correction d(tag clock) / d(anchor clock) in units of 2^-53
+                                     (tdoa_clock.h: exactly the double of the same name); 0 = unknown */
     tdoa_remote_t remote;
     tdoa_tofs_t tof;
 } tdoa_anchor_t;
@@ -75,7 +81,6 @@ typedef struct {
 typedef struct {
     uint8_t anchor_a, anchor_b;   /* A = reference Ar, B = sender An */
     int64_t ticks;                /* d(tag, B) - d(tag, A) in whole ticks of the tag clock */
-    double diff;                  /* the same in metres */
 } tdoa_meas_t;
 
 void tdoa_engine_init(tdoa_engine_t *e);
@@ -88,6 +93,14 @@ uint32_t tdoa_engine_ms(uint64_t t_us);
  * state is updated either way (remote data, ToFs, clock correction, the last packet). */
 int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sender, uint64_t rx_ts,
                         uint64_t t_us, int match, tdoa_meas_t *out);
+
+/* A difference in metres: c ticks / f in double (tests, tools), and in float for the estimator (one
+ * float multiply: within one float ulp of the double rounded to float). */
+double tdoa_metres(int64_t ticks);
+float tdoa_metres_f(int64_t ticks);
+
+/* The clock skew (cc - 1) 1e6 [ppm] of an anchor's context, 0 if unknown (CLOCK replies). */
+float tdoa_skew_ppm(const tdoa_anchor_t *a);
 
 /* The stored context of an anchor, or NULL. */
 const tdoa_anchor_t *tdoa_engine_anchor(const tdoa_engine_t *e, uint8_t id);

@@ -21,7 +21,7 @@ static void check_storage(const tdoa_engine_t *e)
         if (!a->in_use) {
             continue;
         }
-        if (a->bucket > TDOA_CC_BUCKET_MAX || a->cc < 0.0 || a->cc != a->cc) {
+        if (a->bucket > TDOA_CC_BUCKET_MAX || (a->cc != 0 && (a->cc < TDOA_CC_ONE / 2u || a->cc > 2u * TDOA_CC_ONE))) {
             fuzz_fail("clock correction out of range");
         }
         for (j = i + 1; j < TDOA_STORAGE_COUNT; j++) {
@@ -70,7 +70,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             fuzz_fail("unknown engine outcome");
         }
         if (rc == TDOA_MEASUREMENT &&
-            (m.anchor_b != sender || tdoa_engine_anchor(&eng, m.anchor_a) == NULL || !isfinite(m.diff) ||
+            (m.anchor_b != sender || tdoa_engine_anchor(&eng, m.anchor_a) == NULL || !isfinite(tdoa_metres_f(m.ticks)) ||
              m.ticks > (int64_t)TDOA_MASK32 || m.ticks < -2 * (int64_t)TDOA_MASK32)) {
             fuzz_fail("inconsistent measurement");
         }

@@ -21,7 +21,7 @@ from pathlib import Path
 
 FLASH_BYTES = 1024 * 1024
 RAM_BYTES = 128 * 1024
-GOAL_FLASH = 64 * 1024
+GOAL_FLASH = 48 * 1024   # issue 24 (was 64 KB, issue 7)
 GOAL_RAM = 32 * 1024
 
 FW_DIR = Path(__file__).resolve().parent.parent

@@ -97,7 +97,7 @@ static void test_exact_across_wraps(void)
             const double want = ((double)tag_range[a] - (double)tag_range[1 - a]) * M_PER_TICK;
             meas++;
             CHECK(m.anchor_b == a && m.anchor_a == 1 - a);
-            CHECK_NEAR(m.diff, want, 1e-9);
+            CHECK_NEAR(tdoa_metres(m.ticks), want, 1e-9);
         } else {
             clock += rc == TDOA_DROP_CLOCK;
         }
@@ -105,7 +105,7 @@ static void test_exact_across_wraps(void)
     CHECK(clock == 4);          /* two packets per anchor before its clock correction is reliable */
     CHECK(meas == 56);
     CHECK(tdoa_engine_anchor(&e, 0)->bucket == TDOA_CC_BUCKET_MAX);
-    CHECK_NEAR(tdoa_engine_anchor(&e, 1)->cc, 1.0, 1e-15);
+    CHECK_NEAR((double)tdoa_engine_anchor(&e, 1)->cc / (double)TDOA_CC_ONE, 1.0, 1e-15);
 }
 
 static void test_skewed_anchor_clock(void)
@@ -123,12 +123,13 @@ static void test_skewed_anchor_clock(void)
             const double want = ((double)tag_range[a] - (double)tag_range[1 - a]) * M_PER_TICK;
             meas++;
             /* stored in whole ticks (truncated toward zero, as a Crazyflie: test_bitcraze_parity.py) */
-            CHECK_NEAR(m.diff, TDOA_SPEED_OF_LIGHT * (double)m.ticks / TDOA_TS_FREQ, 1e-15);
-            CHECK_NEAR(m.diff, want, 2.0 * M_PER_TICK);   /* integer stamps: within two ticks */
+            CHECK_NEAR(tdoa_metres(m.ticks), TDOA_SPEED_OF_LIGHT * (double)m.ticks / TDOA_TS_FREQ, 1e-15);
+            CHECK_NEAR(tdoa_metres_f(m.ticks), tdoa_metres(m.ticks), 1e-6 * fabs(tdoa_metres(m.ticks)));
+            CHECK_NEAR(tdoa_metres(m.ticks), want, 2.0 * M_PER_TICK);   /* integer stamps: within two ticks */
         }
     }
     CHECK(meas == 36);
-    CHECK_NEAR(tdoa_engine_anchor(&e, 1)->cc, 1.0 / (1.0 + 8e-6), 2e-9);   /* 0.002 ppm: tick rounding */
+    CHECK_NEAR((double)tdoa_engine_anchor(&e, 1)->cc / (double)TDOA_CC_ONE, 1.0 / (1.0 + 8e-6), 2e-9);   /* 0.002 ppm: tick rounding */
 }
 
 /* Remote data lives 30 ms (whole ms of tag time): a packet without entries still finds the reference

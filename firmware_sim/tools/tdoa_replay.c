@@ -55,7 +55,7 @@ int main(int argc, char **argv)
         }
         rc = tdoa_engine_process(&eng, &pkt, (uint8_t)sender, rx_ts, t_us, match, &m);
         if (rc == TDOA_MEASUREMENT) {
-            printf("M %u %u %" PRId64 " %.17g\n", (unsigned)m.anchor_a, (unsigned)m.anchor_b, m.ticks, m.diff);
+            printf("M %u %u %" PRId64 " %.17g\n", (unsigned)m.anchor_a, (unsigned)m.anchor_b, m.ticks, tdoa_metres(m.ticks));
         } else {
             printf("D %d\n", rc);
         }
@@ -63,7 +63,8 @@ int main(int argc, char **argv)
     for (i = 0; i < TDOA_STORAGE_COUNT; i++) {
         const tdoa_anchor_t *a = &eng.anchors[i];
         if (a->in_use) {
-            printf("C %u %u %.17g %" PRIu32 "\n", (unsigned)a->id, (unsigned)a->bucket, a->cc, a->packets);
+            printf("C %u %u %.17g %" PRIu32 "\n", (unsigned)a->id, (unsigned)a->bucket,
+                   (double)a->cc / (double)TDOA_CC_ONE, a->packets);
         }
     }
     return 0;

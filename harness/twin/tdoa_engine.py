@@ -1,5 +1,6 @@
 """Twin of firmware_sim/core/tdoa_engine.c: the tag's TDoA engine (float64, Python integers for the
-32/40-bit tick arithmetic). Same storage slots, expiry in whole ms, bucket rule, matching ("random": the
+32/40-bit tick arithmetic; the C computes the clock correction in integers that give exactly these float64
+values, firmware_sim/core/tdoa_clock.h). Same storage slots, expiry in whole ms, bucket rule, matching ("random": the
 rotating start; "youngest") and whole-tick truncation as the C, so both form the same measurements from
 the same packets (tests/unit/test_tdoa_engine.py); both form what a Crazyflie's tag forms (docs/radio.md)."""
 
@@ -87,7 +88,9 @@ class AnchorCtx:
             return False
         drx = (rx_ts - self.rx_ts) % WRAP32
         dtx = (tx_ts - self.tx_ts) % WRAP32
-        cand = -1.0 if dtx == 0 else drx / dtx
+        # a ratio outside [0.5, 2) (a zero TX interval too) is no clock ratio: never reliable, never stored
+        # (the C's integer arithmetic, tdoa_clock.h, holds ratios in [0.5, 2] only; inside it, it equals this)
+        cand = drx / dtx if dtx != 0 and dtx <= 2 * drx and drx < 2 * dtx else -1.0
         dev = cand - self.cc
         if -CC_ACCEPTED_NOISE < dev < CC_ACCEPTED_NOISE:
             self.cc = CC_FILTER * self.cc + (1.0 - CC_FILTER) * cand

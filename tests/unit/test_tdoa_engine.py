@@ -32,7 +32,8 @@ def tdoa_replay(tmp_path_factory: pytest.TempPathFactory) -> Path:
     exe = tmp_path_factory.mktemp("tdoa") / "tdoa_replay"
     cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-Wshadow", "-Wstrict-prototypes", "-Wmissing-prototypes",
            "-Icore", "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-o", str(exe),
-           "core/lps_packets.c", "core/tdoa_engine.c", "tools/tdoa_replay.c"]
+           "core/lps_packets.c", "core/tdoa_clock.c", "core/tdoa_engine.c", "core/time_ms.c",
+           "tools/tdoa_replay.c"]
     subprocess.run(cmd, cwd=FW, check=True, capture_output=True, text=True)
     return exe
 
