@@ -14,24 +14,12 @@
 /* The finalize step only trusts attitude errors below this magnitude [rad] (as the Crazyflie). */
 #define EKF_ATT_ERR_MAX 10.0f
 
-/* The bound of one off-diagonal entry of a symmetric P whose variances are all finite and <= EKF_P_MAX. */
-static inline float clamp_cov(float v)
-{
-    if (fabsf(v) <= EKF_P_MAX) { /* the usual case: one test */
-        return v;
-    }
-    if (v != v) {
-        return 0.0f;
-    }
-    return v > 0.0f ? EKF_P_MAX : -EKF_P_MAX;
-}
-
 /* 1 if every variance is finite and <= EKF_P_MAX: then no row needs scaling and the clamp is entry-wise. */
 static int variances_in_range(const float *P)
 {
     int i;
     for (i = 0; i < EKF_N; i++) {
-        if (!(fabsf(P[i * EKF_N + i]) <= EKF_P_MAX)) { /* also NaN and -inf */
+        if (!ekf_var_in_range(P[i * EKF_N + i])) {
             return 0;
         }
     }
@@ -57,7 +45,7 @@ static void sym_clamp_scaled(float *P)
             } else if (bad[i] || bad[j]) {
                 v = 0.0f;
             } else {
-                v = clamp_cov(v);
+                v = ekf_clamp_cov(v);
             }
             P[i * EKF_N + j] = v;
             P[j * EKF_N + i] = v;
@@ -75,7 +63,7 @@ static inline void clamp_in_range(float *P, int average)
         const float d = row[i];
         row[i] = d < EKF_P_MIN ? EKF_P_MIN : d;
         for (j = i + 1; j < EKF_N; j++) {
-            const float v = clamp_cov(average ? 0.5f * (row[j] + P[j * EKF_N + i]) : row[j]);
+            const float v = ekf_clamp_cov(average ? 0.5f * (row[j] + P[j * EKF_N + i]) : row[j]);
             row[j] = v;
             P[j * EKF_N + i] = v;
         }
@@ -145,6 +133,33 @@ void ekf_init(ekf_t *ekf, const float pos[3], float std_xy, float std_z)
     }
 }
 
+/* ekf_sym_clamp_flat after the finalize step's rotation, which changes the attitude rows and columns only
+ * (the position/velocity ones mirrored already): P entered as the clamp leaves it (every caller finalizes
+ * right after an update), so on the usual path (variances in range) the other entries are fixed points of
+ * the clamp and only the 27 attitude entries need it: the same numbers as the full pass. */
+static void clamp_attitude_rows(float *P)
+{
+    int i, a;
+    if (!variances_in_range(P)) {
+        ekf_sym_clamp_flat(P);
+        return;
+    }
+    for (a = EKF_D0; a < EKF_N; a++) {
+        float *row = P + a * EKF_N;
+        for (i = 0; i < EKF_D0; i++) { /* written symmetric: (v + v) / 2 = v */
+            const float v = ekf_clamp_cov(row[i]);
+            row[i] = v;
+            P[i * EKF_N + a] = v;
+        }
+        row[a] = row[a] < EKF_P_MIN ? EKF_P_MIN : row[a];
+        for (i = a + 1; i < EKF_N; i++) {
+            const float v = ekf_clamp_cov(0.5f * (row[i] + P[i * EKF_N + a]));
+            row[i] = v;
+            P[i * EKF_N + a] = v;
+        }
+    }
+}
+
 void ekf_finalize(ekf_t *ekf)
 {
     const float v[3] = {ekf->x[EKF_D0], ekf->x[EKF_D1], ekf->x[EKF_D2]};
@@ -182,7 +197,7 @@ void ekf_finalize(ekf_t *ekf)
                 ekf->P[EKF_D0 + a][EKF_D0 + b] = T[a][0] * G[b][0] + T[a][1] * G[b][1] + T[a][2] * G[b][2];
             }
         }
-        ekf_sym_clamp_flat(&ekf->P[0][0]);
+        clamp_attitude_rows(&ekf->P[0][0]);
     }
     ekf->x[EKF_D0] = 0.0f;
     ekf->x[EKF_D1] = 0.0f;

@@ -114,6 +114,38 @@ static void test_scalar_update_matches_full_joseph(void)
     }
 }
 
+/* The update and the finalize step bound P on their way (the clamp's usual path fused into their writes):
+ * what they leave is a fixed point of the full clamp, bit for bit, in range and with variances above P_MAX. */
+static void test_update_and_finalize_leave_p_clamped(void)
+{
+    int trial;
+    for (trial = 0; trial < 40; trial++) {
+        ekf_t e;
+        ekf_scalar_t m;
+        float before[EKF_N][EKF_N];
+        const float h[3] = {(float)rnd(), (float)rnd(), (float)rnd()};
+        int i, j;
+        ekf_init(&e, origin, 1.0f, 1.0f);
+        random_spd(e.P);
+        for (i = 0; i < EKF_N; i++) {
+            for (j = 0; j < EKF_N; j++) {
+                e.P[i][j] *= trial % 4 == 3 ? 400.0f : 1.0f; /* some variances beyond P_MAX: the general path */
+            }
+        }
+        ekf_scalar_update(&e, &m, h, 0.3f * (float)rnd(), 1e-3f);
+        CHECK(is_symmetric(e.P));
+        memcpy(before, e.P, sizeof before);
+        ekf_sym_clamp(e.P);
+        CHECK(memcmp(before, e.P, sizeof before) == 0);
+        e.x[EKF_D0 + trial % 3] = 0.2f * (float)rnd();
+        ekf_finalize(&e);
+        CHECK(is_symmetric(e.P));
+        memcpy(before, e.P, sizeof before);
+        ekf_sym_clamp(e.P);
+        CHECK(memcmp(before, e.P, sizeof before) == 0);
+    }
+}
+
 static void test_joseph_keeps_symmetric_pd(void)
 {
     ekf_t e;
@@ -252,6 +284,7 @@ int main(void)
     RUN(test_scalar_update_hand_computed);
     RUN(test_scalar_update_matches_full_joseph);
     RUN(test_joseph_keeps_symmetric_pd);
+    RUN(test_update_and_finalize_leave_p_clamped);
     RUN(test_sym_clamp);
     RUN(test_sym_clamp_keeps_pd);
     RUN(test_finalize_moves_attitude_error_into_q);
