@@ -113,9 +113,13 @@ float nn_m4_predict(const bias_nn_t *net, const float *features, float *std_out)
 
 typedef char check_sparse_stride_is_500_bytes[(H == 50) ? 1 : -1]; /* nn_m4_q15.S: SPARSE_STRIDE */
 
+/* Beyond this many nonzero pairs of 25 the dense loop is cheaper (10 blocks x ~9.5 instructions per listed
+ * pair against ~70 per pair dense): the worst case stays the dense kernel's. */
+#define SPARSE_MAX_PAIRS 18u
+
 /* The list q15_sparse_m4 reads: (pair word, 20 k) for each pair k of h with a nonzero unit, then a zero word.
- * h is read as 25 words (two int16 each: the layer's pairs). */
-static void nonzero_pairs(const uint32_t h[H / 2], uint32_t list[H + 1])
+ * h is read as 25 words (two int16 each: the layer's pairs). Returns the number of entries. */
+static unsigned nonzero_pairs(const uint32_t h[H / 2], uint32_t list[H + 1])
 {
     unsigned k;
     uint32_t *e = list;
@@ -127,6 +131,7 @@ static void nonzero_pairs(const uint32_t h[H / 2], uint32_t list[H + 1])
         }
     }
     e[0] = 0u;
+    return (unsigned)(e - list) / 2u;
 }
 
 float nn_m4_predict_q15(const bias_nn_t *net, const float *features, float *std_out)
@@ -135,8 +140,11 @@ float nn_m4_predict_q15(const bias_nn_t *net, const float *features, float *std_
     uint32_t h1[H / 2], list[H + 1]; /* h1: 50 int16 written by the kernel, read as 25 pairs */
     const unsigned n_pairs = bias_nn_q15_inputs(net, features, x);
     q15_dense_m4(x, n_pairs, net->q_w1, net->q_b1, (int16_t *)h1, net->q_shift1);
-    nonzero_pairs(h1, list);
-    q15_sparse_m4(list, net->q_w2, net->q_b2, h2, net->q_shift2);
+    if (nonzero_pairs(h1, list) <= SPARSE_MAX_PAIRS) {
+        q15_sparse_m4(list, net->q_w2, net->q_b2, h2, net->q_shift2);
+    } else {
+        q15_dense_m4((const int16_t *)h1, H / 2u, net->q_w2, net->q_b2, h2, net->q_shift2);
+    }
     if (net->q_heads == 2u) {
         int32_t acc[2];
         acc[0] = net->q_bh[0];
