@@ -111,7 +111,7 @@ float nn_m4_predict(const bias_nn_t *net, const float *features, float *std_out)
     return predict_with(net, features, std_out, dense_relu_m4);
 }
 
-typedef char check_sparse_stride_is_500_bytes[(H == 50) ? 1 : -1]; /* nn_m4_q15.S: SPARSE_STRIDE */
+typedef char check_sparse_stride_is_500_bytes[(H == 50) ? 1 : -1]; /* nn_m4_q15.S: SPARSE_STRIDE; 25 pairs = 5 x 5 */
 
 /* Beyond this many nonzero pairs of 25 the dense loop is cheaper (10 blocks x ~9.5 instructions per listed
  * pair against ~70 per pair dense): the worst case stays the dense kernel's. */
@@ -149,9 +149,11 @@ float nn_m4_predict_q15(const bias_nn_t *net, const float *features, float *std_
         int32_t acc[2];
         acc[0] = net->q_bh[0];
         acc[1] = net->q_bh[1];
-        q15_heads2_m4(h2, H / 2u, net->q_wh, acc);
         if (std_out != (float *)0) {
+            q15_heads2_m4(h2, H / 2u, net->q_wh, acc);
             *std_out = bias_nn_std_of(net, (float)acc[1] * net->q_out_scale);
+        } else {
+            q15_head0_m4(h2, H / 2u, net->q_wh, acc); /* the std is not wanted (estimator.c) */
         }
         return bias_nn_descale_output(net, (float)acc[0] * net->q_out_scale);
     }

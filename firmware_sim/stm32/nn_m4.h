@@ -24,6 +24,8 @@ void q15_dense_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, const in
                   unsigned shift);
 void q15_sparse_m4(const uint32_t *list, const int16_t *w, const int32_t *b, int16_t *out, unsigned shift);
 void q15_heads2_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, int32_t acc2[2]);
+/* The first head (the bias) alone of a two-head table; n_pairs a multiple of 5. */
+void q15_head0_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, int32_t *acc);
 
 /* The core's portable version, still linked under this name when the build wraps
  * bias_nn_predict (-Wl,--wrap=bias_nn_predict). */

