@@ -41,9 +41,7 @@
     .equ ARG5, FRAME + 36           @ the 5th argument, above the locals and the 9 saved registers
     .equ ARG6, FRAME + 40
 
-    .macro pair5                    @ x pair word r3 from r0, five weight words from r2
-    ldr     r3, [r0], #4
-    ldmia   r2!, {r9-r12, lr}
+    .macro smlad5                   @ the five sums r4-r8 += pair word r3 . weight words r9-r12, lr
     smlad   r4, r3, r9, r4
     smlad   r5, r3, r10, r5
     smlad   r6, r3, r11, r6
@@ -51,16 +49,18 @@
     smlad   r8, r3, lr, r8
     .endm
 
+    .macro pair5                    @ x pair word r3 from r0, five weight words from r2
+    ldr     r3, [r0], #4
+    ldmia   r2!, {r9-r12, lr}
+    smlad5
+    .endm
+
     .macro listed done              @ one entry of the list at r0 into the block at r2; zero word -> done
     ldrd    r3, r1, [r0], #8
     cbz     r3, \done
     add     r1, r1, r2
     ldm     r1, {r9-r12, lr}
-    smlad   r4, r3, r9, r4
-    smlad   r5, r3, r10, r5
-    smlad   r6, r3, r11, r6
-    smlad   r7, r3, r12, r7
-    smlad   r8, r3, lr, r8
+    smlad5
     .endm
 
     .macro begin_block              @ r4-r8 <- the block's five biases
@@ -94,22 +94,30 @@
     bne     \again
     .endm
 
-    .text
-    .align 2
-    .global q15_dense_m4
-    .type q15_dense_m4, %function
-    .thumb_func
-q15_dense_m4:
+    .macro enter_layer b           @ save r4-r11, lr; locals: x (or the list) from r0, the biases, ten blocks
     push    {r4-r11, lr}
     sub     sp, sp, #FRAME
+    str     r0, [sp, #L_X]
+    str     \b, [sp, #L_B]
+    movs    r0, #BLOCKS
+    str     r0, [sp, #L_LEFT]
+    .endm
+
+    .macro function name           @ a global Thumb function's label
+    .align 2
+    .global \name
+    .type \name, %function
+    .thumb_func
+\name:
+    .endm
+
+    .text
+    function q15_dense_m4
+    enter_layer r3
     ldr     r4, [sp, #ARG5]
     ldr     r5, [sp, #ARG6]
-    str     r0, [sp, #L_X]
-    str     r3, [sp, #L_B]
     str     r4, [sp, #L_OUT]
     str     r5, [sp, #L_SHIFT]
-    movs    r4, #BLOCKS
-    str     r4, [sp, #L_LEFT]
     movs    r9, #5
     udiv    r10, r1, r9             @ n_pairs / 5
     mls     r9, r10, r9, r1         @ n_pairs % 5
@@ -143,20 +151,11 @@ q15_dense_m4:
     pop     {r4-r11, pc}
     .size q15_dense_m4, .-q15_dense_m4
 
-    .align 2
-    .global q15_sparse_m4
-    .type q15_sparse_m4, %function
-    .thumb_func
-q15_sparse_m4:
-    push    {r4-r11, lr}
-    sub     sp, sp, #FRAME
+    function q15_sparse_m4
+    enter_layer r2
     ldr     r4, [sp, #ARG5]
-    str     r0, [sp, #L_X]
-    str     r2, [sp, #L_B]
     str     r3, [sp, #L_OUT]
     str     r4, [sp, #L_SHIFT]
-    movs    r4, #BLOCKS
-    str     r4, [sp, #L_LEFT]
     mov     r2, r1                  @ block 0
 1:  begin_block
     ldr     r0, [sp, #L_X]          @ the list from its start
@@ -169,11 +168,7 @@ q15_sparse_m4:
     pop     {r4-r11, pc}
     .size q15_sparse_m4, .-q15_sparse_m4
 
-    .align 2
-    .global q15_heads2_m4
-    .type q15_heads2_m4, %function
-    .thumb_func
-q15_heads2_m4:
+    function q15_heads2_m4
     push    {r4-r8, lr}
     ldm     r3, {r4, r5}
 1:  ldr     r6, [r0], #4
@@ -186,11 +181,7 @@ q15_heads2_m4:
     pop     {r4-r8, pc}
     .size q15_heads2_m4, .-q15_heads2_m4
 
-    .align 2
-    .global q15_head0_m4
-    .type q15_head0_m4, %function
-    .thumb_func
-q15_head0_m4:                       @ the bias head alone of a two-head table (its words 8 bytes apart)
+    function q15_head0_m4                       @ the bias head alone of a two-head table (its words 8 bytes apart)
     push    {r4-r6, lr}
     ldr     r4, [r3]
 1:  .rept 5
