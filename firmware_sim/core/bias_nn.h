@@ -42,7 +42,8 @@ typedef struct {
      * NULL): int16 weights and activations, int32 sums. Weights block-major for the M4's SMLAD: outputs
      * in blocks of B = BIAS_NN_Q15_BLOCK(n_out), inputs in pairs (n_in padded to even with zeros); output
      * j = b B + t, pair k: int16 q_w[((b n_pairs + k) B + t) 2 + h] = w[2k + h][j]. Heads: output 0 the
-     * bias, 1 the log std. */
+     * bias, 1 the log std. The exporter orders the first hidden layer's units so that units often 0
+     * together share a pair (harness/biasnet/q15.py hidden_pair_order; the same outputs). */
     uint8_t q_heads;     /* 0: float32 network; 1: q15 with the bias head; 2: q15 with the bias and std heads */
     uint8_t q_shift1;    /* hidden-layer requantisation: activation = clamp(sum >> shift, 0, 32767) */
     uint8_t q_shift2;

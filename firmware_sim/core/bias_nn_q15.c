@@ -26,16 +26,33 @@ static int16_t q15_input(float x)
     return (int16_t)(int32_t)v;
 }
 
-/* acc[j] = b[j] + sum_i x[i] w[i][j] over n_pairs input pairs, w in the block-major layout (bias_nn.h). */
+/* The input pairs (x[2k], x[2k+1]), k < n_pairs, with a nonzero entry, into ks; returns their number. A pair
+ * of zeros adds nothing to any int32 sum, and ReLU leaves most hidden units at exactly 0 (docs/qemu.md). */
+static unsigned q15_nonzero_pairs(const int16_t *x, unsigned n_pairs, uint8_t *ks)
+{
+    unsigned k, n = 0;
+    for (k = 0; k < n_pairs; k++) {
+        if (x[2u * k] != 0 || x[2u * k + 1u] != 0) {
+            ks[n++] = (uint8_t)k;
+        }
+    }
+    return n;
+}
+
+/* acc[j] = b[j] + sum_i x[i] w[i][j] over the input pairs of x that are not both 0 (n_pairs in all), w in
+ * the block-major layout (bias_nn.h). */
 static void q15_sums(const int16_t *x, unsigned n_pairs, const int16_t *w, const int32_t *b, unsigned n_out,
                      int32_t *acc)
 {
     const unsigned blk = BIAS_NN_Q15_BLOCK(n_out);
-    unsigned j, k;
+    uint8_t ks[BIAS_NN_HIDDEN / 2];
+    const unsigned nk = q15_nonzero_pairs(x, n_pairs, ks);
+    unsigned j, m;
     for (j = 0; j < n_out; j++) {
         const unsigned first = (j / blk) * n_pairs * blk + j % blk; /* word of pair 0 */
         int32_t s = b[j];
-        for (k = 0; k < n_pairs; k++) {
+        for (m = 0; m < nk; m++) {
+            const unsigned k = ks[m];
             const int16_t *wk = w + 2u * (first + k * blk);
             s += (int32_t)x[2u * k] * wk[0] + (int32_t)x[2u * k + 1u] * wk[1];
         }

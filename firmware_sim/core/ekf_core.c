@@ -14,24 +14,12 @@
 /* The finalize step only trusts attitude errors below this magnitude [rad] (as the Crazyflie). */
 #define EKF_ATT_ERR_MAX 10.0f
 
-/* The bound of one off-diagonal entry of a symmetric P whose variances are all finite and <= EKF_P_MAX. */
-static inline float clamp_cov(float v)
-{
-    if (fabsf(v) <= EKF_P_MAX) { /* the usual case: one test */
-        return v;
-    }
-    if (v != v) {
-        return 0.0f;
-    }
-    return v > 0.0f ? EKF_P_MAX : -EKF_P_MAX;
-}
-
 /* 1 if every variance is finite and <= EKF_P_MAX: then no row needs scaling and the clamp is entry-wise. */
 static int variances_in_range(const float *P)
 {
     int i;
     for (i = 0; i < EKF_N; i++) {
-        if (!(fabsf(P[i * EKF_N + i]) <= EKF_P_MAX)) { /* also NaN and -inf */
+        if (!ekf_var_in_range(P[i * EKF_N + i])) {
             return 0;
         }
     }
@@ -57,7 +45,7 @@ static void sym_clamp_scaled(float *P)
             } else if (bad[i] || bad[j]) {
                 v = 0.0f;
             } else {
-                v = clamp_cov(v);
+                v = ekf_clamp_cov(v);
             }
             P[i * EKF_N + j] = v;
             P[j * EKF_N + i] = v;
@@ -75,7 +63,7 @@ static inline void clamp_in_range(float *P, int average)
         const float d = row[i];
         row[i] = d < EKF_P_MIN ? EKF_P_MIN : d;
         for (j = i + 1; j < EKF_N; j++) {
-            const float v = clamp_cov(average ? 0.5f * (row[j] + P[j * EKF_N + i]) : row[j]);
+            const float v = ekf_clamp_cov(average ? 0.5f * (row[j] + P[j * EKF_N + i]) : row[j]);
             row[j] = v;
             P[j * EKF_N + i] = v;
         }
@@ -145,6 +133,33 @@ void ekf_init(ekf_t *ekf, const float pos[3], float std_xy, float std_z)
     }
 }
 
+/* ekf_sym_clamp_flat after the finalize step's rotation, which changes the attitude rows and columns only
+ * (the position/velocity ones mirrored already): P entered as the clamp leaves it (every caller finalizes
+ * right after an update), so on the usual path (variances in range) the other entries are fixed points of
+ * the clamp and only the 27 attitude entries need it: the same numbers as the full pass. */
+static void clamp_attitude_rows(float *P)
+{
+    int i, a;
+    if (!variances_in_range(P)) {
+        ekf_sym_clamp_flat(P);
+        return;
+    }
+    for (a = EKF_D0; a < EKF_N; a++) {
+        float *row = P + a * EKF_N;
+        for (i = 0; i < EKF_D0; i++) { /* written symmetric: (v + v) / 2 = v */
+            const float v = ekf_clamp_cov(row[i]);
+            row[i] = v;
+            P[i * EKF_N + a] = v;
+        }
+        row[a] = row[a] < EKF_P_MIN ? EKF_P_MIN : row[a];
+        for (i = a + 1; i < EKF_N; i++) {
+            const float v = ekf_clamp_cov(0.5f * (row[i] + P[i * EKF_N + a]));
+            row[i] = v;
+            P[i * EKF_N + a] = v;
+        }
+    }
+}
+
 void ekf_finalize(ekf_t *ekf)
 {
     const float v[3] = {ekf->x[EKF_D0], ekf->x[EKF_D1], ekf->x[EKF_D2]};
@@ -182,7 +197,7 @@ void ekf_finalize(ekf_t *ekf)
                 ekf->P[EKF_D0 + a][EKF_D0 + b] = T[a][0] * G[b][0] + T[a][1] * G[b][1] + T[a][2] * G[b][2];
             }
         }
-        ekf_sym_clamp_flat(&ekf->P[0][0]);
+        clamp_attitude_rows(&ekf->P[0][0]);
     }
     ekf->x[EKF_D0] = 0.0f;
     ekf->x[EKF_D1] = 0.0f;
@@ -205,14 +220,50 @@ int ekf_is_finite(const ekf_t *ekf)
     return 1;
 }
 
+/* atan(t) for t in [0, 1]: t > tan(pi/12) is reduced by atan(t) = pi/6 + atan((t sqrt3 - 1) / (t + sqrt3)) to
+ * |u| <= tan(pi/12), where the odd series to u^11 is within 1e-8 relative of atan (the next term). */
+static float atan_unit(float t)
+{
+    float u = t, base = 0.0f, rest = 0.0f, u2;
+    if (t > 0.267949194f) {
+        u = (t * 1.73205081f - 1.0f) / (t + 1.73205081f);
+        base = 0.523598790f;    /* pi/6 as float */
+        rest = -1.45704637e-08f; /* pi/6 - base */
+    }
+    u2 = u * u;
+    return base + (rest + (u + u * u2 * (-0.333333333f +
+                                         u2 * (0.2f + u2 * (-0.142857143f + u2 * (0.111111111f + u2 * -0.0909090909f))))));
+}
+
+/* atan2 within 3 ulp (tests/test_ekf.c; libm: 1-2): the angles of ekf_quat_to_rpy in ~40 instructions each instead of
+ * libm's ~110 (they are the network's attitude inputs, computed for every measurement). Signed zeros and
+ * NaN as C99's atan2f. */
+static float atan2_fast(float y, float x)
+{
+    const float ax = fabsf(x), ay = fabsf(y);
+    float r;
+    if (ax != ax || ay != ay) {
+        return x + y;
+    }
+    if (ay <= ax) {
+        r = ax > 0.0f ? atan_unit(ay / ax) : 0.0f;
+    } else {
+        r = 1.57079637f - (atan_unit(ax / ay) + 4.37113883e-08f); /* pi/2 as float + its rest */
+    }
+    if (signbit(x)) {
+        r = 3.14159274f - (r + 8.74227766e-08f); /* pi likewise */
+    }
+    return signbit(y) ? -r : r;
+}
+
 void ekf_quat_to_rpy(const float q[4], float rpy[3])
 {
     const float w = q[0], x = q[1], y = q[2], z = q[3];
     float sp = 2.0f * (w * y - z * x);
     sp = sp > 1.0f ? 1.0f : (sp < -1.0f ? -1.0f : sp);
-    rpy[0] = atan2f(2.0f * (w * x + y * z), 1.0f - 2.0f * (x * x + y * y));
-    rpy[1] = asinf(sp);
-    rpy[2] = atan2f(2.0f * (w * z + x * y), 1.0f - 2.0f * (y * y + z * z));
+    rpy[0] = atan2_fast(2.0f * (w * x + y * z), 1.0f - 2.0f * (x * x + y * y));
+    rpy[1] = atan2_fast(sp, sqrtf((1.0f - sp) * (1.0f + sp))); /* asin(sp) */
+    rpy[2] = atan2_fast(2.0f * (w * z + x * y), 1.0f - 2.0f * (y * y + z * z));
 }
 
 void ekf_externalize(const ekf_t *ekf, ekf_state_t *out)

@@ -4,6 +4,7 @@
 #ifndef UWB_EKF_CORE_H
 #define UWB_EKF_CORE_H
 
+#include <math.h>
 #include <stdint.h>
 
 #define EKF_N 9
@@ -78,7 +79,8 @@ void ekf_scalar_prepare(const ekf_t *ekf, ekf_scalar_t *m, const float h[3], flo
 void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m);
 void ekf_scalar_update(ekf_t *ekf, ekf_scalar_t *m, const float h[3], float innovation, float r_var);
 
-/* Move the attitude error into q, rotate P accordingly, zero the attitude error. */
+/* Move the attitude error into q, rotate P accordingly, zero the attitude error. P must be as the
+ * covariance clamp leaves it (symmetric, bounded: right after ekf_scalar_apply), as every caller has it. */
 void ekf_finalize(ekf_t *ekf);
 
 /* P = (P + P^T) / 2; a variance above EKF_P_MAX scales its row and column down to it (keeps P positive
@@ -91,6 +93,24 @@ void ekf_sym_clamp_flat(float *P);
 /* The same for a symmetric P given by its upper triangle (j >= i; the lower one is not read): the result
  * of ekf_sym_clamp_flat on that symmetric matrix, both triangles written. */
 void ekf_sym_clamp_upper(float *P);
+
+/* The entry-wise bounds of the clamp's usual path (every variance finite and <= EKF_P_MAX, so no row is
+ * scaled; ekf_core.c, ekf_update.c): a variance in range, one off-diagonal entry bounded (NaN -> 0). */
+static inline int ekf_var_in_range(float d)
+{
+    return fabsf(d) <= EKF_P_MAX; /* 0 also for NaN and -inf */
+}
+
+static inline float ekf_clamp_cov(float v)
+{
+    if (fabsf(v) <= EKF_P_MAX) { /* the usual case: one test */
+        return v;
+    }
+    if (v != v) {
+        return 0.0f;
+    }
+    return v > 0.0f ? EKF_P_MAX : -EKF_P_MAX;
+}
 
 /* 1 if the state, q and the diagonal of P are all finite. */
 int ekf_is_finite(const ekf_t *ekf);

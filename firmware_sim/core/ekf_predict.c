@@ -99,9 +99,15 @@ static inline float dot6(float s, const float *a, const float *p, int st)
 static void imu_ap(const float *P, const float A[EKF_N][EKF_N], float AP[EKF_N][EKF_N])
 {
     int i, j;
-    for (i = 0; i < EKF_D0; i++) {
+    /* Position and velocity rows in separate loops: no per-entry select of the identity term. */
+    for (i = 0; i < EKF_PX; i++) {
         for (j = 0; j < EKF_N; j++) {
-            AP[i][j] = dot6(i < EKF_PX ? P[i * EKF_N + j] : 0.0f, &A[i][EKF_PX], &P[EKF_PX * EKF_N + j], EKF_N);
+            AP[i][j] = dot6(P[i * EKF_N + j], &A[i][EKF_PX], &P[EKF_PX * EKF_N + j], EKF_N);
+        }
+    }
+    for (i = EKF_PX; i < EKF_D0; i++) {
+        for (j = 0; j < EKF_N; j++) {
+            AP[i][j] = dot6(0.0f, &A[i][EKF_PX], &P[EKF_PX * EKF_N + j], EKF_N);
         }
     }
     for (i = EKF_D0; i < EKF_N; i++) {
@@ -120,9 +126,14 @@ static void imu_propagate_cov(ekf_t *ekf, const float A[EKF_N][EKF_N])
     float *P = &ekf->P[0][0];
     int i, j;
     imu_ap(P, A, AP);
-    for (j = 0; j < EKF_D0; j++) {
+    for (j = 0; j < EKF_PX; j++) {
         for (i = 0; i < EKF_N; i++) {
-            P[i * EKF_N + j] = dot6(j < EKF_PX ? AP[i][j] : 0.0f, &A[j][EKF_PX], &AP[i][EKF_PX], 1);
+            P[i * EKF_N + j] = dot6(AP[i][j], &A[j][EKF_PX], &AP[i][EKF_PX], 1);
+        }
+    }
+    for (j = EKF_PX; j < EKF_D0; j++) {
+        for (i = 0; i < EKF_N; i++) {
+            P[i * EKF_N + j] = dot6(0.0f, &A[j][EKF_PX], &AP[i][EKF_PX], 1);
         }
     }
     for (j = EKF_D0; j < EKF_N; j++) {

@@ -35,13 +35,33 @@ static inline float joseph_entry(const float *P, const joseph_t *t, int i, int j
     return p1 + (t->rk[i] * t->K[j] - t->w[i] * t->K[j]);
 }
 
+/* P2 written over P (upper triangle, pairs averaged; diag: the new variances). With `clamped` (constant at
+ * each call: two specialised copies) every variance is known to be in range, so the clamp's usual path is
+ * applied on the way (bounds, mirror, P_MIN floor): what ekf_sym_clamp_upper would do after the pass. A pair
+ * (i, j > i) reads P_ij and P_ji before writing them; the mirror P_ji = column i < every later row: unread. */
+static inline void joseph_write(float *P, const joseph_t *t, const float *diag, int clamped)
+{
+    int i, j;
+    for (i = 0; i < EKF_N; i++) {
+        for (j = i + 1; j < EKF_N; j++) {
+            const float v = 0.5f * (joseph_entry(P, t, i, j) + joseph_entry(P, t, j, i));
+            P[i * EKF_N + j] = clamped ? ekf_clamp_cov(v) : v;
+            if (clamped) {
+                P[j * EKF_N + i] = P[i * EKF_N + j];
+            }
+        }
+        P[i * EKF_N + i] = clamped && diag[i] < EKF_P_MIN ? EKF_P_MIN : diag[i];
+    }
+}
+
 void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
 {
     const float inv_s = 1.0f / m->S;
     const float *h = m->h;
     float *P = &ekf->P[0][0];
+    float diag[EKF_N];
     joseph_t t;
-    int i, j;
+    int i, in_range = 1;
     for (i = 0; i < EKF_N; i++) {
         t.K[i] = m->ph[i] * inv_s;
         t.s[i] = m->ph[i];
@@ -54,20 +74,23 @@ void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
      * P1: that is what keeps the Joseph form accurate in float32 (P - s s^T / S, equal in exact
      * arithmetic, drifts by millimetres from the float64 twin after a divergence). w needs P1's first
      * three columns only (27 entries). P2 is symmetrised as (P2_ij + P2_ji) / 2 pair by pair, the upper
-     * triangle mirrored by the clamp: the same numbers as the full 9x9 passes and ekf_sym_clamp_flat. */
+     * triangle mirrored by the clamp: the same numbers as the full 9x9 passes and ekf_sym_clamp_flat. The
+     * new variances come first: when all are in range (always in flight) the clamp is fused into the pass. */
     for (i = 0; i < EKF_N; i++) {
         const float ki = t.K[i];
+        float d;
         t.w[i] = (P[i * EKF_N] - ki * t.s[0]) * h[0] + (P[i * EKF_N + 1] - ki * t.s[1]) * h[1] +
                  (P[i * EKF_N + 2] - ki * t.s[2]) * h[2];
+        d = joseph_entry(P, &t, i, i);
+        diag[i] = 0.5f * (d + d);
+        in_range &= ekf_var_in_range(diag[i]);
     }
-    for (i = 0; i < EKF_N; i++) {
-        const float d = joseph_entry(P, &t, i, i);
-        for (j = i + 1; j < EKF_N; j++) {
-            P[i * EKF_N + j] = 0.5f * (joseph_entry(P, &t, i, j) + joseph_entry(P, &t, j, i));
-        }
-        P[i * EKF_N + i] = 0.5f * (d + d);
+    if (in_range) {
+        joseph_write(P, &t, diag, 1);
+    } else {
+        joseph_write(P, &t, diag, 0);
+        ekf_sym_clamp_upper(P);
     }
-    ekf_sym_clamp_upper(P);
 }
 
 void ekf_scalar_update(ekf_t *ekf, ekf_scalar_t *m, const float h[3], float innovation, float r_var)

@@ -92,8 +92,8 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
  * network, or the estimate is below nn_min_z (power-up -1: every height; 0.5 m is the paper's take-off rule,
  * the out-of-range fade below guards heights the network never saw).
  * Outside the network's training range the correction fades to 0 (bias_nn_ood_fade) and *std_out, the
- * predicted std, moves to cfg_std by the same factor. *std_out is 0 when the network has no std head or
- * did not run: the caller then uses the configured std. */
+ * predicted std, moves to cfg_std by the same factor. *std_out is 0 when the network has no std head, did
+ * not run or the stage NN_STD is off: the caller then uses the configured std. */
 static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *anchor_a,
                      const float *anchor_b, float cfg_std, float *std_out)
 {
@@ -110,7 +110,8 @@ static float nn_bias(const estimator_t *est, const bias_nn_t *net, const float *
     if (fade <= 0.0f) {
         return 0.0f; /* far outside: not even evaluated */
     }
-    bias = bias_nn_predict(net, feat, std_out);
+    /* The std head (its expf) only when NN_STD will use it. */
+    bias = bias_nn_predict(net, feat, (est->cfg.stages & EST_STAGE_NN_STD) ? std_out : NULL);
     if (*std_out > 0.0f) {
         *std_out = fade * *std_out + (1.0f - fade) * cfg_std;
     }

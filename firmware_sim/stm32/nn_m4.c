@@ -111,24 +111,49 @@ float nn_m4_predict(const bias_nn_t *net, const float *features, float *std_out)
     return predict_with(net, features, std_out, dense_relu_m4);
 }
 
+typedef char check_sparse_stride_is_500_bytes[(H == 50) ? 1 : -1]; /* nn_m4_q15.S: SPARSE_STRIDE; 25 pairs = 5 x 5 */
+
+/* Beyond this many nonzero pairs of 25 the dense loop is cheaper (10 blocks x ~9.5 instructions per listed
+ * pair against ~70 per pair dense): the worst case stays the dense kernel's. */
+#define SPARSE_MAX_PAIRS 18u
+
+/* The list q15_sparse_m4 reads: (pair word, 20 k) for each pair k of h with a nonzero unit, then a zero word.
+ * h is read as 25 words (two int16 each: the layer's pairs). Returns the number of entries. */
+static unsigned nonzero_pairs(const uint32_t h[H / 2], uint32_t list[H + 1])
+{
+    unsigned k;
+    uint32_t *e = list;
+    for (k = 0; k < H / 2u; k++) {
+        if (h[k] != 0u) {
+            e[0] = h[k];
+            e[1] = 20u * k;
+            e += 2;
+        }
+    }
+    e[0] = 0u;
+    return (unsigned)(e - list) / 2u;
+}
+
 float nn_m4_predict_q15(const bias_nn_t *net, const float *features, float *std_out)
 {
-    int16_t x[BIAS_NN_MAX_IN + 1], h1[H], h2[H];
+    int16_t x[BIAS_NN_MAX_IN + 1], h2[H];
+    uint32_t h1[H / 2], list[H + 1]; /* h1: 50 int16 written by the kernel, read as 25 pairs */
     const unsigned n_pairs = bias_nn_q15_inputs(net, features, x);
-    unsigned b;
-    for (b = 0; b < H; b += 5u) {
-        q15_block5_m4(x, n_pairs, net->q_w1 + 2u * b * n_pairs, net->q_b1 + b, h1 + b, net->q_shift1);
-    }
-    for (b = 0; b < H; b += 5u) {
-        q15_block5_m4(h1, H / 2u, net->q_w2 + 2u * b * (H / 2u), net->q_b2 + b, h2 + b, net->q_shift2);
+    q15_dense_m4(x, n_pairs, net->q_w1, net->q_b1, (int16_t *)h1, net->q_shift1);
+    if (nonzero_pairs(h1, list) <= SPARSE_MAX_PAIRS) {
+        q15_sparse_m4(list, net->q_w2, net->q_b2, h2, net->q_shift2);
+    } else {
+        q15_dense_m4((const int16_t *)h1, H / 2u, net->q_w2, net->q_b2, h2, net->q_shift2);
     }
     if (net->q_heads == 2u) {
         int32_t acc[2];
         acc[0] = net->q_bh[0];
         acc[1] = net->q_bh[1];
-        q15_heads2_m4(h2, H / 2u, net->q_wh, acc);
         if (std_out != (float *)0) {
+            q15_heads2_m4(h2, H / 2u, net->q_wh, acc);
             *std_out = bias_nn_std_of(net, (float)acc[1] * net->q_out_scale);
+        } else {
+            q15_head0_m4(h2, H / 2u, net->q_wh, acc); /* the std is not wanted (estimator.c) */
         }
         return bias_nn_descale_output(net, (float)acc[0] * net->q_out_scale);
     }

@@ -17,11 +17,15 @@ void dense_relu_m4(const float *x, unsigned n_in, const float *w, const float *b
  * as the core's bias_nn_predict_q15. */
 float nn_m4_predict_q15(const bias_nn_t *net, const float *features, float *std_out);
 
-/* nn_m4_q15.S: five outputs of a q15 hidden layer (w at the block's words, bias_nn.h), and the two heads'
- * sums added to acc2 (the biases on entry). */
-void q15_block5_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, const int32_t *b5, int16_t *out5,
-                   unsigned shift);
+/* nn_m4_q15.S: a q15 hidden layer of 50 outputs (w the layer's block-major table, bias_nn.h), dense over
+ * n_pairs input pairs, or over the listed pairs only ((x pair word, 20 k) per pair k with a nonzero
+ * input, ended by a zero word; 50 inputs); the two heads' sums added to acc2 (the biases on entry). */
+void q15_dense_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, const int32_t *b, int16_t *out,
+                  unsigned shift);
+void q15_sparse_m4(const uint32_t *list, const int16_t *w, const int32_t *b, int16_t *out, unsigned shift);
 void q15_heads2_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, int32_t acc2[2]);
+/* The first head (the bias) alone of a two-head table; n_pairs a multiple of 5. */
+void q15_head0_m4(const int16_t *x, unsigned n_pairs, const int16_t *w, int32_t *acc);
 
 /* The core's portable version, still linked under this name when the build wraps
  * bias_nn_predict (-Wl,--wrap=bias_nn_predict). */

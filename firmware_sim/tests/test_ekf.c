@@ -1,6 +1,7 @@
 /* ekf_core: scalar update against hand-computed numbers and a plain 9x9 Joseph reference,
  * symmetry/PSD, clamping, finalize, externalize. The predictions are in test_ekf_predict.c. */
 #include <float.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "ekf_core.h"
@@ -111,6 +112,38 @@ static void test_scalar_update_matches_full_joseph(void)
             }
         }
         CHECK(err < 2e-5);
+    }
+}
+
+/* The update and the finalize step bound P on their way (the clamp's usual path fused into their writes):
+ * what they leave is a fixed point of the full clamp, bit for bit, in range and with variances above P_MAX. */
+static void test_update_and_finalize_leave_p_clamped(void)
+{
+    int trial;
+    for (trial = 0; trial < 40; trial++) {
+        ekf_t e;
+        ekf_scalar_t m;
+        float before[EKF_N][EKF_N];
+        const float h[3] = {(float)rnd(), (float)rnd(), (float)rnd()};
+        int i, j;
+        ekf_init(&e, origin, 1.0f, 1.0f);
+        random_spd(e.P);
+        for (i = 0; i < EKF_N; i++) {
+            for (j = 0; j < EKF_N; j++) {
+                e.P[i][j] *= trial % 4 == 3 ? 400.0f : 1.0f; /* some variances beyond P_MAX: the general path */
+            }
+        }
+        ekf_scalar_update(&e, &m, h, 0.3f * (float)rnd(), 1e-3f);
+        CHECK(is_symmetric(e.P));
+        memcpy(before, e.P, sizeof before);
+        ekf_sym_clamp(e.P);
+        CHECK(memcmp(before, e.P, sizeof before) == 0);
+        e.x[EKF_D0 + trial % 3] = 0.2f * (float)rnd();
+        ekf_finalize(&e);
+        CHECK(is_symmetric(e.P));
+        memcpy(before, e.P, sizeof before);
+        ekf_sym_clamp(e.P);
+        CHECK(memcmp(before, e.P, sizeof before) == 0);
     }
 }
 
@@ -235,6 +268,52 @@ static void test_externalize_world_velocity_and_rpy(void)
     }
 }
 
+/* ekf_quat_to_rpy's own atan2 (no libm atan2f/asinf): within 3 ulp of the double-precision angles of the same
+ * float arguments over random attitudes, signed zeros and NaN as atan2. */
+static void test_quat_to_rpy_angles_within_three_ulp(void)
+{
+    double worst = 0.0;
+    int k, a;
+    for (k = 0; k < 200000; k++) {
+        float q[4], rpy[3], n = 0.0f, sp;
+        double ref[3];
+        for (a = 0; a < 4; a++) {
+            q[a] = (float)rnd();
+            n += q[a] * q[a];
+        }
+        for (a = 0; a < 4; a++) {
+            q[a] /= sqrtf(n);
+        }
+        if (k % 7 == 0) { /* near level as in flight: small roll and pitch */
+            q[1] *= 1e-3f;
+            q[2] *= 1e-3f;
+        }
+        ekf_quat_to_rpy(q, rpy);
+        sp = 2.0f * (q[0] * q[2] - q[3] * q[1]);
+        sp = sp > 1.0f ? 1.0f : (sp < -1.0f ? -1.0f : sp);
+        ref[0] = atan2(2.0f * (q[0] * q[1] + q[2] * q[3]), 1.0f - 2.0f * (q[1] * q[1] + q[2] * q[2]));
+        ref[1] = asin(sp);
+        ref[2] = atan2(2.0f * (q[0] * q[3] + q[1] * q[2]), 1.0f - 2.0f * (q[2] * q[2] + q[3] * q[3]));
+        for (a = 0; a < 3; a++) {
+            const double ulp = fmax(ldexp(1.0, ilogb(fabs(ref[a])) - 23), 1e-45);
+            worst = fmax(worst, fabs(rpy[a] - ref[a]) / ulp);
+        }
+    }
+    printf("  (max error %.2f ulp)\n", worst);
+    CHECK(worst <= 3.0);
+    {
+        float rpy[3];
+        const float level[4] = {1.0f, 0.0f, 0.0f, 0.0f}, flip[4] = {0.0f, 1.0f, 0.0f, 0.0f};
+        const float bad[4] = {NAN, 0.0f, 0.0f, 0.0f};
+        ekf_quat_to_rpy(level, rpy);
+        CHECK(rpy[0] == 0.0f && rpy[1] == 0.0f && rpy[2] == 0.0f && !signbit(rpy[0]));
+        ekf_quat_to_rpy(flip, rpy); /* roll = atan2(+0, -1) = pi */
+        CHECK_NEAR(rpy[0], 3.14159265358979, 3e-7);
+        ekf_quat_to_rpy(bad, rpy);
+        CHECK(isnan(rpy[0]) && isnan(rpy[2]));
+    }
+}
+
 static void test_is_finite(void)
 {
     ekf_t e;
@@ -252,9 +331,11 @@ int main(void)
     RUN(test_scalar_update_hand_computed);
     RUN(test_scalar_update_matches_full_joseph);
     RUN(test_joseph_keeps_symmetric_pd);
+    RUN(test_update_and_finalize_leave_p_clamped);
     RUN(test_sym_clamp);
     RUN(test_sym_clamp_keeps_pd);
     RUN(test_finalize_moves_attitude_error_into_q);
+    RUN(test_quat_to_rpy_angles_within_three_ulp);
     RUN(test_externalize_world_velocity_and_rpy);
     RUN(test_is_finite);
     return UNIT_DONE();

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.biasnet.network import BiasModel, BiasNetwork
+from harness.biasnet.q15 import hidden_pair_order
 from harness.paths import MODELS_DIR
 
 DEFAULT_HEADER = MODELS_DIR / "bias_model_default.h"
@@ -85,10 +86,13 @@ def _net_block(kind: str, net: BiasNetwork) -> str:
 
 
 def _q15_tables(p: str, net: BiasNetwork) -> str:
+    """The q15 tables, the first hidden layer's units in hidden_pair_order (the same outputs)."""
     q = net.q15
     assert q is not None
-    return "\n".join([_int_array("int16_t", f"{p}_q_w1", _pairs(q.l1.w)), _int_array("int32_t", f"{p}_q_b1", q.l1.b),
-                      _int_array("int16_t", f"{p}_q_w2", _pairs(q.l2.w)), _int_array("int32_t", f"{p}_q_b2", q.l2.b),
+    order = hidden_pair_order(q)
+    return "\n".join([_int_array("int16_t", f"{p}_q_w1", _pairs(q.l1.w[:, order])),
+                      _int_array("int32_t", f"{p}_q_b1", q.l1.b[order]),
+                      _int_array("int16_t", f"{p}_q_w2", _pairs(q.l2.w[order, :])), _int_array("int32_t", f"{p}_q_b2", q.l2.b),
                       _int_array("int16_t", f"{p}_q_wh", _pairs(q.head.w)), _int_array("int32_t", f"{p}_q_bh", q.head.b)])
 
 

@@ -142,3 +142,25 @@ class Q15Network:
         """Weights (int16) and biases (int32) as the firmware would store them."""
         n16 = self.l1.w.size + self.l2.w.size + self.head.w.size
         return 2 * n16 + 4 * (self.l1.b.size + self.l2.b.size + self.head.b.size)
+
+
+def hidden_pair_order(q: Q15Network, n: int = 4000, seed: int = 0) -> np.ndarray:
+    """An order of the first hidden layer's units for the firmware's tables: units (order[2k], order[2k+1])
+    share input pair k of the second layer, which the M4 kernel skips when both are 0 after ReLU (nn_m4_q15.S).
+    Greedy matching on n uniform inputs of the training box: the pairs least often active (either unit
+    nonzero) first, so units active together share a pair and dead units pair with each other. Permuting a
+    hidden layer (w1's columns, b1, w2's rows) changes no output; deterministic (integer counts)."""
+    net = q.net
+    f = net.in_min + (net.in_max - net.in_min) * np.random.default_rng(seed).uniform(0.0, 1.0, (n, net.n_in))
+    act = (np.clip((q.l1.b + q.input_q(f) @ q.l1.w) >> q.l1.shift, 0, Q_MAX) != 0).astype(np.int64)
+    count, both = act.sum(axis=0), act.T @ act
+    either = count[:, None] + count[None, :] - both
+    units = either.shape[0]
+    candidates = sorted((int(either[a, b]), a, b) for a in range(units) for b in range(a + 1, units))
+    free, order = set(range(units)), []
+    for _, a, b in candidates:
+        if a in free and b in free:
+            order += [a, b]
+            free -= {a, b}
+    return np.array(order + sorted(free), dtype=np.int64)
+

@@ -232,6 +232,50 @@ def test_shipped_build_equals_host_firmware(stm32_build: Path, tmp_path: Path) -
     assert np.max(np.abs(q["bias"].astype(np.float64) - h["bias"].astype(np.float64))) < 1e-5
 
 
+def _q15_probe() -> Any:
+    """The probe model in q15, its TWR network's first-layer biases raised so no unit is ever 0 after ReLU
+    inside the box: the M4 kernel's second layer then takes its dense loop (more than SPARSE_MAX_PAIRS
+    nonzero pairs: all 25 here); the TDoA network's has 12-23 nonzero pairs, mostly the list."""
+    from dataclasses import replace
+    from harness.stm32_build import probe_model
+    model = probe_model()
+    net = model.twr
+    assert net is not None
+    lower = net.b1 + np.sum(np.minimum(net.w1 * -0.1, net.w1 * 1.1), axis=0)
+    b1 = (net.b1 + np.maximum(0.0, -lower) + 0.05).astype(np.float32)
+    xs = np.random.default_rng(3).uniform(0.0, 1.0, (4000, net.n_in))
+    y0 = np.maximum(np.maximum(xs @ net.w1 + b1, 0.0) @ net.w2 + net.b2, 0.0) @ net.w3
+    scale = 0.05 / (net.out_max - net.out_min) / float(np.std(y0))
+    twr = replace(net, b1=b1, w3=(net.w3 * scale).astype(np.float32), b3=0.5 - float(np.mean(y0)) * scale)
+    return model.replace("twr", twr).quantized("q15", name="qemu-probe-q15")
+
+
+@pytest.mark.slow
+def test_q15_m4_kernel_dense_and_sparse_equal_the_host(arm_tools: None, tmp_path: Path) -> None:
+    """A q15 network on the M4 (SMLAD kernels, the second layer dense or over the nonzero pairs) gives the
+    portable C kernel's integers: the host firmware's biases, on TWR (dense) and TDoA (mostly sparse)."""
+    from harness.bench.qemu import qemu_device
+    from harness.device.host import HostDevice
+    from harness.stm32_build import build_host_with_model, build_stm32_with_model
+    model = _q15_probe()
+    stm32 = build_stm32_with_model(model, ("fw",), tmp_path / "stm32")
+    host = HostDevice(build_host_with_model(model, tmp_path / "host"), log_dir=tmp_path)
+    host.start()
+    try:
+        with qemu_device(stm32 / "uwb-fw.elf", tmp_path) as qemu:
+            assert qemu.hello(timeout=5.0).model_hash == host.hello(timeout=5.0).model_hash == model.hash
+            for mode in ("twr", "tdoa"):
+                q, h = _fly_both({"host": host, "qemu": qemu}, _flight(mode, duration_s=1.0, seed=23))
+                _assert_same_estimates(q, h)
+                used = q["cost_nn"] > 0
+                assert used.sum() > 0.9 * len(q) and np.std(q["bias"][used]) > 1e-3, mode
+                # Same integers; the features come from each build's EKF state (its libm's sinf/cosf):
+                # equal here to the bit, within 1e-5 m anywhere (as the shipped build's test).
+                assert np.max(np.abs(q["bias"].astype(np.float64) - h["bias"].astype(np.float64))) < 1e-5, mode
+    finally:
+        host.stop()
+
+
 def test_m4_network_kernels_match_pytorch_and_are_faster(stm32_build: Path, probe_builds: dict[str, Any],
                                                          tmp_path: Path) -> None:
     from harness.bench.qemu_nn import NN_TOLERANCE, network_kernels

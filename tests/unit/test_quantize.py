@@ -92,3 +92,24 @@ def test_q15_model_has_its_own_hash_and_round_trips(tmp_path) -> None:  # noqa: 
     assert back.hash == q.hash and back.tdoa is not None and back.tdoa.quant == "q15"
     x = box_inputs(model.tdoa, 50, seed=4)  # type: ignore[arg-type]
     assert np.array_equal(back.tdoa.predict_batch(x), q.tdoa.predict_batch(x))  # type: ignore[union-attr]
+
+
+@pytest.mark.parametrize("kind", ["twr", "tdoa"])
+def test_hidden_pair_order_is_a_permutation_that_leaves_fewer_active_pairs(shipped: BiasModel, kind: str) -> None:
+    """export-c's order of the first hidden layer (the M4 kernel skips input pairs of two zeros): the same
+    second layer for any input, and fewer pairs with a nonzero unit than the trained order."""
+    from harness.biasnet.q15 import hidden_pair_order
+    net = shipped.network(kind)
+    assert net is not None
+    q = Q15Network.from_network(net)
+    order = hidden_pair_order(q)
+    assert sorted(order.tolist()) == list(range(50))
+    assert np.array_equal(order, hidden_pair_order(q))                       # deterministic
+    x = q.input_q(box_inputs(net, 3000, seed=9))                             # other inputs than the order's
+    h1 = np.clip((q.l1.b + x @ q.l1.w) >> q.l1.shift, 0, Q_MAX)
+    h1p = np.clip((q.l1.b[order] + x @ q.l1.w[:, order]) >> q.l1.shift, 0, Q_MAX)
+    assert np.array_equal(h1p @ q.l2.w[order, :], h1 @ q.l2.w)                # exact: a permutation
+
+    def active_pairs(h: np.ndarray) -> float:
+        return float(np.mean(np.sum((h[:, 0::2] != 0) | (h[:, 1::2] != 0), axis=1)))
+    assert active_pairs(h1p) < 0.9 * active_pairs(h1)
