@@ -1,7 +1,7 @@
 #include <string.h>
 
 #include "bias_nn.h"
-#include "cobs.h"
+#include "frame_tx.h"
 #include "config_msg.h" /* CONFIG message -> estimator_config_t (generated) */
 #include "firmware.h"
 #include "fw_internal.h"
@@ -15,14 +15,9 @@
 
 void fw_send_msg(firmware_t *fw, uwb_msg_t *msg)
 {
-    uint8_t body[UWB_MAX_BODY];
     uint8_t enc[UWB_MAX_ENCODED + 1];
-    size_t n, m;
     msg->seq = fw->tx_seq++;
-    n = uwb_body_encode(msg, body);
-    m = cobs_encode(body, n, enc);
-    enc[m++] = 0;
-    fw->write(fw->write_ctx, enc, m);
+    fw->write(fw->write_ctx, enc, uwb_frame_encode(msg, enc));
 }
 
 void fw_send_error(firmware_t *fw, uint8_t code, const uwb_msg_t *bad, uint32_t detail)

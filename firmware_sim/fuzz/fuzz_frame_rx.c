@@ -8,6 +8,7 @@
 
 #include "cobs.h"
 #include "frame_rx.h"
+#include "frame_tx.h"
 #include "fuzz_common.h"
 #include "uwb_msgs.h"
 
@@ -108,6 +109,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                 /* COBS is canonical for these lengths: re-encoding gives back the input frame. */
                 if (cobs_encode(again, m, enc) != len || memcmp(enc, frame, len) != 0) {
                     fuzz_fail("COBS re-encode differs from the received frame");
+                }
+                /* The firmware's one-buffer encoder gives the same frame, delimiter included. */
+                if (uwb_frame_encode(&msg, enc) != len + 1 || memcmp(enc, frame, len) != 0 || enc[len] != 0) {
+                    fuzz_fail("uwb_frame_encode differs from the received frame");
                 }
             }
         } else if (ev == FRAME_RX_OVERSIZE) {
