@@ -138,12 +138,13 @@ def gen_c_header(spec: ProtocolSpec) -> str:
     return "\n".join(o)
 
 
-def _crc_table() -> list[int]:
+def _crc_table(bits: int = 8) -> list[int]:
+    """Entry n: the CRC register after shifting the `bits`-bit value n through `bits` steps."""
     poly = 0x82F63B78  # reflected Castagnoli polynomial
     table = []
-    for i in range(256):
+    for i in range(1 << bits):
         c = i
-        for _ in range(8):
+        for _ in range(bits):
             c = (c >> 1) ^ poly if c & 1 else c >> 1
         table.append(c)
     return table
@@ -182,8 +183,9 @@ def gen_c_source(spec: ProtocolSpec) -> str:
 
 def _c_prelude(spec: ProtocolSpec) -> list[str]:
     """Byte-order helpers, the CRC-32C table and function, uwb_payload_len."""
-    table = _crc_table()
-    rows = [", ".join(f"0x{v:08X}u" for v in table[i:i + 6]) for i in range(0, 256, 6)]
+    table = _crc_table(4)
+    rows = [", ".join(f"0x{v:08X}u" for v in table[i:i + 8]) for i in range(0, 16, 8)]
+    nibble_step = "crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);"
     o = [f"/* {BANNER} */", "#include <math.h>", "#include <string.h>", "", '#include "uwb_msgs.h"', "",
          "/* Little-endian field access that works on any host byte order. */",
          "static uint16_t get_u16(const uint8_t *p) { return (uint16_t)(p[0] | (p[1] << 8)); }",
@@ -222,25 +224,24 @@ def _c_prelude(spec: ProtocolSpec) -> list[str]:
          "    put_u32(p, u);",
          "}",
          "",
-         "/* Table for the reflected Castagnoli polynomial 0x82F63B78 (const: lives in flash). */",
-         "static const uint32_t crc32c_table[256] = {"]
+         "/* Reflected Castagnoli polynomial 0x82F63B78, four bits per step: entry n is the CRC register after",
+         " * shifting nibble n through four steps (a 64-byte table instead of 1 KiB; const: lives in flash). */",
+         "static const uint32_t crc32c_nibble[16] = {"]
     o += [f"    {r}," for r in rows]
     o += ["};", "",
-          "/* Four bytes per step with the same table (reflected CRC: XOR a little-endian word, then four",
-          " * byte steps); no extra tables (flash). */",
+          "/* A little-endian word at a time (reflected CRC: XOR it in, then eight nibble steps), the tail bytewise. */",
           "uint32_t uwb_crc32c(const uint8_t *data, size_t n)",
           "{",
           "    uint32_t crc = 0xFFFFFFFFu;",
           "    size_t i = 0;",
           "    for (; i + 4u <= n; i += 4u) {",
-          "        crc ^= get_u32(data + i);",
-          "        crc = crc32c_table[crc & 0xFFu] ^ (crc >> 8);",
-          "        crc = crc32c_table[crc & 0xFFu] ^ (crc >> 8);",
-          "        crc = crc32c_table[crc & 0xFFu] ^ (crc >> 8);",
-          "        crc = crc32c_table[crc & 0xFFu] ^ (crc >> 8);",
-          "    }",
+          "        crc ^= get_u32(data + i);"]
+    o += [f"        {nibble_step}"] * 8
+    o += ["    }",
           "    for (; i < n; i++) {",
-          "        crc = crc32c_table[(crc ^ data[i]) & 0xFFu] ^ (crc >> 8);",
+          "        crc ^= data[i];",
+          f"        {nibble_step}",
+          f"        {nibble_step}",
           "    }",
           "    return crc ^ 0xFFFFFFFFu;",
           "}", "",
