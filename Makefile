@@ -87,6 +87,7 @@ test: test-c test-fuzz stm32 net-tools chromium test-py test-board test-light-in
 bench: $(STAMP) firmware stm32
 	$(PY) -m harness.bench
 	$(PY) -m harness.bench.qemu
+	$(PY) -m harness.bench.qemu_proto --no-build
 	$(PY) -m harness.bench.real_replay
 	$(PY) -m harness.campaign.bench_cluster
 
@@ -109,7 +110,7 @@ chromium:
 	-bash scripts/ensure_chromium.sh
 
 stm32: arm-tools
-	$(MAKE) -C firmware_sim/stm32 fw selftest nnbench semihost
+	$(MAKE) -C firmware_sim/stm32 fw selftest nnbench semihost protobench
 
 size: stm32
 	@$(MAKE) -s -C firmware_sim/stm32 size

@@ -1,7 +1,7 @@
 #include <string.h>
 
 #include "bias_nn.h"
-#include "cobs.h"
+#include "frame_tx.h"
 #include "config_msg.h" /* CONFIG message -> estimator_config_t (generated) */
 #include "firmware.h"
 #include "fw_internal.h"
@@ -15,14 +15,9 @@
 
 void fw_send_msg(firmware_t *fw, uwb_msg_t *msg)
 {
-    uint8_t body[UWB_MAX_BODY];
     uint8_t enc[UWB_MAX_ENCODED + 1];
-    size_t n, m;
     msg->seq = fw->tx_seq++;
-    n = uwb_body_encode(msg, body);
-    m = cobs_encode(body, n, enc);
-    enc[m++] = 0;
-    fw->write(fw->write_ctx, enc, m);
+    fw->write(fw->write_ctx, enc, uwb_frame_encode(msg, enc));
 }
 
 void fw_send_error(firmware_t *fw, uint8_t code, const uwb_msg_t *bad, uint32_t detail)
@@ -335,16 +330,16 @@ static void dispatch(firmware_t *fw, const uwb_msg_t *in)
     }
 }
 
-static void on_frame(firmware_t *fw, const uint8_t *enc, size_t n)
+/* frame_rx_feed's sink: one frame (or framing error) at each delimiter. */
+static void on_frame(void *ctx, frame_rx_event_t ev, const uint8_t *body, size_t len)
 {
-    uint8_t body[UWB_MAX_BODY];
+    firmware_t *fw = (firmware_t *)ctx;
     uwb_msg_t msg;
-    long len = cobs_decode(enc, n, body, sizeof body);
-    if (len < 0) {
-        fw->stats.framing_errors++;
+    if (ev != FRAME_RX_FRAME) {
+        fw->stats.framing_errors++; /* oversize, or not valid COBS */
         return;
     }
-    switch (uwb_body_decode(body, (size_t)len, &msg)) {
+    switch (uwb_body_decode(body, len, &msg)) {
     case UWB_DECODE_OK:
         break;
     case UWB_DECODE_SHORT:
@@ -374,19 +369,5 @@ static void on_frame(firmware_t *fw, const uint8_t *enc, size_t n)
 
 void firmware_feed(firmware_t *fw, const uint8_t *data, size_t n)
 {
-    size_t i;
-    for (i = 0; i < n; i++) {
-        const uint8_t *frame = NULL;
-        size_t len = 0;
-        switch (frame_rx_push(&fw->rx, data[i], &frame, &len)) {
-        case FRAME_RX_FRAME:
-            on_frame(fw, frame, len);
-            break;
-        case FRAME_RX_OVERSIZE:
-            fw->stats.framing_errors++;
-            break;
-        default:
-            break;
-        }
-    }
+    frame_rx_feed(&fw->rx, data, n, on_frame, fw);
 }

@@ -1,5 +1,7 @@
 #include "cobs.h"
 
+#include <string.h>
+
 size_t cobs_encode(const uint8_t *src, size_t n, uint8_t *dst)
 {
     size_t code_pos = 0;
@@ -50,4 +52,27 @@ long cobs_decode(const uint8_t *src, size_t n, uint8_t *dst, size_t cap)
         }
     }
     return (long)out;
+}
+
+size_t cobs_encode_inplace(uint8_t *buf, size_t n)
+{
+    size_t code_pos = 0;
+    size_t i = 1;
+    while (i <= n) {
+        uint32_t w;
+        if (n - i >= 4u) {
+            memcpy(&w, buf + i, sizeof w);
+            if (((w - 0x01010101u) & ~w & 0x80808080u) == 0u) { /* no 0x00 among these 4 bytes */
+                i += 4u;
+                continue;
+            }
+        }
+        if (buf[i] == 0) {
+            buf[code_pos] = (uint8_t)(i - code_pos);
+            code_pos = i;
+        }
+        i++;
+    }
+    buf[code_pos] = (uint8_t)(n + 1u - code_pos);
+    return n + 1u;
 }

@@ -8,7 +8,13 @@
 static uint16_t get_u16(const uint8_t *p) { return (uint16_t)(p[0] | (p[1] << 8)); }
 static uint32_t get_u32(const uint8_t *p)
 {
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    uint32_t v; /* one load where unaligned loads are allowed (Cortex-M4, x86), bytes elsewhere */
+    memcpy(&v, p, sizeof v);
+    return v;
+#else
     return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+#endif
 }
 static uint64_t get_u64(const uint8_t *p) { return (uint64_t)get_u32(p) | ((uint64_t)get_u32(p + 4) << 32); }
 static float get_f32(const uint8_t *p)
@@ -21,7 +27,11 @@ static float get_f32(const uint8_t *p)
 static void put_u16(uint8_t *p, uint16_t v) { p[0] = (uint8_t)v; p[1] = (uint8_t)(v >> 8); }
 static void put_u32(uint8_t *p, uint32_t v)
 {
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    memcpy(p, &v, sizeof v);
+#else
     p[0] = (uint8_t)v; p[1] = (uint8_t)(v >> 8); p[2] = (uint8_t)(v >> 16); p[3] = (uint8_t)(v >> 24);
+#endif
 }
 static void put_u64(uint8_t *p, uint64_t v) { put_u32(p, (uint32_t)v); put_u32(p + 4, (uint32_t)(v >> 32)); }
 static void put_f32(uint8_t *p, float f)
@@ -38,11 +48,23 @@ static const uint32_t crc32c_nibble[16] = {
     0x82F63B78u, 0x92A8FC17u, 0xA24BB5A6u, 0xB21572C9u, 0xC38D26C4u, 0xD3D3E1ABu, 0xE330A81Au, 0xF36E6F75u,
 };
 
+/* A little-endian word at a time (reflected CRC: XOR it in, then eight nibble steps), the tail bytewise. */
 uint32_t uwb_crc32c(const uint8_t *data, size_t n)
 {
     uint32_t crc = 0xFFFFFFFFu;
-    size_t i;
-    for (i = 0; i < n; i++) {
+    size_t i = 0;
+    for (; i + 4u <= n; i += 4u) {
+        crc ^= get_u32(data + i);
+        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+    }
+    for (; i < n; i++) {
         crc ^= data[i];
         crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
         crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);

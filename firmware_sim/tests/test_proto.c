@@ -57,6 +57,26 @@ static void test_cobs_roundtrip(void)
     }
 }
 
+/* In place, one pass (what the firmware sends with): the same bytes as cobs_encode for every length it
+ * allows (0..253) and zero densities from none to all. */
+static void test_cobs_encode_inplace_matches(void)
+{
+    uint8_t src[253], enc[260], buf[260];
+    size_t n, i;
+    unsigned seed = 777, density;
+    for (density = 0; density <= 8; density += 2) {
+        for (n = 0; n <= sizeof src; n++) {
+            for (i = 0; i < n; i++) {
+                seed = seed * 1103515245u + 12345u;
+                src[i] = (uint8_t)(((seed >> 13) % 8u) < density ? 0u : 1u + (seed >> 16) % 255u);
+            }
+            memcpy(buf + 1, src, n);
+            CHECK(cobs_encode_inplace(buf, n) == cobs_encode(src, n, enc));
+            CHECK(memcmp(buf, enc, n + 1) == 0);
+        }
+    }
+}
+
 static void test_cobs_rejects_garbage(void)
 {
     const uint8_t zero_inside[] = {0x03, 0x11, 0x00};
@@ -199,6 +219,7 @@ int main(void)
 {
     RUN(test_crc32c_check_value);
     RUN(test_cobs_roundtrip);
+    RUN(test_cobs_encode_inplace_matches);
     RUN(test_cobs_rejects_garbage);
     RUN(test_frame_rx_resync_and_oversize);
     RUN(test_golden_vectors);
