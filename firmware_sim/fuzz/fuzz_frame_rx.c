@@ -70,6 +70,31 @@ static void check_block_receiver(const uint8_t *data, size_t size)
     }
 }
 
+/* One received frame: its COBS decode is what the block receiver must report; a decodable message
+ * re-encodes (body, COBS, the firmware's one-buffer encoder) to the very bytes received. */
+static void check_frame(const uint8_t *frame, size_t len)
+{
+    uint8_t body[UWB_MAX_BODY], again[UWB_MAX_BODY], enc[UWB_MAX_ENCODED + 1];
+    uwb_msg_t msg;
+    long n = cobs_decode(frame, len, body, sizeof body);
+    expect(n < 0 ? FRAME_RX_BAD_COBS : FRAME_RX_FRAME, body, n < 0 ? 0u : (size_t)n);
+    if (n >= 0 && uwb_body_decode(body, (size_t)n, &msg) == UWB_DECODE_OK) {
+        size_t m = uwb_body_encode(&msg, again);
+        (void)uwb_msg_finite(&msg);
+        if (m != (size_t)n || memcmp(again, body, m) != 0) {
+            fuzz_fail("decode -> encode is not the identity");
+        }
+        /* COBS is canonical for these lengths: re-encoding gives back the input frame. */
+        if (cobs_encode(again, m, enc) != len || memcmp(enc, frame, len) != 0) {
+            fuzz_fail("COBS re-encode differs from the received frame");
+        }
+        /* The firmware's one-buffer encoder gives the same frame, delimiter included. */
+        if (uwb_frame_encode(&msg, enc) != len + 1 || memcmp(enc, frame, len) != 0 || enc[len] != 0) {
+            fuzz_fail("uwb_frame_encode differs from the received frame");
+        }
+    }
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     frame_rx_t rx;
@@ -89,32 +114,13 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         }
         accounted += since_delim + 1;
         if (ev == FRAME_RX_FRAME) {
-            uint8_t body[UWB_MAX_BODY], again[UWB_MAX_BODY], enc[UWB_MAX_ENCODED + 1];
-            uwb_msg_t msg;
-            long n;
             if (len == 0 || len > UWB_MAX_ENCODED || len != since_delim) {
                 fuzz_fail("frame length does not match the bytes since the last delimiter");
             }
             if (memcmp(frame, data + i - len, len) != 0) {
                 fuzz_fail("frame bytes differ from the input");
             }
-            n = cobs_decode(frame, len, body, sizeof body);
-            expect(n < 0 ? FRAME_RX_BAD_COBS : FRAME_RX_FRAME, body, n < 0 ? 0u : (size_t)n);
-            if (n >= 0 && uwb_body_decode(body, (size_t)n, &msg) == UWB_DECODE_OK) {
-                size_t m = uwb_body_encode(&msg, again);
-                (void)uwb_msg_finite(&msg);
-                if (m != (size_t)n || memcmp(again, body, m) != 0) {
-                    fuzz_fail("decode -> encode is not the identity");
-                }
-                /* COBS is canonical for these lengths: re-encoding gives back the input frame. */
-                if (cobs_encode(again, m, enc) != len || memcmp(enc, frame, len) != 0) {
-                    fuzz_fail("COBS re-encode differs from the received frame");
-                }
-                /* The firmware's one-buffer encoder gives the same frame, delimiter included. */
-                if (uwb_frame_encode(&msg, enc) != len + 1 || memcmp(enc, frame, len) != 0 || enc[len] != 0) {
-                    fuzz_fail("uwb_frame_encode differs from the received frame");
-                }
-            }
+            check_frame(frame, len);
         } else if (ev == FRAME_RX_OVERSIZE) {
             expect(FRAME_RX_OVERSIZE, NULL, 0);
             if (since_delim <= UWB_MAX_ENCODED) {
