@@ -305,6 +305,8 @@ def build_parser() -> argparse.ArgumentParser:
     from harness.calibrate.cli import add_lever_arm_parser, add_range_offset_parser
     add_range_offset_parser(sub)
     add_lever_arm_parser(sub)
+    from harness.calibrate.tune_cli import add_tune_parser
+    add_tune_parser(sub)
     from harness.campaign import cli as campaign_cli
     from harness.report import cli as report_cli
     campaign_cli.add_parser(sub)
