@@ -1,7 +1,8 @@
 """The estimator on the real Crazyflie flights (../shared/data/cf_usd), held out by flight, through the real
 command line: UWB-only against IMU-driven replays, outlier rejection with and without the real-flight network,
 the tag's lever arm calibrated on training flights only, each with and without the flow deck's ToF ranger
-(`--tof` / `--no-tof`). Every figure of docs/real-flights.md comes from here.
+(`--tof` / `--no-tof`), and on the evaluation flights the filter settings `uwb-hil tune` picked on the training
+flights (harness/settings/cf_usd_imu_tof.toml, rows "tuned"). Every figure of docs/real-flights.md comes from here.
 
     python -m harness.report.real_flights [--jobs N] [--model cf_tdoa_pose.npz]      # make real-flights
 
@@ -39,6 +40,11 @@ MAIN = (("UWB-only, outlier", ("--stages", "outlier", "--uwb-only"), False),
         ("IMU, outlier+nn+states", ("--stages", "outlier+nn+states"), True))
 #: evaluation flights only, without ToF
 EXTRA = (("IMU, outlier, UTIL lever arm", ("--stages", "outlier"), False),)
+#: evaluation flights only, with ToF where the log has readings: the settings `uwb-hil tune` picked on the
+#: ten 0425 training flights (harness/settings/cf_usd_imu_tof.toml)
+TUNED_FILE = REPO_ROOT / "harness" / "settings" / "cf_usd_imu_tof.toml"
+TUNED = tuple((f"IMU, {stages}, tuned", ("--stages", stages, "--set", f"@{TUNED_FILE}"), "nn" in stages)
+              for stages in ("outlier", "outlier+nn", "outlier+nn+monitor", "outlier+nn+states"))
 DEFAULT_MODEL = REPO_ROOT / "firmware_sim" / "models" / "cf_tdoa_pose.npz"
 
 
@@ -95,11 +101,14 @@ def plan(data: Path, fits: dict[str, str], model: Path | None, logs: tuple[str, 
                      for tag, flag in variants]
         if flight not in evaluation:
             continue
-        for label, args, nn in EXTRA:
+        tag, flag = variants[-1]        # the tuned rows: with ToF where the log has readings
+        for label, args, nn in (*EXTRA, *TUNED):
             if nn and model is None:
                 continue
             arm = () if "UTIL" in label else lever
-            jobs.append(Job(flight, label, (str(rec), *args, *(model_args if nn else ()), *arm, "--no-tof")))
+            tuned = label.endswith("tuned")
+            jobs.append(Job(flight, label + (tag if tuned else ""),
+                            (str(rec), *args, *(model_args if nn else ()), *arm, flag if tuned else "--no-tof")))
     return jobs
 
 
