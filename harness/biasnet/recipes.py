@@ -132,6 +132,7 @@ def cf_usd_lever_arms(data: Path) -> dict[str, tuple[float, float, float]]:
     a shelf flight the fit on the other shelf flight (the vehicle was set up anew on 0426). Empty without
     the shared data."""
     from harness.flight.lever_arm import fit_lever_arm
+    from harness.flight.loaders import load_recordings
     train, shelf = cf_usd_train_files(data), cf_usd_shelf_files(data)
     if not train:
         return {}
@@ -146,12 +147,5 @@ def cf_usd_lever_arms(data: Path) -> dict[str, tuple[float, float, float]]:
 
 def load_cf_usd_calibrated(paths: list[Path], levers: dict[str, tuple[float, float, float]]) -> list[Flight]:
     """uSD logs read with their calibrated lever arm (cf_usd_lever_arms; UTIL's when a flight has none)."""
-    return [load_recordings([p], usd=UsdOptions.make(lever_arm=levers.get(p.name)))[0] for p in paths]
-
-
-def load_recordings(paths: list[Path], anchors: Path | None = None, check: bool = True,
-                    usd: UsdOptions = UsdOptions()) -> list[Flight]:
-    """Load recordings; check=False (--force) skips the plausibility checks (harness/flight/plausibility.py);
-    `usd`: how Crazyflie uSD logs are read (--ignore-crc, --lever-arm)."""
     from harness.flight.loaders import load_recording
-    return [load_recording(p, anchors, check=check, usd=usd) for p in paths]
+    return [load_recording(p, usd=UsdOptions.make(lever_arm=levers.get(p.name))) for p in paths]

@@ -39,10 +39,11 @@ from harness.biasnet.network import BiasModel, BiasNetwork
 from harness.biasnet.registry import RECORDED_MODELS, SUMMARY, kind_name
 from harness.biasnet.recipes import (FIRST_EVAL_SEED, STD_HEAD_RECIPE, SimRecipe, cf_usd_heldout_files,
                                      cf_usd_lever_arms, cf_usd_shelf_files, cf_usd_train_files,
-                                     load_cf_usd_calibrated, load_recordings, rcv_heldout_dirs,
+                                     load_cf_usd_calibrated, rcv_heldout_dirs,
                                      rcv_train_dirs, util_heldout_files, util_train_files)
 from harness.biasnet.train import TrainConfig
 from harness.biasnet.uncertainty import StdHeadConfig, with_std_head
+from harness.flight.loaders import load_recordings
 from harness.biasnet.workflow import compare, distill_dict, distill_kind, train_kind
 from harness.errors import UsageError
 from harness.flight.data import Flight

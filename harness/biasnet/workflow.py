@@ -17,7 +17,8 @@ from harness.biasnet.distill import DistillConfig, DistillReport, distill
 from harness.biasnet.evaluate import Evaluation, evaluate
 from harness.biasnet.network import BiasModel
 from harness.biasnet.train import TrainConfig, TrainReport, train_network
-from harness.biasnet.recipes import SimRecipe, load_recordings
+from harness.biasnet.recipes import SimRecipe
+from harness.flight.loaders import load_recordings
 from harness.biasnet.uncertainty import StdHeadConfig, calibration, with_std_head
 from harness.errors import InputError, InputFileNotFound
 from harness import kinds

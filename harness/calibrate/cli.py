@@ -103,13 +103,6 @@ def _add_calibration_io(p: argparse.ArgumentParser, recording_help: str) -> None
     p.add_argument("--json", action="store_true", help="print the calibration as JSON")
 
 
-def _calibration_flights(args: argparse.Namespace) -> list[Any]:
-    from harness.flight.loaders import UsdOptions, load_recording
-    usd = UsdOptions.make(args.ignore_crc, args.lever_arm)
-    return [load_recording(Path(r), anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
-                           usd=usd) for r in args.recording]
-
-
 def _saved_as_json(args: argparse.Namespace, cal: Any, save: Callable[[Any, Path], object]) -> bool:
     """Write the calibration to --out; with --json print it whole (True: nothing else to print)."""
     save(cal, Path(args.out))
@@ -120,7 +113,8 @@ def _saved_as_json(args: argparse.Namespace, cal: Any, save: Callable[[Any, Path
 
 def cmd_range_offset(args: argparse.Namespace) -> int:
     from harness.flight.range_offset import fit_range_offset, save_range_offset
-    flights = _calibration_flights(args)
+    from harness.flight.loaders import recordings_from_args
+    flights = recordings_from_args(args)
     cal = fit_range_offset(flights, per_anchor=args.per_anchor)
     if _saved_as_json(args, cal, save_range_offset):
         return 0
@@ -145,7 +139,8 @@ def add_lever_arm_parser(sub: Any) -> None:
 
 def cmd_lever_arm(args: argparse.Namespace) -> int:
     from harness.flight.lever_arm import fit_lever_arm, save_lever_arm
-    flights = _calibration_flights(args)
+    from harness.flight.loaders import recordings_from_args
+    flights = recordings_from_args(args)
     fit = fit_lever_arm(flights, flight_above=args.flight_above)
     if _saved_as_json(args, fit, save_lever_arm):
         return 0

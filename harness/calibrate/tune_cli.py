@@ -38,14 +38,6 @@ def add_tune_parser(sub: Any) -> None:
     p.set_defaults(func=cmd_tune)
 
 
-def _flights(args: argparse.Namespace) -> list[Any]:
-    from harness.flight.formats.cf_usd_flight import TOF_DEFAULT
-    from harness.flight.loaders import UsdOptions, load_recording
-    usd = UsdOptions.make(args.ignore_crc, args.lever_arm, tof=TOF_DEFAULT if args.tof is None else args.tof)
-    return [load_recording(Path(r), anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
-                           usd=usd) for r in args.recording]
-
-
 def _model(args: argparse.Namespace) -> object | None:
     if "nn" not in args.stages.split("+"):
         if args.model:
@@ -60,7 +52,9 @@ def _model(args: argparse.Namespace) -> object | None:
 def cmd_tune(args: argparse.Namespace) -> int:
     axes = [GridAxis.parse(g) for g in args.grid]
     model = _model(args)
-    flights = _flights(args)
+    from harness.flight.formats.cf_usd_flight import TOF_DEFAULT
+    from harness.flight.loaders import recordings_from_args
+    flights = recordings_from_args(args, tof=TOF_DEFAULT if args.tof is None else args.tof)
     trials = grid_search(flights, axes, args.stages, args.set, args.flight_above, args.uwb_only, model)
     write_settings(Path(args.out), settings_toml(trials[0], args.recording, args.stages, args.set, len(trials)))
     if args.json:

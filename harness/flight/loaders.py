@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -33,7 +34,7 @@ from harness.kinds import kind_of
 from harness.flight.native import is_native, load_flight, save_flight
 from harness.flight.plausibility import ImplausibleRecording, check_recording
 
-__all__ = ["RecordingError", "ImplausibleRecording", "load_recording", "load_anchors", "load_anchors_csv", "load_survey_npz",
+__all__ = ["RecordingError", "ImplausibleRecording", "load_recording", "load_recordings", "recordings_from_args", "load_anchors", "load_anchors_csv", "load_survey_npz",
            "load_survey_txt", "load_anchor_yaml", "load_util_csv", "load_rcv_twr", "load_flight", "save_flight",
            "find_anchor_file", "time_slice", "FROM_DATA_README", "UsdOptions"]
 
@@ -60,6 +61,18 @@ def load_recording(path: Path | str, anchors: AnchorsArg = None, *, constellatio
     if check:
         check_recording(flight, path)
     return flight
+
+
+def load_recordings(paths: Sequence[Path | str], anchors: AnchorsArg = None, *, check: bool = True,
+                    usd: UsdOptions = UsdOptions()) -> list[Flight]:
+    """Several recordings read alike (load_recording); the first bad one raises, nothing half-loaded."""
+    return [load_recording(p, anchors, check=check, usd=usd) for p in paths]
+
+
+def recordings_from_args(args: Any, tof: bool = False) -> list[Flight]:
+    """The flights of a command's --recording (list), --anchors, --force and add_recording_read_options."""
+    usd = UsdOptions.make(args.ignore_crc, args.lever_arm, tof=tof)
+    return load_recordings(args.recording, args.anchors or None, check=not args.force, usd=usd)
 
 
 def _load(path: Path, anchors: AnchorsArg, constellation: int | None,

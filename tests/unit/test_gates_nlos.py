@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from harness.biasnet.recipes import load_recordings
+from harness.flight.loaders import load_recordings
 from harness.config import PRESETS
 from harness.flight.data import Flight
 from harness.flight.run_config import config_for
