@@ -23,6 +23,7 @@ class FlightSpec:
     profile: str = "los"           # simulated: error-model profile of harness/flight/scenarios.py
     radio: str | None = None       # "tdoa2" | "tdoa3": the flight at LPS radio level (harness/flight/radio.py)
     lever_arm: tuple[float, float, float] | None = None  # uSD log: the tag's calibrated lever arm (None: UTIL's)
+    tof: bool = False              # uSD log: its ToF ranger's readings fused too (flow deck)
 
     def __post_init__(self) -> None:
         # a plan read back from JSON (shards, workers) gives a list: keep the spec hashable and equal to its
@@ -44,4 +45,6 @@ class FlightSpec:
             del d["radio"]       # fingerprints of measurement-level runs stay what they were before radio level
         if d["lever_arm"] is None:
             del d["lever_arm"]   # the same for every recording but the uSD logs
+        if not d["tof"]:
+            del d["tof"]         # the same: fingerprints of the replays without the ranger unchanged
         return d

@@ -27,6 +27,20 @@ CF_MODEL = RECORDED_MODELS["cf_usd"].path
 #: the trajectory label of a uSD flight: "cf-<log name>", with UWB_ONLY_SUFFIX when replayed UWB-only
 LABEL_PREFIX = "cf-"
 UWB_ONLY_SUFFIX = "-uwb"
+#: ... and TOF_SUFFIX when replayed with the IMU and the flow deck's ToF ranger (logs with readings only)
+TOF_SUFFIX = "-tof"
+
+
+def log_name(trajectory: str) -> str:
+    """The log's name in a uSD flight's trajectory label."""
+    return trajectory.removeprefix(LABEL_PREFIX).removesuffix(UWB_ONLY_SUFFIX).removesuffix(TOF_SUFFIX)
+
+
+def replay_of(trajectory: str) -> str:
+    """How a uSD flight is replayed: "uwb" (UWB-only), "tof" (IMU + ToF ranger) or "imu"."""
+    if trajectory.endswith(UWB_ONLY_SUFFIX):
+        return "uwb"
+    return "tof" if trajectory.endswith(TOF_SUFFIX) else "imu"
 
 
 def is_usd(trajectory: str) -> bool:
@@ -36,7 +50,7 @@ def is_usd(trajectory: str) -> bool:
 
 def usd_role(trajectory: str) -> str:
     """"held-out" (an evaluation flight), "shelf" (0426, obstacle) or "training" (the network saw it)."""
-    name = trajectory.removeprefix(LABEL_PREFIX).removesuffix(UWB_ONLY_SUFFIX)
+    name = log_name(trajectory)
     if any(Path(r).name == name for r in CF_USD_SHELF):
         return "shelf"
     return "held-out" if any(Path(r).name == name for r in CF_USD_EVAL) else "training"
@@ -66,16 +80,31 @@ def usd_flights(data_dir: Path, with_models: bool = True
         if not path.is_file():
             notes.append(f"recorded flight {path} not found: skipped")
             continue
-        for uwb_only in (False, True):
-            label = LABEL_PREFIX + path.name + (UWB_ONLY_SUFFIX if uwb_only else "")
-            f = FlightSpec(source="recorded", mode="tdoa", trajectory=label, path=str(path), uwb_only=uwb_only,
-                           lever_arm=levers.get(path.name))
+        for suffix, uwb_only, tof in _replays(path, notes):
+            f = FlightSpec(source="recorded", mode="tdoa", trajectory=LABEL_PREFIX + path.name + suffix, path=str(path),
+                           uwb_only=uwb_only, lever_arm=levers.get(path.name), tof=tof)
             flights.append(f)
             models[f.flight_id] = model
-    notes.append(f"Crazyflie uSD flights: {len(flights) // 2} logs, each with the IMU and UWB-only; the network's "
+    logs = len({f.path for f in flights})
+    notes.append(f"Crazyflie uSD flights: {logs} logs, each with the IMU and UWB-only, and with the IMU and the ToF "
+                 f"ranger where the log has its readings ({sum(f.tof for f in flights)}); the network's "
                  f"configurations only on flights it was not trained on ({', '.join(Path(r).name for r in CF_USD_EVAL)}"
                  f", {', '.join(Path(r).name for r in CF_USD_SHELF)})")
     return flights, notes, models
+
+
+def _replays(path: Path, notes: list[str]) -> list[tuple[str, bool, bool]]:
+    """(label suffix, UWB-only, ToF) of each replay of one log: the paper's system (IMU, no ranger), UWB-only,
+    and IMU + ToF ranger when the log has readings (`uwb-hil run`'s default on such a log)."""
+    from harness.flight.formats.cf_usd_flight import has_tof_readings
+    from harness.flight.formats.common import RecordingError
+    replays = [("", False, False), (UWB_ONLY_SUFFIX, True, False)]
+    try:
+        if has_tof_readings(path):
+            replays.append((TOF_SUFFIX, False, True))
+    except RecordingError as e:     # the replays themselves fail with the reason; the plan says it here
+        notes.append(f"{path.name}: not readable at plan time ({e}): no ToF replay planned")
+    return replays
 
 
 def trained_on(model: str | None, spec: FlightSpec) -> bool:

@@ -88,7 +88,7 @@ def _base_flight(spec: FlightSpec) -> Flight:
             raise InputError(f"{spec.flight_id}: a recorded flight needs a path")
         from harness.flight.formats.cf_usd_flight import UsdOptions
         return load_recording(Path(spec.path), anchors=Path(spec.anchors) if spec.anchors else None,
-                              usd=UsdOptions.make(lever_arm=spec.lever_arm))
+                              usd=UsdOptions.make(lever_arm=spec.lever_arm, tof=spec.tof))
     raise InputError(f"unknown flight source {spec.source!r}")
 
 

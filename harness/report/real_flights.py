@@ -24,8 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.biasnet.recipes import CF_USD_EVAL, CF_USD_LOS, CF_USD_SHELF, cf_usd_lever_arms
-from harness.flight.formats.cf_usd import read_usd_log
-from harness.flight.formats.cf_usd_flight import TOF
+from harness.flight.formats.cf_usd_flight import has_tof_readings
 from harness.paths import REPO_ROOT, shared_data_dir
 from harness.report.replay_all import run_json
 
@@ -77,11 +76,6 @@ def lever_arms(data: Path) -> dict[str, str]:
     return {name: ",".join(f"{v:.6f}" for v in arm) for name, arm in cf_usd_lever_arms(data).items()}
 
 
-def has_tof(log: Path) -> bool:
-    """The log carries ToF readings (the 0426 logs declare estTOF but have none: no flow deck)."""
-    return read_usd_log(log).count(TOF) > 0
-
-
 def plan(data: Path, fits: dict[str, str], model: Path | None, logs: tuple[str, ...] = ALL_LOGS) -> list[Job]:
     """Every log in the MAIN configurations, without ToF and (when it has readings) with; the evaluation flights
     also in the EXTRA ones. The lever arm is each flight's calibrated one (UTIL's for the UTIL row)."""
@@ -93,7 +87,7 @@ def plan(data: Path, fits: dict[str, str], model: Path | None, logs: tuple[str, 
             continue
         lever = ("--lever-arm", fits[flight]) if flight in fits else ()
         model_args = ("--model", str(model)) if model is not None else ()
-        variants = (("", "--no-tof"), (", ToF", "--tof")) if has_tof(rec) else (("", "--no-tof"),)
+        variants = (("", "--no-tof"), (", ToF", "--tof")) if has_tof_readings(rec) else (("", "--no-tof"),)
         for label, args, nn in MAIN:
             if nn and model is None:
                 continue

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from harness.campaign.recorded_usd import CF_MODEL_KEY, LABEL_PREFIX, UWB_ONLY_SUFFIX, is_usd, usd_role
+from harness.campaign.recorded_usd import CF_MODEL_KEY, LABEL_PREFIX, is_usd, log_name, replay_of, usd_role
 from harness.report.data import CampaignData, RunMetrics
 
 if TYPE_CHECKING:
@@ -22,7 +22,8 @@ if TYPE_CHECKING:
 
 #: table columns: (replay, configuration) -> header
 COLUMNS = {("uwb", "none"): "UWB-only", ("uwb", "outlier"): "UWB-only + outlier", ("imu", "none"): "IMU",
-           ("imu", "outlier"): "IMU + outlier", ("imu", "outlier+nn"): "IMU + outlier + NN"}
+           ("imu", "outlier"): "IMU + outlier", ("imu", "outlier+nn"): "IMU + outlier + NN",
+           ("tof", "outlier"): "IMU + ToF + outlier", ("tof", "outlier+nn"): "IMU + ToF + outlier + NN"}
 ROLES = ("held-out", "shelf", "training")
 ATT_COLUMNS = ("imu none", "imu outlier", "imu outlier+nn")
 #: the error-over-time axis is cut here: the ground phases leave it until the estimator's ground phase holds
@@ -31,14 +32,6 @@ ERROR_AXIS_M = 2.0
 
 def usd_runs(data: CampaignData) -> list[RunMetrics]:
     return [r for r in data.accuracy_runs if r.source == "recorded" and is_usd(r.trajectory)]
-
-
-def _log_name(trajectory: str) -> str:
-    return trajectory.removeprefix(LABEL_PREFIX).removesuffix(UWB_ONLY_SUFFIX)
-
-
-def _replay(r: RunMetrics) -> str:
-    return "uwb" if r.trajectory.endswith(UWB_ONLY_SUFFIX) else "imu"
 
 
 def _phase_rmse(r: RunMetrics, phase: str) -> float:
@@ -54,9 +47,9 @@ def usd_summary(data: CampaignData) -> dict[str, Any]:
     [deg]) per (replay, configuration), where the runs carry it."""
     flights: dict[str, dict[str, Any]] = {}
     for r in usd_runs(data):
-        row = flights.setdefault(_log_name(r.trajectory), {"role": usd_role(r.trajectory), "rmse": {},
+        row = flights.setdefault(log_name(r.trajectory), {"role": usd_role(r.trajectory), "rmse": {},
                                                            "rmse_flight": {}})
-        key = f"{_replay(r)} {r.config}"
+        key = f"{replay_of(r.trajectory)} {r.config}"
         row["rmse"][key] = r.rmse
         if math.isfinite(_phase_rmse(r, "flight")):
             row["rmse_flight"][key] = _phase_rmse(r, "flight")
@@ -92,17 +85,18 @@ def error_time_figure(data: CampaignData) -> Figure | None:
     """Position error over time of the flights the network never saw: IMU + outlier, IMU + outlier + NN and
     UWB-only + outlier, one panel per log."""
     runs = [r for r in usd_runs(data) if usd_role(r.trajectory) != "training" and r.err_t_s.size]
-    logs = sorted({_log_name(r.trajectory) for r in runs})
+    logs = sorted({log_name(r.trajectory) for r in runs})
     if not logs:
         return None
     fig = Figure(figsize=(11, 2.4 * len(logs)), layout="constrained")
     axes = fig.subplots(len(logs), 1, squeeze=False)[:, 0]
     style = {("imu", "outlier"): ("#ff7f0e", "IMU + outlier rejection"),
              ("imu", "outlier+nn"): ("#1f77b4", "IMU + outlier rejection + NN"),
+             ("tof", "outlier+nn"): ("#2ca02c", "IMU + ToF + outlier rejection + NN"),
              ("uwb", "outlier"): ("#8c8c8c", "UWB-only + outlier rejection")}
     for ax, log in zip(axes, logs):
         for (replay, cfg), (color, label) in style.items():
-            r = next((r for r in runs if _log_name(r.trajectory) == log and _replay(r) == replay
+            r = next((r for r in runs if log_name(r.trajectory) == log and replay_of(r.trajectory) == replay
                       and r.config == cfg), None)
             if r is not None:
                 ax.plot(r.err_t_s, r.err_mean, color=color, lw=1.0,
@@ -124,7 +118,8 @@ def usd_section(ctx: "ReportContext") -> "Section | None":
     sec = Section("crazyflie", "Real Crazyflie flights (uSD logs): IMU vs UWB-only, and the real-flight network")
     sec.paragraphs.append(
         "Crazyflie flights logged on board (IMU, TDoA, motion-capture pose with attitude), replayed through the "
-        "firmware with the IMU and UWB-only. Position RMSE [m] against motion capture over the whole flight, ground "
+        "firmware with the IMU (the paper's system), with the IMU and the flow deck's ToF ranger where the log has "
+        "its readings (`uwb-hil run`'s default there) and UWB-only. Position RMSE [m] against motion capture over the whole flight, ground "
         "phases included, and over the flight phase alone (truth above 0.4 m: what the verdict judges). The network (real-flight, pose layout) runs only with the IMU (it takes the firmware's own "
         "attitude) and only on flights it was not trained on: held-out = 0425 flights 3, 8, 13, 18 (line of "
         "sight), shelf = 0426 flights 3 and 5 (a wooden shelf in the arena, never trained on).")
@@ -145,10 +140,10 @@ def _rmse_tables(summary: dict[str, Any], what: str, means: str, title: str) -> 
     from harness.report.html import Table
 
     def changes(rmse: dict[str, float]) -> list[str]:
-        return [_change(rmse), _change(rmse, "uwb outlier", "imu outlier")]
+        return [_change(rmse), _change(rmse, "tof outlier", "tof outlier+nn"), _change(rmse, "uwb outlier", "imu outlier")]
     rows = [[log, f["role"], *[_cell(f[what], *k) for k in COLUMNS], *changes(f[what])]
             for log, f in summary["flights"].items()]
-    headers = [*COLUMNS.values(), "NN vs outlier", "IMU vs UWB-only (outlier)"]
+    headers = [*COLUMNS.values(), "NN vs outlier", "NN vs outlier (ToF)", "IMU vs UWB-only (outlier)"]
     mrows = [[role, str(sum(f["role"] == role and bool(f[what]) for f in summary["flights"].values())),
               *[_cell(summary[means][role], *k) for k in COLUMNS], *changes(summary[means][role])]
              for role in ROLES if summary[means].get(role)]

@@ -81,21 +81,23 @@ def test_report_section_splits_the_crazyflie_logs_by_role_replay_and_phase() -> 
     from harness.report.summary import accuracy_section
     from harness.report.usd_section import _attitude_table, _rmse_tables, error_time_figure, usd_summary
     runs = [_run("cf-0425-traj3", "outlier", 0.20, 2.0), _run("cf-0425-traj3", "outlier+nn", 0.15, 2.5),
-            _run("cf-0425-traj3-uwb", "outlier", 0.25, 3.0), _run("cf-0425-traj1", "outlier", 0.30, 1.0),
+            _run("cf-0425-traj3-uwb", "outlier", 0.25, 3.0), _run("cf-0425-traj3-tof", "outlier", 0.10, 0.05),
+            _run("cf-0425-traj3-tof", "outlier+nn", 0.08, 0.05), _run("cf-0425-traj1", "outlier", 0.30, 1.0),
             _run("cf-0425-traj1-uwb", "outlier", 0.40, 1.0), _run("util-const1-trial5-tdoa2", "outlier", 0.1, 0.0)]
     data = CampaignData(root=Path("."), manifest={}, runs=runs, failures=[], missing=[], devices=[])
     s = usd_summary(data)
     assert set(s["flights"]) == {"0425-traj3", "0425-traj1"}
     t3 = s["flights"]["0425-traj3"]
     assert t3["role"] == "held-out" and s["flights"]["0425-traj1"]["role"] == "training"
-    assert t3["rmse_flight"] == {"imu outlier": 0.20, "imu outlier+nn": 0.15, "uwb outlier": 0.25}
+    assert t3["rmse_flight"] == {"imu outlier": 0.20, "imu outlier+nn": 0.15, "uwb outlier": 0.25,
+                                 "tof outlier": 0.10, "tof outlier+nn": 0.08}
     assert t3["rmse"]["imu outlier+nn"] == pytest.approx(2.65)
-    assert t3["attitude"] == {"imu outlier": 1.5, "imu outlier+nn": 1.5}
+    assert t3["attitude"] == {"imu outlier": 1.5, "imu outlier+nn": 1.5, "tof outlier": 1.5, "tof outlier+nn": 1.5}
     assert s["means_flight"]["training"] == {"imu outlier": 0.30, "uwb outlier": 0.40}
     per_flight, means = _rmse_tables(s, "rmse_flight", "means_flight", "")
     row = {r[0]: r for r in per_flight.rows}["0425-traj3"]
-    assert row[-2:] == ["-25.0 %", "-20.0 %"]            # network vs outlier rejection, IMU vs UWB-only
-    assert {r[0]: r for r in per_flight.rows}["0425-traj1"][-2:] == ["-", "-25.0 %"]
+    assert row[-3:] == ["-25.0 %", "-20.0 %", "-20.0 %"]  # network vs outlier rejection, with ToF, IMU vs UWB-only
+    assert {r[0]: r for r in per_flight.rows}["0425-traj1"][-3:] == ["-", "-", "-25.0 %"]
     assert [r[:2] for r in means.rows] == [["held-out", "1"], ["training", "1"]]
     assert _attitude_table(s)[0].rows[0] == ["0425-traj1", "training", "-", "1.50", "-"]
     fig = error_time_figure(data)

@@ -97,3 +97,25 @@ def test_shared_log_with_tof_never_resets(capsys: pytest.CaptureFixture[str]) ->
     assert aux is not None and summary["auxiliary"] == {"kind": "tof", "measurements": len(aux)}
     flight = summary["accuracy"]["phases"]["flight"]
     assert flight["rmse_z"] < 0.03 and abs(flight["z_mean_error"]) < 0.02 and flight["rmse"] < 0.35
+
+
+def test_campaign_replays_a_log_with_the_ranger_only_where_it_has_readings(tmp_path: Path) -> None:
+    """The recorded section plans IMU, UWB-only and, for a log with estTOF readings, IMU + ToF (run's default);
+    the worker reads that replay with the ranger, the others without (harness/campaign/recorded_usd.py)."""
+    from harness.biasnet.recipes import CF_USD_LOS
+    from harness.campaign.recorded_usd import replay_of, usd_flights
+    from harness.campaign.worker import _base_flight
+    with_tof, without = tmp_path / CF_USD_LOS[0], tmp_path / CF_USD_LOS[1]
+    with_tof.parent.mkdir(parents=True)
+    write_anchors(with_tof.parent / "anchor_0425.npz")
+    hover_log(tof_mm=RANGE_MM).write(with_tof)
+    hover_log().write(without)
+    flights, notes, _ = usd_flights(tmp_path, with_models=False)
+    replays = {(Path(f.path or "").name, replay_of(f.trajectory)): f for f in flights}
+    assert set(replays) == {(with_tof.name, "imu"), (with_tof.name, "uwb"), (with_tof.name, "tof"),
+                            (without.name, "imu"), (without.name, "uwb")}
+    tof = replays[(with_tof.name, "tof")]
+    assert tof.tof and not tof.uwb_only and tof.trajectory.endswith("-tof")
+    assert _base_flight(tof).aux is not None and _base_flight(replays[(with_tof.name, "imu")]).aux is None
+    assert any("ToF ranger where the log has its readings (1)" in n for n in notes)
+    assert "tof" not in replays[(with_tof.name, "imu")].as_dict()       # fingerprints without the ranger unchanged
