@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "cobs.h"
+#include "cov_check.h"
 #include "ekf_core.h"
 #include "firmware.h"
 
@@ -22,8 +23,8 @@ typedef struct {
 static void check_p(health_t *h)
 {
     const float(*P)[EKF_N] = (const float(*)[EKF_N])h->fw->est.ekf.P;
-    double L[EKF_N][EKF_N];
-    int i, j, k, bad = 0;
+    double pivot;
+    int i, j, bad = 0;
     h->checks++;
     for (i = 0; i < EKF_N; i++) {
         for (j = 0; j < EKF_N; j++) {
@@ -44,28 +45,11 @@ static void check_p(health_t *h)
         }
     }
     h->out_of_bounds += (unsigned long)bad;
-    /* Cholesky: P = L L^T; every pivot must be > 0. */
-    for (j = 0; j < EKF_N; j++) {
-        double s = P[j][j];
-        for (k = 0; k < j; k++) {
-            s -= L[j][k] * L[j][k];
-        }
-        if (s < h->min_pivot) {
-            h->min_pivot = s;
-        }
-        if (!(s > 0.0)) {
-            h->not_pd++;
-            return;
-        }
-        L[j][j] = sqrt(s);
-        for (i = j + 1; i < EKF_N; i++) {
-            double t = P[i][j];
-            for (k = 0; k < j; k++) {
-                t -= L[i][k] * L[j][k];
-            }
-            L[i][j] = t / L[j][j];
-        }
+    pivot = cov_min_pivot(&P[0][0]);
+    if (pivot < h->min_pivot) {
+        h->min_pivot = pivot;
     }
+    h->not_pd += (unsigned long)!(pivot > 0.0);
 }
 
 static void on_output(void *ctx, const uint8_t *data, size_t n)

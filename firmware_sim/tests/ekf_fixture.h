@@ -6,6 +6,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "cov_check.h"
 #include "ekf_core.h"
 
 /* Deterministic pseudo-random numbers in [-1, 1). */
@@ -41,27 +42,7 @@ static inline void random_spd(float P[EKF_N][EKF_N])
 /* 1 if P is positive definite (Cholesky in double succeeds). */
 static inline int is_pd(float P[EKF_N][EKF_N])
 {
-    double L[EKF_N][EKF_N];
-    int i, j, k;
-    memset(L, 0, sizeof L);
-    for (j = 0; j < EKF_N; j++) {
-        double d = P[j][j];
-        for (k = 0; k < j; k++) {
-            d -= L[j][k] * L[j][k];
-        }
-        if (!(d > 0.0)) {
-            return 0;
-        }
-        L[j][j] = sqrt(d);
-        for (i = j + 1; i < EKF_N; i++) {
-            double s = P[i][j];
-            for (k = 0; k < j; k++) {
-                s -= L[i][k] * L[j][k];
-            }
-            L[i][j] = s / L[j][j];
-        }
-    }
-    return 1;
+    return cov_min_pivot(&P[0][0]) > 0.0;
 }
 
 static inline int is_symmetric(float P[EKF_N][EKF_N])
