@@ -1,6 +1,6 @@
 """Stand-ins for a device, shared by tests/device/test_device.py and test_pytest_plugin.py: a protocol-speaking
 stand-in firmware started the way uwb-fw is (`--tty <slave>`, HELLO answered from Python), and a 'board'
-behind socket:// (`FakeBoard`); with their fixtures `fake_fw` and `board`."""
+behind socket:// (`FakeBoard`, on `OneClientServer`, also test_link.py's echo server); with their fixtures `fake_fw` and `board`."""
 
 from __future__ import annotations
 
@@ -81,17 +81,24 @@ def fake_fw(tmp_path: Path) -> Path:
     return write_script(tmp_path, "fake-fw", f"#!{sys.executable}\n{FAKE_FIRMWARE}")
 
 
-class FakeBoard:
-    """A 'board' behind socket://: answers HELLO over TCP from a thread."""
+class OneClientServer:
+    """A TCP server on 127.0.0.1 serving one client from a thread: `serve(conn, data)` answers each block
+    received (`greet(conn)` first); `stop()` hangs up on the client, `close()` also closes the server."""
 
-    def __init__(self, stale: bytes = b"") -> None:
+    def __init__(self) -> None:
         self._srv = socket.create_server(("127.0.0.1", 0))
         self._srv.settimeout(5.0)
-        self.url = f"socket://127.0.0.1:{self._srv.getsockname()[1]}"
-        self._stale = stale
+        self.port = self._srv.getsockname()[1]
+        self.url = f"socket://127.0.0.1:{self.port}"
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
+
+    def greet(self, conn: socket.socket) -> None:
+        """Sent on connection, before anything is received."""
+
+    def serve(self, conn: socket.socket, data: bytes) -> None:
+        raise NotImplementedError
 
     def _run(self) -> None:
         try:
@@ -99,10 +106,8 @@ class FakeBoard:
         except OSError:
             return
         conn.settimeout(0.05)
-        dec = FrameDecoder()
         with conn:
-            if self._stale:
-                conn.sendall(self._stale)
+            self.greet(conn)
             while not self._stop.is_set():
                 try:
                     data = conn.recv(4096)
@@ -112,15 +117,34 @@ class FakeBoard:
                     return
                 if not data:
                     return
-                for f in dec.feed(data):
-                    if isinstance(f.msg, Hello):
-                        conn.sendall(encode_frame(HelloReply(f.msg.nonce, PROTOCOL_VERSION, 0, 9, 0, 1, 0, 0, 7,
-                                                             b"board", b"stm32"), f.seq))
+                self.serve(conn, data)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
 
     def close(self) -> None:
-        self._stop.set()
+        self.stop()
         self._srv.close()
-        self._thread.join(5)
+
+
+class FakeBoard(OneClientServer):
+    """A 'board' behind socket://: answers HELLO over TCP from a thread."""
+
+    def __init__(self, stale: bytes = b"") -> None:
+        self._stale = stale
+        self._dec = FrameDecoder()
+        super().__init__()
+
+    def greet(self, conn: socket.socket) -> None:
+        if self._stale:
+            conn.sendall(self._stale)
+
+    def serve(self, conn: socket.socket, data: bytes) -> None:
+        for f in self._dec.feed(data):
+            if isinstance(f.msg, Hello):
+                conn.sendall(encode_frame(HelloReply(f.msg.nonce, PROTOCOL_VERSION, 0, 9, 0, 1, 0, 0, 7,
+                                                     b"board", b"stm32"), f.seq))
 
 
 @pytest.fixture

@@ -7,7 +7,6 @@ import socket
 import subprocess
 import sys
 import termios
-import threading
 import time
 from collections.abc import Iterator
 
@@ -15,6 +14,7 @@ import pytest
 
 from harness.errors import LinkClosed, LinkError, LinkTimeout
 from harness.link import Link, PtyOptions, PtyPair, SerialLink, open_link
+from stand_ins import OneClientServer
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -171,44 +171,14 @@ def test_serial_loop_url_round_trip_and_timeout() -> None:
         link.read(1, 0.0)
 
 
-class EchoServer:
+class EchoServer(OneClientServer):
     """TCP echo on 127.0.0.1 (one client), in a thread; `close_client()` hangs up on it."""
 
-    def __init__(self) -> None:
-        self._srv = socket.create_server(("127.0.0.1", 0))
-        self._srv.settimeout(5.0)
-        self.port = self._srv.getsockname()[1]
-        self._client: socket.socket | None = None
-        self._hangup = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        try:
-            conn, _ = self._srv.accept()
-        except OSError:
-            return
-        self._client = conn
-        conn.settimeout(0.05)
-        with conn:
-            while not self._hangup.is_set():
-                try:
-                    data = conn.recv(4096)
-                except TimeoutError:
-                    continue
-                except OSError:
-                    return
-                if not data:
-                    return
-                conn.sendall(data)
+    def serve(self, conn: socket.socket, data: bytes) -> None:
+        conn.sendall(data)
 
     def close_client(self) -> None:
-        self._hangup.set()
-        self._thread.join(5)
-
-    def close(self) -> None:
-        self.close_client()
-        self._srv.close()
+        self.stop()
 
 
 @pytest.fixture
