@@ -6,7 +6,7 @@
 #include <math.h>
 #include <string.h>
 
-#include "cov_check.h"
+#include "../fuzz/cov_check.h"
 #include "ekf_core.h"
 
 /* Deterministic pseudo-random numbers in [-1, 1). */

@@ -1,4 +1,4 @@
-/* The positive-definiteness check of a covariance, shared by the EKF tests (ekf_fixture.h) and the
+/* The positive-definiteness check of a covariance, shared by the EKF tests (tests/ekf_fixture.h) and the
  * long-flight health probe (fuzz/cov_health.c). Header-only (static inline). */
 #ifndef UWB_COV_CHECK_H
 #define UWB_COV_CHECK_H
