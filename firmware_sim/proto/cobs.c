@@ -54,17 +54,41 @@ long cobs_decode(const uint8_t *src, size_t n, uint8_t *dst, size_t cap)
     return (long)out;
 }
 
+/* The first 0x00 among the 4 bytes at p (little-endian word w), 4 if none: the lowest flag of the zero-byte
+ * test is always a zero byte (borrows only flag bytes above one), so its position is exact. */
+static size_t first_zero(uint32_t w, const uint8_t *p)
+{
+    const uint32_t z = (w - 0x01010101u) & ~w & 0x80808080u;
+    if (z == 0u) {
+        return 4u;
+    }
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__ && defined(__GNUC__)
+    (void)p;
+    return (size_t)__builtin_ctz(z) >> 3; /* rbit + clz on the Cortex-M4 */
+#else
+    {
+        size_t k = 0;
+        while (p[k] != 0) {
+            k++;
+        }
+        return k;
+    }
+#endif
+}
+
 size_t cobs_encode_inplace(uint8_t *buf, size_t n)
 {
     size_t code_pos = 0;
     size_t i = 1;
     while (i <= n) {
-        uint32_t w;
         if (n - i >= 4u) {
+            uint32_t w;
+            size_t k;
             memcpy(&w, buf + i, sizeof w);
-            if (((w - 0x01010101u) & ~w & 0x80808080u) == 0u) { /* no 0x00 among these 4 bytes */
-                i += 4u;
-                continue;
+            k = first_zero(w, buf + i);
+            i += k;
+            if (k == 4u) {
+                continue; /* no 0x00 among these 4 bytes */
             }
         }
         if (buf[i] == 0) {

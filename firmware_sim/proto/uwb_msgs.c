@@ -42,32 +42,46 @@ static void put_f32(uint8_t *p, float f)
 }
 
 /* Reflected Castagnoli polynomial 0x82F63B78, four bits per step: entry n is the CRC register after
- * shifting nibble n through four steps (a 64-byte table instead of 1 KiB; const: lives in flash). */
+ * shifting nibble n through four steps (64 bytes of flash instead of a 1 KiB const table). */
 static const uint32_t crc32c_nibble[16] = {
     0x00000000u, 0x105EC76Fu, 0x20BD8EDEu, 0x30E349B1u, 0x417B1DBCu, 0x5125DAD3u, 0x61C69362u, 0x7198540Du,
     0x82F63B78u, 0x92A8FC17u, 0xA24BB5A6u, 0xB21572C9u, 0xC38D26C4u, 0xD3D3E1ABu, 0xE330A81Au, 0xF36E6F75u,
 };
 
-/* A little-endian word at a time (reflected CRC: XOR it in, then eight nibble steps), the tail bytewise. */
+/* Eight bits per step: entry n is two nibble steps of n. Built in RAM (1 KiB of .bss, no flash) on the first
+ * CRC: half the instructions of nibble steps on every frame received and sent. Entry 1 is never 0 once
+ * built; building it again (an interrupted first build) writes the same values. */
+static uint32_t crc32c_byte[256];
+
+static void crc32c_build(void)
+{
+    uint32_t b;
+    for (b = 0; b < 256u; b++) {
+        uint32_t c = b;
+        c = crc32c_nibble[c & 0xFu] ^ (c >> 4);
+        c = crc32c_nibble[c & 0xFu] ^ (c >> 4);
+        crc32c_byte[b] = c;
+    }
+}
+
+/* A little-endian word at a time (reflected CRC: XOR it in, then four byte steps), the tail bytewise. */
 uint32_t uwb_crc32c(const uint8_t *data, size_t n)
 {
     uint32_t crc = 0xFFFFFFFFu;
     size_t i = 0;
+    if (crc32c_byte[1] == 0u) {
+        crc32c_build();
+    }
     for (; i + 4u <= n; i += 4u) {
         crc ^= get_u32(data + i);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
     }
     for (; i < n; i++) {
         crc ^= data[i];
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
     }
     return crc ^ 0xFFFFFFFFu;
 }
