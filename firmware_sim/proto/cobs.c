@@ -54,48 +54,61 @@ long cobs_decode(const uint8_t *src, size_t n, uint8_t *dst, size_t cap)
     return (long)out;
 }
 
-/* The first 0x00 among the 4 bytes at p (little-endian word w), 4 if none: the lowest flag of the zero-byte
- * test is always a zero byte (borrows only flag bytes above one), so its position is exact. */
-static size_t first_zero(uint32_t w, const uint8_t *p)
+/* The zero-byte test of 4 bytes (little-endian word w): bit 7 of every byte that is 0x00 set, and of no byte below
+ * the first zero; a byte above a zero may be flagged falsely (a borrow), so those are checked before use. */
+static uint32_t zero_flags(uint32_t w)
 {
-    const uint32_t z = (w - 0x01010101u) & ~w & 0x80808080u;
-    if (z == 0u) {
-        return 4u;
-    }
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__ && defined(__GNUC__)
-    (void)p;
-    return (size_t)__builtin_ctz(z) >> 3; /* rbit + clz on the Cortex-M4 */
-#else
-    {
-        size_t k = 0;
-        while (p[k] != 0) {
-            k++;
-        }
-        return k;
-    }
-#endif
+    return (w - 0x01010101u) & ~w & 0x80808080u;
 }
+
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__ && defined(__GNUC__)
+/* Every 0x00 of the 4 bytes at buf[i..i+3] (flags z != 0) in turn, straight from the flags: the index of the
+ * last one (the next code byte's position). */
+static size_t code_zeros(uint8_t *buf, size_t i, uint32_t z, size_t code_pos)
+{
+    do {
+        const size_t at = i + ((size_t)__builtin_ctz(z) >> 3); /* rbit + clz on the Cortex-M4 */
+        if (buf[at] == 0) {
+            buf[code_pos] = (uint8_t)(at - code_pos);
+            code_pos = at;
+        }
+        z &= z - 1u;
+    } while (z != 0u);
+    return code_pos;
+}
+#else
+static size_t code_zeros(uint8_t *buf, size_t i, uint32_t z, size_t code_pos)
+{
+    size_t k;
+    (void)z;
+    for (k = i; k < i + 4u; k++) {
+        if (buf[k] == 0) {
+            buf[code_pos] = (uint8_t)(k - code_pos);
+            code_pos = k;
+        }
+    }
+    return code_pos;
+}
+#endif
 
 size_t cobs_encode_inplace(uint8_t *buf, size_t n)
 {
     size_t code_pos = 0;
     size_t i = 1;
-    while (i <= n) {
-        if (n - i >= 4u) {
-            uint32_t w;
-            size_t k;
-            memcpy(&w, buf + i, sizeof w);
-            k = first_zero(w, buf + i);
-            i += k;
-            if (k == 4u) {
-                continue; /* no 0x00 among these 4 bytes */
-            }
+    for (; i + 3u <= n; i += 4u) { /* whole words: buf[i..i+3] */
+        uint32_t w;
+        uint32_t z;
+        memcpy(&w, buf + i, sizeof w);
+        z = zero_flags(w);
+        if (z != 0u) {
+            code_pos = code_zeros(buf, i, z, code_pos);
         }
+    }
+    for (; i <= n; i++) {
         if (buf[i] == 0) {
             buf[code_pos] = (uint8_t)(i - code_pos);
             code_pos = i;
         }
-        i++;
     }
     buf[code_pos] = (uint8_t)(n + 1u - code_pos);
     return n + 1u;
