@@ -56,6 +56,18 @@ def c_byte_order() -> list[str]:
          "}"]
 
 
+def c_finite() -> list[str]:
+    """isfinite() of a float from its bits (exponent not all ones): integer instructions, where the VFP compare and
+    the FPSCR read it compiles to cost an emulator a helper call each."""
+    return ["/* Finite: the exponent bits are not all ones (not an infinity, not a NaN), as isfinite(). */",
+            "static int f32_finite(float f)",
+            "{",
+            "    uint32_t u;",
+            "    memcpy(&u, &f, sizeof u);",
+            "    return (u & 0x7F800000u) != 0x7F800000u;",
+            "}", ""]
+
+
 def c_crc32c() -> list[str]:
     """The CRC-32C nibble table (64 bytes, const: in flash), the byte table built from it in RAM on first use,
     and the word-at-a-time function over the byte table."""

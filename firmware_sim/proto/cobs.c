@@ -2,6 +2,8 @@
 
 #include <string.h>
 
+#include "zero_bytes.h"
+
 size_t cobs_encode(const uint8_t *src, size_t n, uint8_t *dst)
 {
     size_t code_pos = 0;
@@ -54,20 +56,13 @@ long cobs_decode(const uint8_t *src, size_t n, uint8_t *dst, size_t cap)
     return (long)out;
 }
 
-/* The zero-byte test of 4 bytes (little-endian word w): bit 7 of every byte that is 0x00 set, and of no byte below
- * the first zero; a byte above a zero may be flagged falsely (a borrow), so those are checked before use. */
-static uint32_t zero_flags(uint32_t w)
-{
-    return (w - 0x01010101u) & ~w & 0x80808080u;
-}
-
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__ && defined(__GNUC__)
+#if UWB_ZERO_BYTES_LE
 /* Every 0x00 of the 4 bytes at buf[i..i+3] (flags z != 0) in turn, straight from the flags: the index of the
  * last one (the next code byte's position). */
 static size_t code_zeros(uint8_t *buf, size_t i, uint32_t z, size_t code_pos)
 {
     do {
-        const size_t at = i + ((size_t)__builtin_ctz(z) >> 3); /* rbit + clz on the Cortex-M4 */
+        const size_t at = i + lowest_flag_byte(z);
         if (buf[at] == 0) {
             buf[code_pos] = (uint8_t)(at - code_pos);
             code_pos = at;
@@ -99,7 +94,7 @@ size_t cobs_encode_inplace(uint8_t *buf, size_t n)
         uint32_t w;
         uint32_t z;
         memcpy(&w, buf + i, sizeof w);
-        z = zero_flags(w);
+        z = zero_flags(w); /* exact for "no zero": any flag then means some 0x00 */
         if (z != 0u) {
             code_pos = code_zeros(buf, i, z, code_pos);
         }
