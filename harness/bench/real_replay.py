@@ -15,7 +15,7 @@ Each timed replay runs N times (default 3; the machine may be shared): the table
 range. Figures: flight seconds over wall seconds (x real time) per target, the link traffic the replay needs
 per flight second (the bytes `uwb-hil run` writes: every IMU sample and UWB measurement as a frame) and the bytes
 per wall second each link reached. For the semihosting replays also QEMU's own CPU time (user + system, from
-/proc, written to its log at the end of input), the guest's executed instructions (the -icount replay: the
+/proc, written to its log once started and at the end of input: the difference, its start-up left out), the guest's executed instructions (the -icount replay: the
 count the guest prints at the end, in QEMU's log) per flight second, and the emulator's speed on this firmware:
 guest instructions per second of QEMU's CPU time (independent of what else loads the machine), hence the x
 real time QEMU alone could reach. The replays' flight RMSE must agree (same core).
@@ -43,7 +43,8 @@ TARGETS = (("host", ("--target", "host")), ("qemu usart", ("--target", "qemu", "
 #: the replay whose guest prints its executed instructions (TIM2 under -icount shift=0)
 COUNT_TARGET = ("qemu semihosting -icount", SEMIHOST)
 TICKS_RE = re.compile(r"uwb-fw-semihost: link closed after (\d+) ticks")
-CPU_RE = re.compile(r"harness: QEMU CPU time ([0-9.]+) s")
+CPU_RE = re.compile(r"harness: QEMU CPU time ([0-9.]+) s at the end of input")
+START_CPU_RE = re.compile(r"harness: QEMU CPU time ([0-9.]+) s at start")
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,8 @@ class ReplayFigure:
     link_bytes_per_wall_s: float
     flight_rmse_m: float
     guest_instructions: int | None = None     # semihosting: executed by the guest (-icount), from QEMU's log
-    qemu_cpu_s: float | None = None           # semihosting: QEMU's CPU time (user + system) for the replay
+    qemu_cpu_s: float | None = None           # semihosting: QEMU's CPU time (user + system) for the replay (from
+                                              # its start-up's end to the end of input)
 
     @property
     def guest_mips_per_cpu_s(self) -> float | None:
@@ -87,11 +89,12 @@ def replay(recording: Path, target: str, device_args: tuple[str, ...], n_bytes: 
     if out is None or "wall_s" not in out:
         raise RuntimeError(f"{target} replay of {recording.name} failed (exit {code}): {reason}")
     wall = float(out["wall_s"])
-    ticks, cpu = TICKS_RE.search(log), CPU_RE.search(log)
+    ticks, cpu, start = TICKS_RE.search(log), CPU_RE.search(log), START_CPU_RE.search(log)
+    cpu_s = float(cpu.group(1)) - (float(start.group(1)) if start else 0.0) if cpu else None
     return ReplayFigure(target, float(out["sim_s"]), wall, float(out["realtime_factor"]), n_bytes,
                         n_bytes / wall if wall > 0 else float("nan"),
                         float(out["accuracy"]["phases"]["flight"]["rmse"]),
-                        int(ticks.group(1)) if (ticks and count) else None, float(cpu.group(1)) if cpu else None)
+                        int(ticks.group(1)) if (ticks and count) else None, cpu_s)
 
 
 def median_run(runs: list[ReplayFigure]) -> ReplayFigure:
