@@ -37,6 +37,10 @@ def add_device_options(p: argparse.ArgumentParser) -> None:
                    help="qemu only: the guest's link, the emulated USART (as a board's serial line; default) or "
                         "semihosting (the emulator build uwb-fw-semihost.elf moving whole blocks: the fastest "
                         "replays; docs/qemu.md)")
+    g.add_argument("--qemu-clock", choices=("icount", "host"), default="icount",
+                   help="qemu only: icount (-icount shift=0: every guest instruction is 1 ns of virtual time, the "
+                        "RESULT costs are exact instruction counts; default) or host (QEMU's virtual clock follows "
+                        "the host's: ~15 %% faster replays, costs in ns of that clock; docs/qemu.md \"Speed\")")
     g.add_argument("--timeout", type=options.timeout_s, default=5.0,
                    help="seconds of device silence before giving up (> 0)")
     g.add_argument("--log-dir", help="where device logs go")
@@ -88,7 +92,8 @@ def device_spec(args: argparse.Namespace) -> DeviceSpec:
                       firmware=Path(args.firmware) if args.firmware else None,
                       timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None,
                       flash_cmd=getattr(args, "flash_cmd", None) or None,
-                      qemu_link=getattr(args, "qemu_link", None) or "usart")
+                      qemu_link=getattr(args, "qemu_link", None) or "usart",
+                      qemu_icount=getattr(args, "qemu_clock", "icount") != "host")
 
 
 def log_to_stderr(name: str) -> None:

@@ -66,18 +66,24 @@ def crc32c_rows(rows: np.ndarray) -> np.ndarray:
 
 
 def cobs_encode_rows(body: np.ndarray) -> np.ndarray:
-    """COBS-encode rows shorter than 254 bytes: (n, L) -> (n, L + 1), no delimiter."""
+    """COBS-encode rows shorter than 254 bytes: (n, L) -> (n, L + 1), no delimiter. Row r's bytes plus a virtual
+    0x00 at column L, flattened: the zeros in order; each zero of the body becomes the distance to the next zero
+    (always in the same row: the virtual one ends it) and the code byte in front the column of the row's first
+    zero plus one. One pass over the zeros, whatever the rows hold."""
     n, length = body.shape
     if length >= 254:
         raise ValueError("row COBS encoder handles bodies below 254 bytes only")
-    cols = np.arange(length + 1, dtype=np.int32)
-    zero_at = np.where(np.concatenate([body == 0, np.ones((n, 1), bool)], axis=1), cols, length + 1)
-    # next zero at or after each column (the virtual zero at column L ends every row)
-    next_zero = np.minimum.accumulate(zero_at[:, ::-1], axis=1)[:, ::-1]
-    out = np.empty((n, length + 1), dtype=np.uint8)
-    out[:, 0] = next_zero[:, 0] + 1
-    replaced = (next_zero[:, 1:] - cols[:-1]).astype(np.uint8)
-    out[:, 1:] = np.where(body == 0, replaced, body)
+    width = length + 1
+    out = np.zeros((n, width), dtype=np.uint8)
+    out[:, 1:] = body
+    flat = out.reshape(-1)
+    # the encoded layout shifted by one: the body's column c sits at c + 1, the virtual zero at the next row's 0
+    zeros = np.flatnonzero(np.concatenate([flat[1:], np.zeros(1, np.uint8)]) == 0)
+    inner = zeros % width != length                  # zeros of a body (not the virtual ends of the rows)
+    at = zeros[:-1][inner[:-1]]
+    flat[at + 1] = (zeros[1:][inner[:-1]] - at).astype(np.uint8)
+    first = zeros[np.concatenate(([0], np.flatnonzero(~inner[:-1]) + 1))]
+    flat[np.arange(n) * width] = (first % width + 1).astype(np.uint8)
     return out
 
 

@@ -16,7 +16,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from protocol.gen_c_prelude import c_byte_order, c_crc32c
+from protocol.gen_c_prelude import c_byte_order, c_crc32c, c_finite
 from protocol.gen_config import gen_c_config_header, gen_c_config_msg, gen_c_config_source, gen_python_config
 from protocol.gen_kinds import gen_c_meas_header, gen_c_meas_source, gen_c_mm_table
 from protocol.spec import CRC_SIZE, HEADER_SIZE, SCALARS, FieldSpec, MessageSpec, ProtocolSpec, load_spec
@@ -163,7 +163,7 @@ def gen_c_source(spec: ProtocolSpec) -> str:
         floats = [f for f in m.fields if f.wire == "f32"]
         if not floats:
             continue
-        cond = " && ".join(f"isfinite(msg->u.{m.c_name}.{f.name})" for f in floats)
+        cond = " && ".join(f"f32_finite(msg->u.{m.c_name}.{f.name})" for f in floats)
         o.append(f"    case UWB_MSG_{m.name}:")
         o.append(f"        return {cond};")
     o += ["    default: return 1;", "    }", "}", ""]
@@ -173,7 +173,7 @@ def gen_c_source(spec: ProtocolSpec) -> str:
 def _c_prelude(spec: ProtocolSpec) -> list[str]:
     """Byte-order helpers, the CRC-32C table and function, uwb_payload_len."""
     o = [f"/* {BANNER} */", "#include <math.h>", "#include <string.h>", "", '#include "uwb_msgs.h"', ""]
-    o += c_byte_order() + [""] + c_crc32c()
+    o += c_byte_order() + [""] + c_finite() + c_crc32c()
     o += ["int uwb_payload_len(uint8_t type)", "{", "    switch (type) {"]
     for m in spec.messages:
         o.append(f"    case UWB_MSG_{m.name}: return (int)UWB_MSG_{m.name}_LEN;")

@@ -2,6 +2,8 @@
 
 #include <string.h>
 
+#include "zero_bytes.h"
+
 void frame_rx_init(frame_rx_t *rx)
 {
     rx->len = 0;
@@ -78,7 +80,7 @@ void frame_rx_feed(frame_rx_t *rx, const uint8_t *data, size_t n, frame_rx_sink_
 {
     const uint8_t *end = data + n;
     while (data != end) {
-        const uint8_t *delim = memchr(data, 0, (size_t)(end - data));
+        const uint8_t *delim = find_zero(data, end);
         size_t run;
         if (delim == NULL) {
             keep(rx, data, (size_t)(end - data));

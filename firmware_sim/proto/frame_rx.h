@@ -1,7 +1,7 @@
 /* Byte-stream frame receiver: collects bytes up to each 0x00 delimiter, never overflows.
  * Two interfaces over the same state: frame_rx_push() takes one byte and hands back the COBS-encoded
- * frame; frame_rx_feed() takes whatever block the link has, finds the delimiters with memchr and
- * hands each frame COBS-decoded to a sink (what the firmware uses: a few hundred instructions less per
+ * frame; frame_rx_feed() takes whatever block the link has, finds the delimiters a word at a time
+ * (zero_bytes.h) and hands each frame COBS-decoded to a sink (what the firmware uses: a few hundred instructions less per
  * frame than a call and a state-machine step per byte). Both report the same frames, oversize frames
  * and (push + cobs_decode) undecodable frames for every byte sequence, however it is cut into blocks
  * (fuzz/fuzz_frame_rx.c checks this). */

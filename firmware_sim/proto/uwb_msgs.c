@@ -41,33 +41,55 @@ static void put_f32(uint8_t *p, float f)
     put_u32(p, u);
 }
 
+/* Finite: the exponent bits are not all ones (not an infinity, not a NaN), as isfinite(). */
+static int f32_finite(float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return (u & 0x7F800000u) != 0x7F800000u;
+}
+
 /* Reflected Castagnoli polynomial 0x82F63B78, four bits per step: entry n is the CRC register after
- * shifting nibble n through four steps (a 64-byte table instead of 1 KiB; const: lives in flash). */
+ * shifting nibble n through four steps (64 bytes of flash instead of a 1 KiB const table). */
 static const uint32_t crc32c_nibble[16] = {
     0x00000000u, 0x105EC76Fu, 0x20BD8EDEu, 0x30E349B1u, 0x417B1DBCu, 0x5125DAD3u, 0x61C69362u, 0x7198540Du,
     0x82F63B78u, 0x92A8FC17u, 0xA24BB5A6u, 0xB21572C9u, 0xC38D26C4u, 0xD3D3E1ABu, 0xE330A81Au, 0xF36E6F75u,
 };
 
-/* A little-endian word at a time (reflected CRC: XOR it in, then eight nibble steps), the tail bytewise. */
+/* Eight bits per step: entry n is two nibble steps of n. Built in RAM (1 KiB of .bss, no flash) on the first
+ * CRC: half the instructions of nibble steps on every frame received and sent. Entry 1 is never 0 once
+ * built; building it again (an interrupted first build) writes the same values. */
+static uint32_t crc32c_byte[256];
+
+static void crc32c_build(void)
+{
+    uint32_t b;
+    for (b = 0; b < 256u; b++) {
+        uint32_t c = b;
+        c = crc32c_nibble[c & 0xFu] ^ (c >> 4);
+        c = crc32c_nibble[c & 0xFu] ^ (c >> 4);
+        crc32c_byte[b] = c;
+    }
+}
+
+/* A little-endian word at a time (reflected CRC: XOR it in, then four byte steps), the tail bytewise. */
 uint32_t uwb_crc32c(const uint8_t *data, size_t n)
 {
     uint32_t crc = 0xFFFFFFFFu;
     size_t i = 0;
+    if (crc32c_byte[1] == 0u) {
+        crc32c_build();
+    }
     for (; i + 4u <= n; i += 4u) {
         crc ^= get_u32(data + i);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
     }
     for (; i < n; i++) {
         crc ^= data[i];
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
-        crc = crc32c_nibble[crc & 0xFu] ^ (crc >> 4);
+        crc = crc32c_byte[crc & 0xFFu] ^ (crc >> 8);
     }
     return crc ^ 0xFFFFFFFFu;
 }
@@ -706,29 +728,29 @@ int uwb_msg_finite(const uwb_msg_t *msg)
 {
     switch (msg->type) {
     case UWB_MSG_CONFIG:
-        return isfinite(msg->u.config.std_twr) && isfinite(msg->u.config.std_tdoa) && isfinite(msg->u.config.a_max_twr) && isfinite(msg->u.config.a_max_tdoa) && isfinite(msg->u.config.gate_dt_min) && isfinite(msg->u.config.chi2_twr) && isfinite(msg->u.config.chi2_tdoa) && isfinite(msg->u.config.proc_acc_xy) && isfinite(msg->u.config.proc_acc_z) && isfinite(msg->u.config.proc_cv_acc) && isfinite(msg->u.config.init_x) && isfinite(msg->u.config.init_y) && isfinite(msg->u.config.init_z) && isfinite(msg->u.config.init_std_xy) && isfinite(msg->u.config.init_std_z) && isfinite(msg->u.config.nn_min_z) && isfinite(msg->u.config.sup_margin) && isfinite(msg->u.config.sup_max_speed) && isfinite(msg->u.config.sup_max_var) && isfinite(msg->u.config.lever_x) && isfinite(msg->u.config.lever_y) && isfinite(msg->u.config.lever_z) && isfinite(msg->u.config.std_tof) && isfinite(msg->u.config.tof_x) && isfinite(msg->u.config.tof_y) && isfinite(msg->u.config.tof_z);
+        return f32_finite(msg->u.config.std_twr) && f32_finite(msg->u.config.std_tdoa) && f32_finite(msg->u.config.a_max_twr) && f32_finite(msg->u.config.a_max_tdoa) && f32_finite(msg->u.config.gate_dt_min) && f32_finite(msg->u.config.chi2_twr) && f32_finite(msg->u.config.chi2_tdoa) && f32_finite(msg->u.config.proc_acc_xy) && f32_finite(msg->u.config.proc_acc_z) && f32_finite(msg->u.config.proc_cv_acc) && f32_finite(msg->u.config.init_x) && f32_finite(msg->u.config.init_y) && f32_finite(msg->u.config.init_z) && f32_finite(msg->u.config.init_std_xy) && f32_finite(msg->u.config.init_std_z) && f32_finite(msg->u.config.nn_min_z) && f32_finite(msg->u.config.sup_margin) && f32_finite(msg->u.config.sup_max_speed) && f32_finite(msg->u.config.sup_max_var) && f32_finite(msg->u.config.lever_x) && f32_finite(msg->u.config.lever_y) && f32_finite(msg->u.config.lever_z) && f32_finite(msg->u.config.std_tof) && f32_finite(msg->u.config.tof_x) && f32_finite(msg->u.config.tof_y) && f32_finite(msg->u.config.tof_z);
     case UWB_MSG_ANCHOR:
-        return isfinite(msg->u.anchor.x) && isfinite(msg->u.anchor.y) && isfinite(msg->u.anchor.z);
+        return f32_finite(msg->u.anchor.x) && f32_finite(msg->u.anchor.y) && f32_finite(msg->u.anchor.z);
     case UWB_MSG_IMU:
-        return isfinite(msg->u.imu.ax) && isfinite(msg->u.imu.ay) && isfinite(msg->u.imu.az) && isfinite(msg->u.imu.gx) && isfinite(msg->u.imu.gy) && isfinite(msg->u.imu.gz);
+        return f32_finite(msg->u.imu.ax) && f32_finite(msg->u.imu.ay) && f32_finite(msg->u.imu.az) && f32_finite(msg->u.imu.gx) && f32_finite(msg->u.imu.gy) && f32_finite(msg->u.imu.gz);
     case UWB_MSG_TWR:
-        return isfinite(msg->u.twr.range);
+        return f32_finite(msg->u.twr.range);
     case UWB_MSG_TDOA:
-        return isfinite(msg->u.tdoa.diff);
+        return f32_finite(msg->u.tdoa.diff);
     case UWB_MSG_TWR_ARM:
-        return isfinite(msg->u.twr_arm.range);
+        return f32_finite(msg->u.twr_arm.range);
     case UWB_MSG_TOF:
-        return isfinite(msg->u.tof.range);
+        return f32_finite(msg->u.tof.range);
     case UWB_MSG_HEIGHT:
-        return isfinite(msg->u.height.z) && isfinite(msg->u.height.std);
+        return f32_finite(msg->u.height.z) && f32_finite(msg->u.height.std);
     case UWB_MSG_SETPOINT:
-        return isfinite(msg->u.setpoint.x) && isfinite(msg->u.setpoint.y) && isfinite(msg->u.setpoint.z) && isfinite(msg->u.setpoint.vx) && isfinite(msg->u.setpoint.vy) && isfinite(msg->u.setpoint.vz) && isfinite(msg->u.setpoint.ax) && isfinite(msg->u.setpoint.ay) && isfinite(msg->u.setpoint.az) && isfinite(msg->u.setpoint.yaw);
+        return f32_finite(msg->u.setpoint.x) && f32_finite(msg->u.setpoint.y) && f32_finite(msg->u.setpoint.z) && f32_finite(msg->u.setpoint.vx) && f32_finite(msg->u.setpoint.vy) && f32_finite(msg->u.setpoint.vz) && f32_finite(msg->u.setpoint.ax) && f32_finite(msg->u.setpoint.ay) && f32_finite(msg->u.setpoint.az) && f32_finite(msg->u.setpoint.yaw);
     case UWB_MSG_RESULT:
-        return isfinite(msg->u.result.innovation) && isfinite(msg->u.result.innovation_var) && isfinite(msg->u.result.bias) && isfinite(msg->u.result.d_max) && isfinite(msg->u.result.gain_x) && isfinite(msg->u.result.gain_y) && isfinite(msg->u.result.gain_z) && isfinite(msg->u.result.px) && isfinite(msg->u.result.py) && isfinite(msg->u.result.pz) && isfinite(msg->u.result.vx) && isfinite(msg->u.result.vy) && isfinite(msg->u.result.vz) && isfinite(msg->u.result.qw) && isfinite(msg->u.result.qx) && isfinite(msg->u.result.qy) && isfinite(msg->u.result.qz) && isfinite(msg->u.result.var_x) && isfinite(msg->u.result.var_y) && isfinite(msg->u.result.var_z) && isfinite(msg->u.result.var_vx) && isfinite(msg->u.result.var_vy) && isfinite(msg->u.result.var_vz) && isfinite(msg->u.result.var_d0) && isfinite(msg->u.result.var_d1) && isfinite(msg->u.result.var_d2);
+        return f32_finite(msg->u.result.innovation) && f32_finite(msg->u.result.innovation_var) && f32_finite(msg->u.result.bias) && f32_finite(msg->u.result.d_max) && f32_finite(msg->u.result.gain_x) && f32_finite(msg->u.result.gain_y) && f32_finite(msg->u.result.gain_z) && f32_finite(msg->u.result.px) && f32_finite(msg->u.result.py) && f32_finite(msg->u.result.pz) && f32_finite(msg->u.result.vx) && f32_finite(msg->u.result.vy) && f32_finite(msg->u.result.vz) && f32_finite(msg->u.result.qw) && f32_finite(msg->u.result.qx) && f32_finite(msg->u.result.qy) && f32_finite(msg->u.result.qz) && f32_finite(msg->u.result.var_x) && f32_finite(msg->u.result.var_y) && f32_finite(msg->u.result.var_z) && f32_finite(msg->u.result.var_vx) && f32_finite(msg->u.result.var_vy) && f32_finite(msg->u.result.var_vz) && f32_finite(msg->u.result.var_d0) && f32_finite(msg->u.result.var_d1) && f32_finite(msg->u.result.var_d2);
     case UWB_MSG_CLOCK:
-        return isfinite(msg->u.clock.skew_ppm);
+        return f32_finite(msg->u.clock.skew_ppm);
     case UWB_MSG_CONTROL:
-        return isfinite(msg->u.control.thrust) && isfinite(msg->u.control.rate_x) && isfinite(msg->u.control.rate_y) && isfinite(msg->u.control.rate_z) && isfinite(msg->u.control.px) && isfinite(msg->u.control.py) && isfinite(msg->u.control.pz) && isfinite(msg->u.control.vx) && isfinite(msg->u.control.vy) && isfinite(msg->u.control.vz) && isfinite(msg->u.control.qw) && isfinite(msg->u.control.qx) && isfinite(msg->u.control.qy) && isfinite(msg->u.control.qz);
+        return f32_finite(msg->u.control.thrust) && f32_finite(msg->u.control.rate_x) && f32_finite(msg->u.control.rate_y) && f32_finite(msg->u.control.rate_z) && f32_finite(msg->u.control.px) && f32_finite(msg->u.control.py) && f32_finite(msg->u.control.pz) && f32_finite(msg->u.control.vx) && f32_finite(msg->u.control.vy) && f32_finite(msg->u.control.vz) && f32_finite(msg->u.control.qw) && f32_finite(msg->u.control.qx) && f32_finite(msg->u.control.qy) && f32_finite(msg->u.control.qz);
     default: return 1;
     }
 }

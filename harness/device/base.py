@@ -125,7 +125,7 @@ class Device(ABC):
         except Exception:  # noqa: BLE001 - not started: no link to describe
             pass
         if self._channel is not None and self._channel.identity is not None:
-            out.update(self._channel.identity.describe())
+            out.update(self.identity.describe())
         return out
 
     def connection(self) -> dict[str, Any]:

@@ -23,15 +23,18 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 from harness.device.base import Device
+from harness.device.identity import DeviceIdentity
 from harness.device.process_log import exit_error, new_log_path, remove_tmp_dir
 from harness.device.qemu_process import QemuError, QemuOptions, QemuProcess
 from harness.errors import DeviceDied, DeviceError
 from harness.link.base import Link
 from harness.link.qemu_link import QemuPtyLink
 from harness.paths import DEFAULT_STM32_ELF
+from protocol.messages import CostUnit
 
 DEFAULT_ELF = DEFAULT_STM32_ELF
 #: a symbol only the semihosting link's build defines (stm32/semihost_link.c)
@@ -85,6 +88,15 @@ class QemuDevice(Device):
         assert proc.serial_name is not None
         self._proc = proc
         self._link = QemuPtyLink(proc.fd, proc.serial_name, write_fd=proc.write_fd)
+
+    @property
+    def identity(self) -> DeviceIdentity:
+        """Without -icount TIM2 counts QEMU's virtual ns, which then follow the host's clock: the costs are
+        nanoseconds, whatever unit the firmware (which cannot tell) names in its HELLO_REPLY."""
+        identity = super().identity
+        if self.options.icount:
+            return identity
+        return replace(identity, cost_unit=int(CostUnit.NANOSECONDS))
 
     def _check_link_build(self) -> None:
         problem = link_build_mismatch(self.elf, self.options.link)

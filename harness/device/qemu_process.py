@@ -120,6 +120,7 @@ class QemuProcess:
             if self.options.link == "semihosting":
                 self._mon = self._connect_monitor(mon_path)
                 self.monitor("cont")    # the FIFOs hold what the host writes before the guest opens them
+                self._log_cpu_time(self.proc.pid, "at start")
                 return
             if self.options.serial == "socket":
                 self.fd = self._connect_serial(serial_path)
@@ -154,7 +155,7 @@ class QemuProcess:
         (SYS_EXIT). Its output is drained meanwhile (a full FIFO would block it), bounded by stop_timeout_s.
         While the guest waits in SYS_READ QEMU holds its big lock and its monitor does not answer, so
         "quit" would not work before this."""
-        self._log_cpu_time(proc.pid)
+        self._log_cpu_time(proc.pid, "at the end of input")
         os.close(self.write_fd)
         self.write_fd = -1
         deadline = time.monotonic() + self.options.stop_timeout_s
@@ -169,7 +170,7 @@ class QemuProcess:
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
 
-    def _log_cpu_time(self, pid: int) -> None:
+    def _log_cpu_time(self, pid: int, when: str) -> None:
         """The CPU seconds QEMU has used so far (user + system, /proc/PID/stat), as one line of its log: with the
         guest's instruction count, which it prints at the end, the emulator's speed on this firmware, whatever
         else loads the machine (harness/bench/real_replay.py)."""
@@ -179,7 +180,7 @@ class QemuProcess:
         except (OSError, ValueError, IndexError):
             return
         if self._log is not None:
-            self._log.write(f"harness: QEMU CPU time {cpu_s:.3f} s at the end of input\n".encode())
+            self._log.write(f"harness: QEMU CPU time {cpu_s:.3f} s {when}\n".encode())
             self._log.flush()
 
     def stop(self) -> None:

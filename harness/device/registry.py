@@ -45,6 +45,8 @@ class DeviceSpec:
     flash_cmd: str | None = None     # run (shell) before the device starts, e.g. to flash the board
     flash_timeout_s: float = 600.0
     qemu_link: str = "usart"         # qemu only: "usart" or "semihosting" (QEMU_LINKS)
+    qemu_icount: bool = True         # qemu only: -icount shift=0 (costs in instructions); False: QEMU's clock
+                                     # follows the host's (faster; costs in virtual ns, docs/qemu.md "Speed")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "target", canonical_target(self.target))
@@ -85,7 +87,7 @@ def _qemu(spec: DeviceSpec, firmware: Path) -> Device:
     problem = link_build_mismatch(firmware, spec.qemu_link) if shutil.which("arm-none-eabi-nm") else None
     if problem:
         raise UsageError(problem)    # the wrong build for the link chosen: an input error, nothing started
-    return QemuDevice(elf=firmware, log_dir=spec.log_dir, options=QemuOptions(link=spec.qemu_link))
+    return QemuDevice(elf=firmware, log_dir=spec.log_dir, options=QemuOptions(link=spec.qemu_link, icount=spec.qemu_icount))
 
 
 KINDS: dict[str, DeviceKind] = {
@@ -129,6 +131,8 @@ def create_device(spec: DeviceSpec) -> Device:
         raise UsageError(f"unknown QEMU link {spec.qemu_link!r}; choose one of {', '.join(QEMU_LINKS)}")
     if spec.qemu_link != "usart" and kind.name != "qemu":
         raise UsageError(f"the {spec.qemu_link} link is QEMU's: use it with target qemu, not {kind.name}")
+    if not spec.qemu_icount and kind.name != "qemu":
+        raise UsageError(f"the QEMU clock option is QEMU's: use it with target qemu, not {kind.name}")
     firmware = spec.firmware_path()
     if kind.name == "host" and spec.firmware is None and not firmware.is_file():
         # no `make firmware` here (an installed package): the build from the shipped sources, cached per user

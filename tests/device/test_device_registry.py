@@ -5,12 +5,13 @@ kind or a missing firmware/port is a clear input error before anything starts.""
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from harness.device.host import HostDevice
-from harness.device.qemu import QemuDevice
+from harness.device.qemu import QemuDevice, QemuOptions
 from harness.device.registry import (KINDS, TARGET_CHOICES, TARGETS, DeviceSpec, create_device, default_firmware,
                                      open_device)
 from harness.device.serial_device import SerialDevice
@@ -55,6 +56,20 @@ def test_emulator_is_the_old_name_of_the_host_build(tmp_path: Path) -> None:
     args = build_parser().parse_args(["run", "--target", "emulator"])
     assert device_spec(args).resolved_target() == "host"
     assert "emulator" in TARGET_CHOICES and "emulator" not in TARGETS
+
+
+def test_qemu_clock_option(tmp_path: Path) -> None:
+    """--qemu-clock: icount (default, -icount shift=0: costs are instruction counts) or host (no -icount)."""
+    from harness.cli import build_parser
+    from harness.device_args import device_spec
+    parse = build_parser().parse_args
+    assert device_spec(parse(["run", "--target", "qemu"])).qemu_icount
+    spec = device_spec(parse(["run", "--target", "qemu", "--qemu-clock", "host"]))
+    assert not spec.qemu_icount
+    qemu = create_device(replace(spec, firmware=_image(tmp_path, "uwb-fw.elf")))
+    assert isinstance(qemu, QemuDevice) and not qemu.options.icount
+    cmd = qemu.options.command(Path("fw.elf"), tmp_path / "mon", tmp_path / "ser")
+    assert "-icount" not in cmd and "-icount" in QemuOptions().command(Path("fw.elf"), tmp_path / "mon", tmp_path / "s")
 
 
 def test_bad_choices_are_input_errors_naming_the_fix(tmp_path: Path) -> None:

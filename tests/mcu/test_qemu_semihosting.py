@@ -17,6 +17,7 @@ from harness.device.qemu import QemuDevice, QemuOptions
 from harness.device.registry import DeviceSpec, create_device, open_device
 from harness.errors import DeviceError, UsageError
 from harness.paths import shared_data_dir
+from protocol.messages import CostUnit
 
 FLIGHT = shared_data_dir() / "cf_usd" / "0425" / "0425-traj3"
 # 2.5 s of the flight phase (~1,000 TDoA, ~2,400 IMU frames): ~8 s over the USART, ~0.1 s by semihosting
@@ -30,14 +31,16 @@ def builds(arm_tools: None) -> Path:
     return build_stm32(("fw", "semihost"))
 
 
-def _replay(elf: Path, link: str, flight: Any, log_dir: Path) -> tuple[Any, Any]:
+def _replay(elf: Path, link: str, flight: Any, log_dir: Path, icount: bool = True) -> tuple[Any, Any]:
     from harness.flight.run_config import run_estimator_config
     from harness.report.metrics import accuracy_summary
     from harness.stream.streamer import Pacing, Streamer
     cfg = run_estimator_config(flight, "outlier")
-    with open_device(DeviceSpec(target="qemu", firmware=elf, qemu_link=link, log_dir=log_dir, timeout_s=20.0)) as dev:
+    spec = DeviceSpec(target="qemu", firmware=elf, qemu_link=link, log_dir=log_dir, timeout_s=20.0, qemu_icount=icount)
+    with open_device(spec) as dev:
         run = Streamer(dev, timeout_s=60.0).run(flight, cfg, Pacing("windowed", 64))
         assert dev.link.info()["transport"].startswith("ARM semihosting" if link == "semihosting" else "QEMU -serial")
+        assert dev.identity.cost_unit == (CostUnit.INSTRUCTIONS if icount else CostUnit.NANOSECONDS)
     return run, accuracy_summary(run, flight)
 
 
@@ -68,6 +71,25 @@ def test_semihosting_replay_gives_the_usart_replays_results(builds: Path, tmp_pa
     assert 3e6 < per_flight_s < 15e6 and 0 < float(cpu.group(1)) < 30
 
 
+def test_host_clock_replay_gives_the_same_estimates(builds: Path, tmp_path: Path) -> None:
+    """--qemu-clock host (no -icount, the bench's timed replay): the same estimates as under -icount; only the
+    cost fields change meaning (virtual ns that follow the host's clock, reported as NANOSECONDS)."""
+    if not FLIGHT.exists():
+        pytest.skip(f"shared data absent ({FLIGHT})")
+    from harness.flight.loaders import load_recording, time_slice
+    flight = time_slice(load_recording(FLIGHT), *SLICE_S)
+    exact, acc_exact = _replay(builds / "uwb-fw-semihost.elf", "semihosting", flight, tmp_path / "icount")
+    fast, acc_fast = _replay(builds / "uwb-fw-semihost.elf", "semihosting", flight, tmp_path / "host", icount=False)
+    a, b = exact.results, fast.results
+    assert exact.n_received == fast.n_received == len(flight.uwb)
+    assert np.array_equal(a["status"], b["status"])
+    for f in ("px", "py", "pz", "qw", "var_x", "innovation"):
+        assert np.array_equal(a[f], b[f]), f        # the same guest code on the same input: the same floats
+    assert acc_fast.rmse == acc_exact.rmse
+    log = "".join(p.read_text() for p in (tmp_path / "host").glob("qemu-*.log"))
+    assert "-icount" not in log.splitlines()[0] and "-icount" in next((tmp_path / "icount").glob("qemu-*.log")).read_text()
+
+
 def test_shipped_image_has_no_semihosting_and_the_links_refuse_the_wrong_build(builds: Path, tmp_path: Path) -> None:
     lst = subprocess.run(["arm-none-eabi-objdump", "-d", str(builds / "uwb-fw.elf")], capture_output=True,
                          text=True, timeout=60, check=True).stdout
@@ -85,3 +107,5 @@ def test_shipped_image_has_no_semihosting_and_the_links_refuse_the_wrong_build(b
     with pytest.raises(UsageError, match="semihosting link is QEMU's: use it with target qemu, not host"):
         create_device(DeviceSpec(qemu_link="semihosting"))
     assert DeviceSpec(target="qemu", qemu_link="semihosting").firmware_path() == builds / "uwb-fw-semihost.elf"
+    with pytest.raises(UsageError, match="QEMU clock option is QEMU's: use it with target qemu, not host"):
+        create_device(DeviceSpec(qemu_icount=False))
