@@ -97,6 +97,10 @@ float bias_nn_ood_excess(const bias_nn_t *net, const float *features)
     int i;
     const int n_in = net->n_in <= BIAS_NN_MAX_IN ? (int)net->n_in : BIAS_NN_MAX_IN;
     for (i = 0; i < n_in; i++) {
+        /* Inside [in_min, in_max] (the usual case) neither excess below can be > 0: no divisions. */
+        if (features[i] >= net->in_min[i] && features[i] <= net->in_max[i]) {
+            continue;
+        }
         const float width = net->in_max[i] - net->in_min[i];
         const float below = (net->in_min[i] - features[i]) / width;
         const float above = (features[i] - net->in_max[i]) / width;

@@ -101,15 +101,18 @@ static inline int ekf_var_in_range(float d)
     return fabsf(d) <= EKF_P_MAX; /* 0 also for NaN and -inf */
 }
 
+#if defined(__GNUC__)
+#define EKF_COLD __attribute__((noinline, cold))
+#else
+#define EKF_COLD
+#endif
+
+/* An off-diagonal entry beyond the bound: +-EKF_P_MAX, NaN -> 0 (out of line: the rare case). */
+EKF_COLD float ekf_clamp_cov_out(float v);
+
 static inline float ekf_clamp_cov(float v)
 {
-    if (fabsf(v) <= EKF_P_MAX) { /* the usual case: one test */
-        return v;
-    }
-    if (v != v) {
-        return 0.0f;
-    }
-    return v > 0.0f ? EKF_P_MAX : -EKF_P_MAX;
+    return fabsf(v) <= EKF_P_MAX ? v : ekf_clamp_cov_out(v); /* the usual case: one test */
 }
 
 /* 1 if the state, q and the diagonal of P are all finite. */

@@ -13,6 +13,7 @@
 
 
 #include "ekf_quat.h"
+#include "time_ms.h"
 
 /* Gyro white-noise density [rad/s/sqrt(Hz)] used as attitude process noise. Small: the attitude is
  * propagated by the gyro, only weakly observed through UWB, and must not random-walk away. */
@@ -223,7 +224,7 @@ int ekf_imu_sample(ekf_t *ekf, const ekf_noise_t *noise, uint64_t t_us, const fl
     ekf->imu_count++;
     if (t_us >= ekf->t_us && t_us - ekf->t_us >= EKF_PREDICT_INTERVAL_US) {
         const float inv = 1.0f / (float)ekf->imu_count;
-        const float dt = (float)(t_us - ekf->t_us) * 1e-6f;
+        const float dt = uwb_u64_to_float(t_us - ekf->t_us) * 1e-6f;
         float a[3], g[3];
         for (i = 0; i < 3; i++) {
             a[i] = ekf->acc_sum[i] * inv;

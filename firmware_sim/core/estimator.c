@@ -10,6 +10,7 @@
 #include "platform.h"
 #include "robust_update.h"
 #include "supervisor.h"
+#include "time_ms.h"
 
 /* The gate and the pair monitor hold per-anchor state for every anchor the estimator holds. */
 typedef char est_check_anchors[(GATE_KIN_ANCHORS == ESTIMATOR_MAX_ANCHORS && NN_MON_ANCHORS == ESTIMATOR_MAX_ANCHORS &&
@@ -133,7 +134,7 @@ static void predict_cv_to(estimator_t *est, uint64_t t_us)
         ekf->has_time = 1;
     } else if (t_us > ekf->t_us) {
         c0 = platform_cost_now();
-        ekf_predict_cv(ekf, est->cfg.proc_cv_acc, (float)(t_us - ekf->t_us) * 1e-6f);
+        ekf_predict_cv(ekf, est->cfg.proc_cv_acc, uwb_u64_to_float(t_us - ekf->t_us) * 1e-6f);
         ekf->t_us = t_us;
         est->predictions++;
         estimator_supervise(est);
