@@ -93,6 +93,17 @@ static inline float dot6(float s, const float *a, const float *p, int st)
     return dot3(dot3(s, a, p, st), a + 3, p + 3 * st, st);
 }
 
+/* The same sums from 0 without the leading 0 + (the same number, up to the sign of an all-zero sum). */
+static inline float dot3z(const float *a, const float *p, int st)
+{
+    return a[0] * p[0] + a[1] * p[st] + a[2] * p[2 * st];
+}
+
+static inline float dot6z(const float *a, const float *p, int st)
+{
+    return dot3(dot3z(a, p, st), a + 3, p + 3 * st, st);
+}
+
 /* A P over A's nonzero columns only: a position row is P's row plus columns 3..8 (velocity and attitude),
  * a velocity row columns 3..8, an attitude row columns 6..8: 351 multiply-adds instead of 729, each row
  * of A held in registers across the columns of P. The sums run in the order of the dense product (the
@@ -108,12 +119,12 @@ static void imu_ap(const float *P, const float A[EKF_N][EKF_N], float AP[EKF_N][
     }
     for (i = EKF_PX; i < EKF_D0; i++) {
         for (j = 0; j < EKF_N; j++) {
-            AP[i][j] = dot6(0.0f, &A[i][EKF_PX], &P[EKF_PX * EKF_N + j], EKF_N);
+            AP[i][j] = dot6z(&A[i][EKF_PX], &P[EKF_PX * EKF_N + j], EKF_N);
         }
     }
     for (i = EKF_D0; i < EKF_N; i++) {
         for (j = 0; j < EKF_N; j++) {
-            AP[i][j] = dot3(0.0f, &A[i][EKF_D0], &P[EKF_D0 * EKF_N + j], EKF_N);
+            AP[i][j] = dot3z(&A[i][EKF_D0], &P[EKF_D0 * EKF_N + j], EKF_N);
         }
     }
 }
@@ -134,12 +145,12 @@ static void imu_propagate_cov(ekf_t *ekf, const float A[EKF_N][EKF_N])
     }
     for (j = EKF_PX; j < EKF_D0; j++) {
         for (i = 0; i < EKF_N; i++) {
-            P[i * EKF_N + j] = dot6(0.0f, &A[j][EKF_PX], &AP[i][EKF_PX], 1);
+            P[i * EKF_N + j] = dot6z(&A[j][EKF_PX], &AP[i][EKF_PX], 1);
         }
     }
     for (j = EKF_D0; j < EKF_N; j++) {
         for (i = 0; i < EKF_N; i++) {
-            P[i * EKF_N + j] = dot3(0.0f, &A[j][EKF_D0], &AP[i][EKF_D0], 1);
+            P[i * EKF_N + j] = dot3z(&A[j][EKF_D0], &AP[i][EKF_D0], 1);
         }
     }
 }
@@ -148,17 +159,22 @@ static void imu_propagate_cov(ekf_t *ekf, const float A[EKF_N][EKF_N])
 static void imu_process_noise(ekf_t *ekf, const ekf_noise_t *noise, float dt)
 {
     const float (*R)[3] = (const float (*)[3])ekf->R;
-    const float dt2 = dt * dt;
-    float Sa[3];
+    const float dt2 = dt * dt, half_dt2 = dt2 * 0.5f; /* x dt2 0.5 = x half_dt2: the halving is exact */
+    float Sa[3], RS[3][3];
     int i, j;
     Sa[0] = noise->acc_xy * noise->acc_xy;
     Sa[1] = Sa[0];
     Sa[2] = noise->acc_z * noise->acc_z;
     for (i = 0; i < 3; i++) {
+        RS[i][0] = R[i][0] * Sa[0]; /* (R Sa)_ij, the first product of each term below */
+        RS[i][1] = R[i][1] * Sa[1];
+        RS[i][2] = R[i][2] * Sa[2];
+    }
+    for (i = 0; i < 3; i++) {
         for (j = 0; j < 3; j++) {
             /* (R Sa R^T)_ij and (R Sa)_ij */
-            float rsr = R[i][0] * Sa[0] * R[j][0] + R[i][1] * Sa[1] * R[j][1] + R[i][2] * Sa[2] * R[j][2];
-            float pv = R[i][j] * Sa[j] * dt2 * 0.5f;
+            float rsr = RS[i][0] * R[j][0] + RS[i][1] * R[j][1] + RS[i][2] * R[j][2];
+            float pv = RS[i][j] * half_dt2;
             ekf->P[i][j] += rsr * dt2 * dt * (1.0f / 3.0f);
             ekf->P[i][EKF_PX + j] += pv;
             ekf->P[EKF_PX + j][i] += pv;

@@ -216,7 +216,12 @@ static void begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t 
     const uint64_t t_ref = est->ekf.t_us;
     const int have_ref = est->ekf.has_time;
     float dt;
-    memset(out, 0, sizeof *out);
+    /* every field zeroed, field by field (GCC turns a struct clear into a memset call: ~120 instructions) */
+    out->status = 0;
+    out->flags = 0;
+    out->innovation = out->innovation_var = out->bias = out->d_max = 0.0f;
+    out->gain[0] = out->gain[1] = out->gain[2] = 0.0f;
+    out->cost_nn = out->cost_gates = out->cost_update = out->cost_predict = 0;
     predict_cv_to(est, t_us); /* its supervisor check still sees the previous measurement's time (gap) */
     est->t_uwb_us = t_us;
     est->has_uwb_time = 1;
