@@ -248,6 +248,17 @@ int ekf_is_finite(const ekf_t *ekf)
     return z == 0.0f;
 }
 
+int ekf_state_finite(const ekf_t *ekf)
+{
+    const float *x = ekf->x, *q = ekf->q;
+    float z = (q[0] - q[0]) + (q[1] - q[1]) + (q[2] - q[2]) + (q[3] - q[3]); /* as ekf_is_finite */
+    int i;
+    for (i = 0; i < EKF_N; i++) {
+        z += x[i] - x[i];
+    }
+    return z == 0.0f;
+}
+
 /* atan(t) for t in [0, 1]: t > tan(pi/12) is reduced by atan(t) = pi/6 + atan((t sqrt3 - 1) / (t + sqrt3)) to
  * |u| <= tan(pi/12), where the odd series to u^11 is within 1e-8 relative of atan (the next term). */
 static float atan_unit(float t)

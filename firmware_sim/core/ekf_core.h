@@ -117,6 +117,9 @@ static inline float ekf_clamp_cov(float v)
 
 /* 1 if the state, q and the diagonal of P are all finite. */
 int ekf_is_finite(const ekf_t *ekf);
+/* 1 if the state and q are finite: ekf_is_finite for a P the covariance clamp has left (its variances are then
+ * finite by construction: the supervisor's check after every prediction and update). */
+int ekf_state_finite(const ekf_t *ekf);
 
 void ekf_externalize(const ekf_t *ekf, ekf_state_t *out);
 

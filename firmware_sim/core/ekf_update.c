@@ -22,17 +22,17 @@ void ekf_scalar_prepare(const ekf_t *ekf, ekf_scalar_t *m, const float h[3], flo
     m->mahalanobis = fabsf(innovation) / sqrtf(m->S);
 }
 
-/* The gain, s = P H^T, R K and w = P1 H^T of one update in locals (no aliasing with P: they stay in
+/* The gain, s = P H^T and u = R K - w (w = P1 H^T) of one update in locals (no aliasing with P: they stay in
  * registers while P is written). */
 typedef struct {
-    float K[EKF_N], s[EKF_N], rk[EKF_N], w[EKF_N];
+    float K[EKF_N], s[EKF_N], u[EKF_N];
 } joseph_t;
 
-/* Entry (i, j) of the Joseph form's second step (below): P1_ij + (R K_i K_j - w_i K_j), P1 = P - K s^T. */
+/* Entry (i, j) of the Joseph form's second step (below): P1_ij + (R K_i - w_i) K_j, P1 = P - K s^T. */
 static inline float joseph_entry(const float *P, const joseph_t *t, int i, int j)
 {
     const float p1 = P[i * EKF_N + j] - t->K[i] * t->s[j];
-    return p1 + (t->rk[i] * t->K[j] - t->w[i] * t->K[j]);
+    return p1 + t->u[i] * t->K[j];
 }
 
 /* P2 written over P (upper triangle, pairs averaged; diag: the new variances). With `clamped` (constant at
@@ -65,22 +65,23 @@ void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
     for (i = 0; i < EKF_N; i++) {
         t.K[i] = m->ph[i] * inv_s;
         t.s[i] = m->ph[i];
-        t.rk[i] = m->r_var * t.K[i];
         m->K[i] = t.K[i];
         ekf->x[i] += t.K[i] * m->innovation;
     }
     /* Joseph form P <- (I - K H) P (I - K H)^T + K R K^T as two rank-one corrections (H = [h 0]):
-     * P1 = P - K s^T (s = P H^T), then P2 = P1 - w K^T + R K K^T with w = P1 H^T measured on the rounded
-     * P1: that is what keeps the Joseph form accurate in float32 (P - s s^T / S, equal in exact
-     * arithmetic, drifts by millimetres from the float64 twin after a divergence). w needs P1's first
+     * P1 = P - K s^T (s = P H^T), then P2 = P1 - w K^T + R K K^T = P1 + (R K - w) K^T with w = P1 H^T
+     * measured on the rounded P1: that is what keeps the Joseph form accurate in float32 (P - s s^T / S,
+     * equal in exact arithmetic, drifts by millimetres from the float64 twin after a divergence; the factored
+     * (R K_i - w_i) K_j is one product less per entry than R K_i K_j - w_i K_j, docs/qemu.md). w needs P1's first
      * three columns only (27 entries). P2 is symmetrised as (P2_ij + P2_ji) / 2 pair by pair, the upper
      * triangle mirrored by the clamp: the same numbers as the full 9x9 passes and ekf_sym_clamp_flat. The
      * new variances come first: when all are in range (always in flight) the clamp is fused into the pass. */
     for (i = 0; i < EKF_N; i++) {
         const float ki = t.K[i];
+        const float w = (P[i * EKF_N] - ki * t.s[0]) * h[0] + (P[i * EKF_N + 1] - ki * t.s[1]) * h[1] +
+                        (P[i * EKF_N + 2] - ki * t.s[2]) * h[2];
         float d;
-        t.w[i] = (P[i * EKF_N] - ki * t.s[0]) * h[0] + (P[i * EKF_N + 1] - ki * t.s[1]) * h[1] +
-                 (P[i * EKF_N + 2] - ki * t.s[2]) * h[2];
+        t.u[i] = m->r_var * ki - w;
         d = joseph_entry(P, &t, i, i);
         diag[i] = 0.5f * (d + d);
         in_range &= ekf_var_in_range(diag[i]);
