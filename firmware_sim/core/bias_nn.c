@@ -13,6 +13,8 @@
 
 #include <math.h>
 
+#include "trig.h"
+
 /* The compiled-in model: BIAS_MODEL_HEADER (a header written by `uwb-hil export-c`) or the shipped
  * default. The header defines BIAS_MODEL_TWR, BIAS_MODEL_TDOA (pointers or NULL) and BIAS_MODEL_HASH. */
 #ifdef BIAS_MODEL_HEADER
@@ -141,7 +143,7 @@ float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN])
 
 float bias_nn_std_of(const bias_nn_t *net, float s)
 {
-    float std = expf(s);
+    float std = trig_expf(s);
     /* NaN fails both comparisons' "inside" side and ends at std_max: trust least when unsure */
     if (!(std <= net->std_max)) {
         std = net->std_max;

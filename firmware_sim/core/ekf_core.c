@@ -177,16 +177,15 @@ static inline void put_sym(float *P, int i, int j, float v)
 }
 
 /* P = A P A^T with A = blockdiag(I6, G): only the attitude rows and columns change; then ekf_sym_clamp_flat.
- * P entered as the clamp leaves it (every caller finalizes right after an update), so when the new attitude
+ * P entered as the clamp leaves it (every caller finalizes right after an update: its variances are in
+ * [EKF_P_MIN, EKF_P_MAX], and the six position and velocity ones do not change here), so when the new attitude
  * variances are in range too (the usual path) every other entry is a fixed point of the clamp, and the clamp
  * is applied to the 27 new entries as they are written (G P[i][D0..D2] mirrored as it is: (v + v) / 2 = v; the
  * attitude block's pairs averaged): the same numbers as the full pass. */
 static void rotate_covariance(float *P, const float G[3][3])
 {
     float M[3][3];
-    const int fast = rotated_attitude_block(P, G, M) & ekf_var_in_range(P[0]) & ekf_var_in_range(P[10]) &
-                     ekf_var_in_range(P[20]) & ekf_var_in_range(P[30]) & ekf_var_in_range(P[40]) &
-                     ekf_var_in_range(P[50]);
+    const int fast = rotated_attitude_block(P, G, M);
     int i;
     for (i = 0; i < EKF_D0; i++) {
         float c[3];

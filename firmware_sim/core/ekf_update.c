@@ -7,18 +7,19 @@
 void ekf_scalar_prepare(const ekf_t *ekf, ekf_scalar_t *m, const float h[3], float innovation,
                         float r_var)
 {
+    const float h0 = h[0], h1 = h[1], h2 = h[2]; /* in registers: m's stores could alias h */
     int i;
-    m->h[0] = h[0];
-    m->h[1] = h[1];
-    m->h[2] = h[2];
+    m->h[0] = h0;
+    m->h[1] = h1;
+    m->h[2] = h2;
     /* H has only three nonzero entries: P H^T is three columns of P, not a 9x9 product. */
     for (i = 0; i < EKF_N; i++) {
-        m->ph[i] = ekf->P[i][0] * h[0] + ekf->P[i][1] * h[1] + ekf->P[i][2] * h[2];
+        m->ph[i] = ekf->P[i][0] * h0 + ekf->P[i][1] * h1 + ekf->P[i][2] * h2;
         m->K[i] = 0.0f;
     }
     m->r_var = r_var;
     m->innovation = innovation;
-    m->S = h[0] * m->ph[0] + h[1] * m->ph[1] + h[2] * m->ph[2] + r_var;
+    m->S = h0 * m->ph[0] + h1 * m->ph[1] + h2 * m->ph[2] + r_var;
     m->mahalanobis = fabsf(innovation) / sqrtf(m->S);
 }
 
@@ -35,22 +36,47 @@ static inline float joseph_entry(const float *P, const joseph_t *t, int i, int j
     return p1 + t->u[i] * t->K[j];
 }
 
-/* P2 written over P (upper triangle, pairs averaged; diag: the new variances). With `clamped` (constant at
- * each call: two specialised copies) every variance is known to be in range, so the clamp's usual path is
- * applied on the way (bounds, mirror, P_MIN floor): what ekf_sym_clamp_upper would do after the pass. A pair
- * (i, j > i) reads P_ij and P_ji before writing them; the mirror P_ji = column i < every later row: unread. */
-static inline void joseph_write(float *P, const joseph_t *t, const float *diag, int clamped)
+/* The pair average (P2_ij + P2_ji) / 2, i < j. A pair reads P_ij and P_ji only, before writing them. */
+static inline float joseph_pair(const float *P, const joseph_t *t, int i, int j)
+{
+    return 0.5f * (joseph_entry(P, t, i, j) + joseph_entry(P, t, j, i));
+}
+
+/* One pair on the clamp's usual path (every variance in range): bounded and mirrored. */
+static inline void put_pair(float *P, const joseph_t *t, int i, int j)
+{
+    const float v = ekf_clamp_cov(joseph_pair(P, t, i, j));
+    P[i * EKF_N + j] = v;
+    P[j * EKF_N + i] = v;
+}
+
+/* P2 written over P when every new variance is in range: the clamp's usual path applied on the way (bounds,
+ * mirror, P_MIN floor), what ekf_sym_clamp_upper would do after the pass. Two rows at a time: rows i and i + 1
+ * share each column's K_j, s_j, u_j (the same numbers in any order: no pair reads another's entries). */
+static void joseph_write_clamped(float *P, const joseph_t *t, const float *diag)
+{
+    int i, j;
+    for (i = 0; i + 1 < EKF_N; i += 2) {
+        put_pair(P, t, i, i + 1);
+        for (j = i + 2; j < EKF_N; j++) {
+            put_pair(P, t, i, j);
+            put_pair(P, t, i + 1, j);
+        }
+    }
+    for (i = 0; i < EKF_N; i++) {
+        P[i * EKF_N + i] = diag[i] < EKF_P_MIN ? EKF_P_MIN : diag[i];
+    }
+}
+
+/* The rare path: P2's upper triangle and diagonal as they are, for ekf_sym_clamp_upper. */
+static void joseph_write_upper(float *P, const joseph_t *t, const float *diag)
 {
     int i, j;
     for (i = 0; i < EKF_N; i++) {
         for (j = i + 1; j < EKF_N; j++) {
-            const float v = 0.5f * (joseph_entry(P, t, i, j) + joseph_entry(P, t, j, i));
-            P[i * EKF_N + j] = clamped ? ekf_clamp_cov(v) : v;
-            if (clamped) {
-                P[j * EKF_N + i] = P[i * EKF_N + j];
-            }
+            P[i * EKF_N + j] = joseph_pair(P, t, i, j);
         }
-        P[i * EKF_N + i] = clamped && diag[i] < EKF_P_MIN ? EKF_P_MIN : diag[i];
+        P[i * EKF_N + i] = diag[i];
     }
 }
 
@@ -87,9 +113,9 @@ void ekf_scalar_apply(ekf_t *ekf, ekf_scalar_t *m)
         in_range &= ekf_var_in_range(diag[i]);
     }
     if (in_range) {
-        joseph_write(P, &t, diag, 1);
+        joseph_write_clamped(P, &t, diag);
     } else {
-        joseph_write(P, &t, diag, 0);
+        joseph_write_upper(P, &t, diag);
         ekf_sym_clamp_upper(P);
     }
 }
