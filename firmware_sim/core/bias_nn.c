@@ -56,12 +56,13 @@ uint8_t bias_nn_features(uint8_t layout, const float tag[3], const float rpy[3],
     if (bias_nn_layout_inputs(layout) == 0u || (tdoa && anchor_b == NULL)) {
         return 0u;
     }
+    const float t[3] = {tag[0], tag[1], tag[2]}; /* read once: the stores to out could alias it */
     for (k = 0; k < 3; k++) {
-        out[n++] = anchor_a[k] - tag[k];
+        out[n++] = anchor_a[k] - t[k];
     }
     if (tdoa) {
         for (k = 0; k < 3; k++) {
-            out[n++] = anchor_b[k] - tag[k];
+            out[n++] = anchor_b[k] - t[k];
         }
     }
     if (angles) {

@@ -250,11 +250,10 @@ int ekf_is_finite(const ekf_t *ekf)
 int ekf_state_finite(const ekf_t *ekf)
 {
     const float *x = ekf->x, *q = ekf->q;
-    float z = (q[0] - q[0]) + (q[1] - q[1]) + (q[2] - q[2]) + (q[3] - q[3]); /* as ekf_is_finite */
-    int i;
-    for (i = 0; i < EKF_N; i++) {
-        z += x[i] - x[i];
-    }
+    /* as ekf_is_finite, written out (no loop counter) */
+    const float z = (x[0] - x[0]) + (x[1] - x[1]) + (x[2] - x[2]) + (x[3] - x[3]) + (x[4] - x[4]) + (x[5] - x[5]) +
+                    (x[6] - x[6]) + (x[7] - x[7]) + (x[8] - x[8]) + (q[0] - q[0]) + (q[1] - q[1]) + (q[2] - q[2]) +
+                    (q[3] - q[3]);
     return z == 0.0f;
 }
 
