@@ -13,6 +13,8 @@
 
 #include <math.h>
 
+#include "trig.h"
+
 /* The compiled-in model: BIAS_MODEL_HEADER (a header written by `uwb-hil export-c`) or the shipped
  * default. The header defines BIAS_MODEL_TWR, BIAS_MODEL_TDOA (pointers or NULL) and BIAS_MODEL_HASH. */
 #ifdef BIAS_MODEL_HEADER
@@ -54,12 +56,13 @@ uint8_t bias_nn_features(uint8_t layout, const float tag[3], const float rpy[3],
     if (bias_nn_layout_inputs(layout) == 0u || (tdoa && anchor_b == NULL)) {
         return 0u;
     }
+    const float t[3] = {tag[0], tag[1], tag[2]}; /* read once: the stores to out could alias it */
     for (k = 0; k < 3; k++) {
-        out[n++] = anchor_a[k] - tag[k];
+        out[n++] = anchor_a[k] - t[k];
     }
     if (tdoa) {
         for (k = 0; k < 3; k++) {
-            out[n++] = anchor_b[k] - tag[k];
+            out[n++] = anchor_b[k] - t[k];
         }
     }
     if (angles) {
@@ -97,6 +100,10 @@ float bias_nn_ood_excess(const bias_nn_t *net, const float *features)
     int i;
     const int n_in = net->n_in <= BIAS_NN_MAX_IN ? (int)net->n_in : BIAS_NN_MAX_IN;
     for (i = 0; i < n_in; i++) {
+        /* Inside [in_min, in_max] (the usual case) neither excess below can be > 0: no divisions. */
+        if (features[i] >= net->in_min[i] && features[i] <= net->in_max[i]) {
+            continue;
+        }
         const float width = net->in_max[i] - net->in_min[i];
         const float below = (net->in_min[i] - features[i]) / width;
         const float above = (features[i] - net->in_max[i]) / width;
@@ -137,7 +144,7 @@ float bias_nn_std_head(const bias_nn_t *net, const float h2[BIAS_NN_HIDDEN])
 
 float bias_nn_std_of(const bias_nn_t *net, float s)
 {
-    float std = expf(s);
+    float std = trig_expf(s);
     /* NaN fails both comparisons' "inside" side and ends at std_max: trust least when unsure */
     if (!(std <= net->std_max)) {
         std = net->std_max;

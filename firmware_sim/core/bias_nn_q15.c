@@ -7,6 +7,8 @@
  *   head h: (float)(bh + sum h2 wh) * q_out_scale, then de-scaled and clamped (bias) or expf (std). */
 #include "bias_nn.h"
 
+#include <math.h>
+
 #ifndef NULL
 #define NULL ((void *)0)
 #endif
@@ -16,6 +18,9 @@
 static int16_t q15_input(float x)
 {
     float v = x * 16384.0f;
+    if (fabsf(v) < (float)Q15_MAX) { /* the usual case: no saturation */
+        return (int16_t)(int32_t)(v + (v >= 0.0f ? 0.5f : -0.5f));
+    }
     if (!(v >= -32768.0f)) {
         v = v != v ? 0.0f : -32768.0f; /* NaN -> 0 */
     }
@@ -72,11 +77,10 @@ static void q15_relu(const int32_t *acc, unsigned shift, int16_t *out)
 
 unsigned bias_nn_q15_inputs(const bias_nn_t *net, const float *features, int16_t x[BIAS_NN_MAX_IN + 1])
 {
-    float xs[BIAS_NN_MAX_IN];
-    const unsigned n_in = bias_nn_scale_inputs(net, features, xs);
+    const unsigned n_in = net->n_in <= BIAS_NN_MAX_IN ? net->n_in : (unsigned)BIAS_NN_MAX_IN;
     unsigned i;
-    for (i = 0; i < n_in; i++) {
-        x[i] = q15_input(xs[i]);
+    for (i = 0; i < n_in; i++) { /* bias_nn_scale_inputs, then the rounding */
+        x[i] = q15_input((features[i] - net->in_min[i]) / (net->in_max[i] - net->in_min[i]));
     }
     x[n_in] = 0; /* the pad of an odd input count */
     return (n_in + 1u) / 2u;

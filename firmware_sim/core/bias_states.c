@@ -4,6 +4,9 @@
 #include <math.h>
 #include <string.h>
 
+#include "time_ms.h"
+#include "trig.h"
+
 void bias_states_reset(bias_states_t *s)
 {
     memset(s, 0, sizeof *s);
@@ -19,7 +22,7 @@ static void propagate(bias_states_t *s, uint64_t t_us, uint8_t i)
         s->var[i] = q;
         s->known = (uint16_t)(s->known | (1u << i));
     } else if (t_us > s->t_us[i]) {
-        a = expf(-(float)(t_us - s->t_us[i]) * 1e-6f / BIAS_ST_TAU_S);
+        a = trig_expf(-uwb_u64_to_float(t_us - s->t_us[i]) * 1e-6f / BIAS_ST_TAU_S);
         s->b[i] *= a;
         s->var[i] = a * a * s->var[i] + q * (1.0f - a * a);
     }

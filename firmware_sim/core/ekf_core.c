@@ -14,6 +14,14 @@
 /* The finalize step only trusts attitude errors below this magnitude [rad] (as the Crazyflie). */
 #define EKF_ATT_ERR_MAX 10.0f
 
+float ekf_clamp_cov_out(float v)
+{
+    if (v != v) {
+        return 0.0f;
+    }
+    return v > 0.0f ? EKF_P_MAX : -EKF_P_MAX;
+}
+
 /* 1 if every variance is finite and <= EKF_P_MAX: then no row needs scaling and the clamp is entry-wise. */
 static int variances_in_range(const float *P)
 {
@@ -133,31 +141,77 @@ void ekf_init(ekf_t *ekf, const float pos[3], float std_xy, float std_z)
     }
 }
 
-/* ekf_sym_clamp_flat after the finalize step's rotation, which changes the attitude rows and columns only
- * (the position/velocity ones mirrored already): P entered as the clamp leaves it (every caller finalizes
- * right after an update), so on the usual path (variances in range) the other entries are fixed points of
- * the clamp and only the 27 attitude entries need it: the same numbers as the full pass. */
-static void clamp_attitude_rows(float *P)
+/* out = G (x, y, z)^T, each sum in the dense product's order (written out: straight-line code). */
+static inline void g_times(const float G[3][3], float x, float y, float z, float out[3])
 {
-    int i, a;
-    if (!variances_in_range(P)) {
+    out[0] = G[0][0] * x + G[0][1] * y + G[0][2] * z;
+    out[1] = G[1][0] * x + G[1][1] * y + G[1][2] * z;
+    out[2] = G[2][0] * x + G[2][1] * y + G[2][2] * z;
+}
+
+/* The attitude block's new value M = G P_att G^T (T = G P_att column by column, then M's rows T_a G^T; not
+ * symmetric in float); returns 1 if its variances are in range. */
+static int rotated_attitude_block(const float *P, const float G[3][3], float M[3][3])
+{
+    const float *pa = P + EKF_D0 * EKF_N + EKF_D0;
+    float T[3][3];
+    int a;
+    for (a = 0; a < 3; a++) {
+        float col[3];
+        g_times(G, pa[a], pa[EKF_N + a], pa[2 * EKF_N + a], col);
+        T[0][a] = col[0];
+        T[1][a] = col[1];
+        T[2][a] = col[2];
+    }
+    for (a = 0; a < 3; a++) {
+        g_times(G, T[a][0], T[a][1], T[a][2], M[a]);
+    }
+    return ekf_var_in_range(M[0][0]) & ekf_var_in_range(M[1][1]) & ekf_var_in_range(M[2][2]);
+}
+
+/* P_ij = P_ji = v. */
+static inline void put_sym(float *P, int i, int j, float v)
+{
+    P[i * EKF_N + j] = v;
+    P[j * EKF_N + i] = v;
+}
+
+/* P = A P A^T with A = blockdiag(I6, G): only the attitude rows and columns change; then ekf_sym_clamp_flat.
+ * P entered as the clamp leaves it (every caller finalizes right after an update: its variances are in
+ * [EKF_P_MIN, EKF_P_MAX], and the six position and velocity ones do not change here), so when the new attitude
+ * variances are in range too (the usual path) every other entry is a fixed point of the clamp, and the clamp
+ * is applied to the 27 new entries as they are written (G P[i][D0..D2] mirrored as it is: (v + v) / 2 = v; the
+ * attitude block's pairs averaged): the same numbers as the full pass. */
+static void rotate_covariance(float *P, const float G[3][3])
+{
+    float M[3][3];
+    const int fast = rotated_attitude_block(P, G, M);
+    int i;
+    for (i = 0; i < EKF_D0; i++) {
+        float c[3];
+        g_times(G, P[i * EKF_N + EKF_D0], P[i * EKF_N + EKF_D1], P[i * EKF_N + EKF_D2], c);
+        if (fast) {
+            c[0] = ekf_clamp_cov(c[0]);
+            c[1] = ekf_clamp_cov(c[1]);
+            c[2] = ekf_clamp_cov(c[2]);
+        }
+        put_sym(P, i, EKF_D0, c[0]);
+        put_sym(P, i, EKF_D1, c[1]);
+        put_sym(P, i, EKF_D2, c[2]);
+    }
+    if (!fast) {
+        for (i = 0; i < 9; i++) {
+            P[(EKF_D0 + i / 3) * EKF_N + EKF_D0 + i % 3] = M[i / 3][i % 3];
+        }
         ekf_sym_clamp_flat(P);
         return;
     }
-    for (a = EKF_D0; a < EKF_N; a++) {
-        float *row = P + a * EKF_N;
-        for (i = 0; i < EKF_D0; i++) { /* written symmetric: (v + v) / 2 = v */
-            const float v = ekf_clamp_cov(row[i]);
-            row[i] = v;
-            P[i * EKF_N + a] = v;
-        }
-        row[a] = row[a] < EKF_P_MIN ? EKF_P_MIN : row[a];
-        for (i = a + 1; i < EKF_N; i++) {
-            const float v = ekf_clamp_cov(0.5f * (row[i] + P[i * EKF_N + a]));
-            row[i] = v;
-            P[i * EKF_N + a] = v;
-        }
+    for (i = 0; i < 3; i++) {
+        P[(EKF_D0 + i) * (EKF_N + 1)] = M[i][i] < EKF_P_MIN ? EKF_P_MIN : M[i][i];
     }
+    put_sym(P, EKF_D0, EKF_D1, ekf_clamp_cov(0.5f * (M[0][1] + M[1][0])));
+    put_sym(P, EKF_D0, EKF_D2, ekf_clamp_cov(0.5f * (M[0][2] + M[2][0])));
+    put_sym(P, EKF_D1, EKF_D2, ekf_clamp_cov(0.5f * (M[1][2] + M[2][1])));
 }
 
 void ekf_finalize(ekf_t *ekf)
@@ -166,38 +220,12 @@ void ekf_finalize(ekf_t *ekf)
     const int small = fabsf(v[0]) < EKF_ATT_ERR_MAX && fabsf(v[1]) < EKF_ATT_ERR_MAX &&
                       fabsf(v[2]) < EKF_ATT_ERR_MAX;
     if (small && (v[0] != 0.0f || v[1] != 0.0f || v[2] != 0.0f)) {
-        float d[3], G[3][3], T[3][3];
-        int i, a, b;
+        const float d[3] = {0.5f * v[0], 0.5f * v[1], 0.5f * v[2]};
+        float G[3][3];
         quat_rotate_body(ekf->q, v);
         quat_to_rot(ekf->q, ekf->R);
-        /* P = A P A^T with A = blockdiag(I6, G): only the attitude rows/columns change. */
-        d[0] = 0.5f * v[0];
-        d[1] = 0.5f * v[1];
-        d[2] = 0.5f * v[2];
         att_block(d, G);
-        for (i = 0; i < EKF_D0; i++) {
-            float t[3];
-            for (a = 0; a < 3; a++) {
-                t[a] = G[a][0] * ekf->P[i][EKF_D0] + G[a][1] * ekf->P[i][EKF_D1] +
-                       G[a][2] * ekf->P[i][EKF_D2];
-            }
-            for (a = 0; a < 3; a++) {
-                ekf->P[i][EKF_D0 + a] = t[a];
-                ekf->P[EKF_D0 + a][i] = t[a];
-            }
-        }
-        for (a = 0; a < 3; a++) {
-            for (b = 0; b < 3; b++) {
-                T[a][b] = G[a][0] * ekf->P[EKF_D0][EKF_D0 + b] + G[a][1] * ekf->P[EKF_D1][EKF_D0 + b] +
-                          G[a][2] * ekf->P[EKF_D2][EKF_D0 + b];
-            }
-        }
-        for (a = 0; a < 3; a++) {
-            for (b = 0; b < 3; b++) {
-                ekf->P[EKF_D0 + a][EKF_D0 + b] = T[a][0] * G[b][0] + T[a][1] * G[b][1] + T[a][2] * G[b][2];
-            }
-        }
-        clamp_attitude_rows(&ekf->P[0][0]);
+        rotate_covariance(&ekf->P[0][0], (const float (*)[3])G);
     }
     ekf->x[EKF_D0] = 0.0f;
     ekf->x[EKF_D1] = 0.0f;
@@ -206,18 +234,27 @@ void ekf_finalize(ekf_t *ekf)
 
 int ekf_is_finite(const ekf_t *ekf)
 {
+    /* v - v is 0 for a finite v and NaN for an infinite or NaN one: one test for the 22 values (the
+     * supervisor runs this after every prediction and update; 22 isfinite tests took ~150 instructions). */
+    float z = 0.0f;
     int i;
     for (i = 0; i < EKF_N; i++) {
-        if (!isfinite(ekf->x[i]) || !isfinite(ekf->P[i][i])) {
-            return 0;
-        }
+        z += (ekf->x[i] - ekf->x[i]) + (ekf->P[i][i] - ekf->P[i][i]);
     }
     for (i = 0; i < 4; i++) {
-        if (!isfinite(ekf->q[i])) {
-            return 0;
-        }
+        z += ekf->q[i] - ekf->q[i];
     }
-    return 1;
+    return z == 0.0f;
+}
+
+int ekf_state_finite(const ekf_t *ekf)
+{
+    const float *x = ekf->x, *q = ekf->q;
+    /* as ekf_is_finite, written out (no loop counter) */
+    const float z = (x[0] - x[0]) + (x[1] - x[1]) + (x[2] - x[2]) + (x[3] - x[3]) + (x[4] - x[4]) + (x[5] - x[5]) +
+                    (x[6] - x[6]) + (x[7] - x[7]) + (x[8] - x[8]) + (q[0] - q[0]) + (q[1] - q[1]) + (q[2] - q[2]) +
+                    (q[3] - q[3]);
+    return z == 0.0f;
 }
 
 /* atan(t) for t in [0, 1]: t > tan(pi/12) is reduced by atan(t) = pi/6 + atan((t sqrt3 - 1) / (t + sqrt3)) to

@@ -101,19 +101,25 @@ static inline int ekf_var_in_range(float d)
     return fabsf(d) <= EKF_P_MAX; /* 0 also for NaN and -inf */
 }
 
+#if defined(__GNUC__)
+#define EKF_COLD __attribute__((noinline, cold))
+#else
+#define EKF_COLD
+#endif
+
+/* An off-diagonal entry beyond the bound: +-EKF_P_MAX, NaN -> 0 (out of line: the rare case). */
+EKF_COLD float ekf_clamp_cov_out(float v);
+
 static inline float ekf_clamp_cov(float v)
 {
-    if (fabsf(v) <= EKF_P_MAX) { /* the usual case: one test */
-        return v;
-    }
-    if (v != v) {
-        return 0.0f;
-    }
-    return v > 0.0f ? EKF_P_MAX : -EKF_P_MAX;
+    return fabsf(v) <= EKF_P_MAX ? v : ekf_clamp_cov_out(v); /* the usual case: one test */
 }
 
 /* 1 if the state, q and the diagonal of P are all finite. */
 int ekf_is_finite(const ekf_t *ekf);
+/* 1 if the state and q are finite: ekf_is_finite for a P the covariance clamp has left (its variances are then
+ * finite by construction: the supervisor's check after every prediction and update). */
+int ekf_state_finite(const ekf_t *ekf);
 
 void ekf_externalize(const ekf_t *ekf, ekf_state_t *out);
 

@@ -11,8 +11,11 @@
  */
 #include "ekf_core.h"
 
+#include <string.h>
+
 
 #include "ekf_quat.h"
+#include "time_ms.h"
 
 /* Gyro white-noise density [rad/s/sqrt(Hz)] used as attitude process noise. Small: the attitude is
  * propagated by the gyro, only weakly observed through UWB, and must not random-walk away. */
@@ -77,69 +80,111 @@ static void imu_transition(const ekf_t *ekf, const float gyro[3], float dt, floa
     }
 }
 
-/* s + a[0] p[0] + a[1] p[st] + a[2] p[2 st] (+ the next three), added in this order; written out so the
- * compiler emits straight-line code (no loop counter per multiply-add). */
-static inline float dot3(float s, const float *a, const float *p, int st)
+/* s + a[0] v[0] + a[1] v[1] + a[2] v[2] (+ the next three), added in this order: the dense product's order (its
+ * skipped terms are exact zeros), written out as straight-line code. The z forms start from the first product
+ * instead of 0 + (the same number, up to the sign of an all-zero sum). */
+static inline float row3(float s, const float *a, const float *v)
 {
-    s += a[0] * p[0];
-    s += a[1] * p[st];
-    s += a[2] * p[2 * st];
+    s += a[0] * v[0];
+    s += a[1] * v[1];
+    s += a[2] * v[2];
     return s;
 }
 
-static inline float dot6(float s, const float *a, const float *p, int st)
+static inline float row3z(const float *a, const float *v)
 {
-    return dot3(dot3(s, a, p, st), a + 3, p + 3 * st, st);
+    return a[0] * v[0] + a[1] * v[1] + a[2] * v[2];
 }
+
+static inline float row6(float s, const float *a, const float *v)
+{
+    return row3(row3(s, a, v), a + 3, v + 3);
+}
+
+static inline float row6z(const float *a, const float *v)
+{
+    return row3(row3z(a, v), a + 3, v + 3);
+}
+
+/* A column j of P's rows 3..8 (stride EKF_N), or a row of A P's columns 3..8. */
+#define COL6(M, j) {(M)[3 * EKF_N + (j)], (M)[4 * EKF_N + (j)], (M)[5 * EKF_N + (j)], (M)[6 * EKF_N + (j)], \
+                    (M)[7 * EKF_N + (j)], (M)[8 * EKF_N + (j)]}
 
 /* A P over A's nonzero columns only: a position row is P's row plus columns 3..8 (velocity and attitude),
- * a velocity row columns 3..8, an attitude row columns 6..8: 351 multiply-adds instead of 729, each row
- * of A held in registers across the columns of P. The sums run in the order of the dense product (the
- * skipped terms are exact zeros): the same numbers. */
+ * a velocity row columns 3..8, an attitude row columns 6..8: 351 multiply-adds instead of 729. Three rows
+ * of A at a time in registers, each column of P loaded once for the three. */
 static void imu_ap(const float *P, const float A[EKF_N][EKF_N], float AP[EKF_N][EKF_N])
 {
-    int i, j;
-    /* Position and velocity rows in separate loops: no per-entry select of the identity term. */
-    for (i = 0; i < EKF_PX; i++) {
-        for (j = 0; j < EKF_N; j++) {
-            AP[i][j] = dot6(P[i * EKF_N + j], &A[i][EKF_PX], &P[EKF_PX * EKF_N + j], EKF_N);
-        }
+    float a0[6], a1[6], a2[6];
+    int j;
+    memcpy(a0, &A[0][EKF_PX], sizeof a0);
+    memcpy(a1, &A[1][EKF_PX], sizeof a1);
+    memcpy(a2, &A[2][EKF_PX], sizeof a2);
+    for (j = 0; j < EKF_N; j++) {
+        const float v[6] = COL6(P, j);
+        AP[0][j] = row6(P[j], a0, v);
+        AP[1][j] = row6(P[EKF_N + j], a1, v);
+        AP[2][j] = row6(P[2 * EKF_N + j], a2, v);
     }
-    for (i = EKF_PX; i < EKF_D0; i++) {
-        for (j = 0; j < EKF_N; j++) {
-            AP[i][j] = dot6(0.0f, &A[i][EKF_PX], &P[EKF_PX * EKF_N + j], EKF_N);
-        }
+    memcpy(a0, &A[EKF_PX][EKF_PX], sizeof a0);
+    memcpy(a1, &A[EKF_PY][EKF_PX], sizeof a1);
+    memcpy(a2, &A[EKF_PZ][EKF_PX], sizeof a2);
+    for (j = 0; j < EKF_N; j++) {
+        const float v[6] = COL6(P, j);
+        AP[EKF_PX][j] = row6z(a0, v);
+        AP[EKF_PY][j] = row6z(a1, v);
+        AP[EKF_PZ][j] = row6z(a2, v);
     }
-    for (i = EKF_D0; i < EKF_N; i++) {
-        for (j = 0; j < EKF_N; j++) {
-            AP[i][j] = dot3(0.0f, &A[i][EKF_D0], &P[EKF_D0 * EKF_N + j], EKF_N);
-        }
+    memcpy(a0, &A[EKF_D0][EKF_D0], 3 * sizeof a0[0]);
+    memcpy(a1, &A[EKF_D1][EKF_D0], 3 * sizeof a1[0]);
+    memcpy(a2, &A[EKF_D2][EKF_D0], 3 * sizeof a2[0]);
+    for (j = 0; j < EKF_N; j++) {
+        const float v[3] = {P[EKF_D0 * EKF_N + j], P[EKF_D1 * EKF_N + j], P[EKF_D2 * EKF_N + j]};
+        AP[EKF_D0][j] = row3z(a0, v);
+        AP[EKF_D1][j] = row3z(a1, v);
+        AP[EKF_D2][j] = row3z(a2, v);
     }
 }
 
-/* P = A P A^T: (A P) A^T over A's nonzero columns (333 multiply-adds instead of 729). Both triangles:
- * the clamp averages P_ij and P_ji as before (computing one triangle only is cheaper still, but the
- * rounding then differs from the twin's by up to 4 mm after a divergence, test_supervisor_matches_twin). */
+/* P = A P A^T: (A P) A^T over A's nonzero columns (333 multiply-adds instead of 729), three columns at a
+ * time (A's rows in registers, each row of A P loaded once for the three). Both triangles: the clamp averages
+ * P_ij and P_ji as before (computing one triangle only is cheaper still, but the rounding then differs from
+ * the twin's by up to 4 mm after a divergence, test_supervisor_matches_twin). */
 static void imu_propagate_cov(ekf_t *ekf, const float A[EKF_N][EKF_N])
 {
-    float AP[EKF_N][EKF_N];
+    float AP[EKF_N][EKF_N], a0[6], a1[6], a2[6];
     float *P = &ekf->P[0][0];
-    int i, j;
+    int i;
     imu_ap(P, A, AP);
-    for (j = 0; j < EKF_PX; j++) {
-        for (i = 0; i < EKF_N; i++) {
-            P[i * EKF_N + j] = dot6(AP[i][j], &A[j][EKF_PX], &AP[i][EKF_PX], 1);
-        }
+    memcpy(a0, &A[0][EKF_PX], sizeof a0);
+    memcpy(a1, &A[1][EKF_PX], sizeof a1);
+    memcpy(a2, &A[2][EKF_PX], sizeof a2);
+    for (i = 0; i < EKF_N; i++) {
+        float *row = P + i * EKF_N;
+        const float v[6] = {AP[i][3], AP[i][4], AP[i][5], AP[i][6], AP[i][7], AP[i][8]};
+        row[0] = row6(AP[i][0], a0, v);
+        row[1] = row6(AP[i][1], a1, v);
+        row[2] = row6(AP[i][2], a2, v);
     }
-    for (j = EKF_PX; j < EKF_D0; j++) {
-        for (i = 0; i < EKF_N; i++) {
-            P[i * EKF_N + j] = dot6(0.0f, &A[j][EKF_PX], &AP[i][EKF_PX], 1);
-        }
+    memcpy(a0, &A[EKF_PX][EKF_PX], sizeof a0);
+    memcpy(a1, &A[EKF_PY][EKF_PX], sizeof a1);
+    memcpy(a2, &A[EKF_PZ][EKF_PX], sizeof a2);
+    for (i = 0; i < EKF_N; i++) {
+        float *row = P + i * EKF_N;
+        const float v[6] = {AP[i][3], AP[i][4], AP[i][5], AP[i][6], AP[i][7], AP[i][8]};
+        row[EKF_PX] = row6z(a0, v);
+        row[EKF_PY] = row6z(a1, v);
+        row[EKF_PZ] = row6z(a2, v);
     }
-    for (j = EKF_D0; j < EKF_N; j++) {
-        for (i = 0; i < EKF_N; i++) {
-            P[i * EKF_N + j] = dot3(0.0f, &A[j][EKF_D0], &AP[i][EKF_D0], 1);
-        }
+    memcpy(a0, &A[EKF_D0][EKF_D0], 3 * sizeof a0[0]);
+    memcpy(a1, &A[EKF_D1][EKF_D0], 3 * sizeof a1[0]);
+    memcpy(a2, &A[EKF_D2][EKF_D0], 3 * sizeof a2[0]);
+    for (i = 0; i < EKF_N; i++) {
+        float *row = P + i * EKF_N;
+        const float v[3] = {AP[i][6], AP[i][7], AP[i][8]};
+        row[EKF_D0] = row3z(a0, v);
+        row[EKF_D1] = row3z(a1, v);
+        row[EKF_D2] = row3z(a2, v);
     }
 }
 
@@ -147,17 +192,22 @@ static void imu_propagate_cov(ekf_t *ekf, const float A[EKF_N][EKF_N])
 static void imu_process_noise(ekf_t *ekf, const ekf_noise_t *noise, float dt)
 {
     const float (*R)[3] = (const float (*)[3])ekf->R;
-    const float dt2 = dt * dt;
-    float Sa[3];
+    const float dt2 = dt * dt, half_dt2 = dt2 * 0.5f; /* x dt2 0.5 = x half_dt2: the halving is exact */
+    float Sa[3], RS[3][3];
     int i, j;
     Sa[0] = noise->acc_xy * noise->acc_xy;
     Sa[1] = Sa[0];
     Sa[2] = noise->acc_z * noise->acc_z;
     for (i = 0; i < 3; i++) {
+        RS[i][0] = R[i][0] * Sa[0]; /* (R Sa)_ij, the first product of each term below */
+        RS[i][1] = R[i][1] * Sa[1];
+        RS[i][2] = R[i][2] * Sa[2];
+    }
+    for (i = 0; i < 3; i++) {
         for (j = 0; j < 3; j++) {
             /* (R Sa R^T)_ij and (R Sa)_ij */
-            float rsr = R[i][0] * Sa[0] * R[j][0] + R[i][1] * Sa[1] * R[j][1] + R[i][2] * Sa[2] * R[j][2];
-            float pv = R[i][j] * Sa[j] * dt2 * 0.5f;
+            float rsr = RS[i][0] * R[j][0] + RS[i][1] * R[j][1] + RS[i][2] * R[j][2];
+            float pv = RS[i][j] * half_dt2;
             ekf->P[i][j] += rsr * dt2 * dt * (1.0f / 3.0f);
             ekf->P[i][EKF_PX + j] += pv;
             ekf->P[EKF_PX + j][i] += pv;
@@ -223,7 +273,7 @@ int ekf_imu_sample(ekf_t *ekf, const ekf_noise_t *noise, uint64_t t_us, const fl
     ekf->imu_count++;
     if (t_us >= ekf->t_us && t_us - ekf->t_us >= EKF_PREDICT_INTERVAL_US) {
         const float inv = 1.0f / (float)ekf->imu_count;
-        const float dt = (float)(t_us - ekf->t_us) * 1e-6f;
+        const float dt = uwb_u64_to_float(t_us - ekf->t_us) * 1e-6f;
         float a[3], g[3];
         for (i = 0; i < 3; i++) {
             a[i] = ekf->acc_sum[i] * inv;

@@ -4,6 +4,8 @@
 #include <math.h>
 #include <string.h>
 
+#include "time_ms.h"
+
 /* Signed t1 - t0 in microseconds without relying on unsigned -> signed wrap-around. */
 static int64_t diff_us(uint64_t t1, uint64_t t0)
 {
@@ -74,7 +76,7 @@ void gate_kinematic_fused(gate_kinematic_t *g, uint64_t t_us, uint8_t id_a, uint
 
 float gate_kinematic_dt(int64_t dt_us, int have_ref, float dt_min)
 {
-    const float dt = have_ref ? (float)dt_us * 1e-6f : dt_min;
+    const float dt = have_ref ? uwb_i64_to_float(dt_us) * 1e-6f : dt_min;
     /* The floor avoids the paper code's dt = 0 pathology (measurement in the prediction tick). */
     return dt > dt_min ? dt : dt_min;
 }

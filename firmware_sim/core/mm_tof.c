@@ -12,6 +12,7 @@
 #include <math.h>
 
 #include "mm_kinds.h"
+#include "trig.h"
 
 #define MM_TOF_MIN_COS 0.1f   /* tilt below ~84 deg: beyond it h -> infinity */
 #define MM_TOF_MAX_RANGE 5.0f /* [m] the ranger's outlier limit (a VL53L1x reads up to 4 m) */
@@ -37,7 +38,7 @@ static int model(const mm_input_t *in, float *h, float H[3])
 
 static float std_of(const mm_input_t *in)
 {
-    return in->cfg->std_tof * (1.0f + expf(MM_TOF_STD_K * (in->z - MM_TOF_STD_AT)));
+    return in->cfg->std_tof * (1.0f + trig_expf(MM_TOF_STD_K * (in->z - MM_TOF_STD_AT)));
 }
 
 const mm_kind_t mm_kind_tof = {MM_KIND_TOF, 0, model, offsetof(estimator_config_t, std_tof),

@@ -45,7 +45,7 @@ static uint8_t supervisor_reason(const estimator_t *est)
     const float *p = &ekf->x[EKF_X], *v = &ekf->x[EKF_PX];
     float var_xy, var_z;
     unsigned k;
-    if (!ekf_is_finite(ekf)) {
+    if (!ekf_state_finite(ekf)) { /* P's variances: finite after every clamp */
         return EST_FLAG_NON_FINITE;
     }
     for (k = 0; k < 3; k++) {

@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "ekf_core.h"
+#include "time_ms.h"
 
 void takeoff_reset(takeoff_t *d)
 {
@@ -14,7 +15,7 @@ int takeoff_on_imu(takeoff_t *d, uint64_t t_us, float acc_z, float r22)
 {
     float dt;
     if (d->has_time && t_us > d->t_us) {
-        dt = (float)(t_us - d->t_us) * 1e-6f;
+        dt = uwb_u64_to_float(t_us - d->t_us) * 1e-6f;
         if (dt <= TAKEOFF_MAX_DT_S) {
             d->climb_v += dt * (r22 * acc_z - EKF_GRAVITY) - d->climb_v * (dt / TAKEOFF_TAU_S);
         }

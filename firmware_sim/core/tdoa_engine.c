@@ -205,7 +205,7 @@ double tdoa_metres(int64_t ticks)
 
 float tdoa_metres_f(int64_t ticks)
 {
-    return (float)ticks * TDOA_METRES_PER_TICK_F;
+    return uwb_i64_to_float(ticks) * TDOA_METRES_PER_TICK_F;
 }
 
 float tdoa_skew_ppm(const tdoa_anchor_t *a)

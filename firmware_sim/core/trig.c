@@ -1,5 +1,6 @@
 #include "trig.h"
 
+#include <math.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -137,4 +138,52 @@ float trig_tanf(float x)
     }
     r = reduce(x, &q);
     return sin_quadrant(r, q) / sin_quadrant(r, q + 1);
+}
+
+/* e^x: x = k ln2 + r, |r| <= ln2/2 (k rounded by adding 1.5 2^23; ln2 in two parts: k ln2_hi is exact for
+ * |k| <= 256), e^r by its Taylor polynomial to r^7 (truncation 5e-9 relative), times 2^k (for the extreme k
+ * in two factors, each a normal float, so over- and underflow round as one multiplication would). Below
+ * |x| = 0.34 k is 0 and r = x: the reduction is skipped (the bias states' decay always), the same number. */
+float trig_expf(float x)
+{
+    const float shift = 12582912.0f;
+    float r = x, p, s1, s2;
+    uint32_t b1, b2;
+    int32_t k = 0;
+    if (!(fabsf(x) < 0.34f)) {
+        float kf;
+        uint32_t kb;
+        if (!(x > -104.0f)) {
+            return x != x ? x : 0.0f; /* e^-104 is below half the least subnormal */
+        }
+        if (x > 89.0f) {
+            return INFINITY;
+        }
+        kf = x * 1.44269504f + shift;
+        memcpy(&kb, &kf, sizeof kb);
+        k = (int32_t)(kb - 0x4b400000u);
+        kf -= shift;
+        r = (x - kf * 0.693145752f) - kf * 1.42860677e-06f;
+    }
+    p = 1.98412698e-04f;
+    p = p * r + 1.38888889e-03f;
+    p = p * r + 8.33333333e-03f;
+    p = p * r + 4.16666667e-02f;
+    p = p * r + 1.66666667e-01f;
+    p = p * r + 0.5f;
+    p = p * r + 1.0f;
+    p = p * r + 1.0f;
+    if (k == 0) {
+        return p;
+    }
+    if (k > -127 && k < 128) {
+        b1 = (uint32_t)(k + 127) << 23;
+        memcpy(&s1, &b1, sizeof s1);
+        return p * s1;
+    }
+    b1 = (uint32_t)(k / 2 + 127) << 23;
+    b2 = (uint32_t)(k - k / 2 + 127) << 23;
+    memcpy(&s1, &b1, sizeof s1);
+    memcpy(&s2, &b2, sizeof s2);
+    return p * s1 * s2;
 }

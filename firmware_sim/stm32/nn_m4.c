@@ -119,17 +119,29 @@ typedef char check_sparse_stride_is_500_bytes[(H == 50) ? 1 : -1]; /* nn_m4_q15.
 
 /* The list q15_sparse_m4 reads: (pair word, 20 k) for each pair k of h with a nonzero unit, then a zero word.
  * h is read as 25 words (two int16 each: the layer's pairs). Returns the number of entries. */
+typedef char check_odd_word_count[(H / 2) % 2 == 1 ? 1 : -1]; /* nonzero_pairs: 12 double words + 1 */
+
+static inline uint32_t *list_pair(uint32_t *e, uint32_t word, unsigned k)
+{
+    if (word != 0u) {
+        e[0] = word;
+        e[1] = 20u * k;
+        e += 2;
+    }
+    return e;
+}
+
 static unsigned nonzero_pairs(const uint32_t h[H / 2], uint32_t list[H + 1])
 {
     unsigned k;
     uint32_t *e = list;
-    for (k = 0; k < H / 2u; k++) {
-        if (h[k] != 0u) {
-            e[0] = h[k];
-            e[1] = 20u * k;
-            e += 2;
+    for (k = 0; k + 1u < H / 2u; k += 2u) { /* two words at a time: most are both 0 (ReLU) */
+        if ((h[k] | h[k + 1u]) != 0u) {
+            e = list_pair(e, h[k], k);
+            e = list_pair(e, h[k + 1u], k + 1u);
         }
     }
+    e = list_pair(e, h[H / 2u - 1u], H / 2u - 1u);
     e[0] = 0u;
     return (unsigned)(e - list) / 2u;
 }

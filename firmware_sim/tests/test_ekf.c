@@ -321,9 +321,15 @@ static void test_is_finite(void)
     CHECK(ekf_is_finite(&e));
     e.x[4] = NAN;
     CHECK(!ekf_is_finite(&e));
+    CHECK(!ekf_state_finite(&e));
     e.x[4] = 0.0f;
     e.q[2] = INFINITY;
     CHECK(!ekf_is_finite(&e));
+    CHECK(!ekf_state_finite(&e));
+    e.q[2] = 0.0f;
+    CHECK(ekf_state_finite(&e));
+    e.P[3][3] = NAN; /* not looked at: the clamp never leaves one */
+    CHECK(ekf_state_finite(&e) && !ekf_is_finite(&e));
 }
 
 int main(void)

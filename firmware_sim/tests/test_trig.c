@@ -74,6 +74,21 @@ static void test_grid_and_random(void)
     CHECK(large.max_ulp <= 2.5);
 }
 
+/* trig_expf over every float step of 7e-4 where e^x is a normal float, against exp in double */
+static void test_expf(void)
+{
+    double worst = 0.0;
+    float x;
+    for (x = -87.3f; x < 88.7f; x += 7.31e-4f) {
+        const double t = exp((double)x);
+        worst = fmax(worst, fabs((double)trig_expf(x) - t) / ldexp(1.0, ilogb(t) - 23));
+    }
+    printf("    max error of trig_expf, float ulps: %.2f\n", worst);
+    CHECK(worst <= 1.25);
+    CHECK(trig_expf(0.0f) == 1.0f && trig_expf(-200.0f) == 0.0f && isinf(trig_expf(100.0f)));
+    CHECK(isnan(trig_expf(NAN)) && trig_expf(-INFINITY) == 0.0f && isinf(trig_expf(INFINITY)));
+}
+
 static void test_special_values(void)
 {
     CHECK(trig_sinf(0.0f) == 0.0f && trig_cosf(0.0f) == 1.0f && trig_tanf(0.0f) == 0.0f);
@@ -88,5 +103,6 @@ int main(void)
 {
     RUN(test_grid_and_random);
     RUN(test_special_values);
+    RUN(test_expf);
     return UNIT_DONE();
 }
