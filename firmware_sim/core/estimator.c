@@ -53,6 +53,20 @@ void estimator_configure(estimator_t *est, const estimator_config_t *cfg, int re
     }
 }
 
+/* A vehicle at rest (after a touchdown; UWB-only: on the floor): velocity zero and known, the position's covariance kept. */
+static void hold_at_rest(ekf_t *ekf)
+{
+    int i, j;
+    for (i = EKF_PX; i <= EKF_PZ; i++) {
+        ekf->x[i] = 0.0f;
+        for (j = 0; j < EKF_N; j++) {
+            ekf->P[i][j] = 0.0f;
+            ekf->P[j][i] = 0.0f;
+        }
+        ekf->P[i][i] = EKF_P_MIN;
+    }
+}
+
 /* The IMU tells when the vehicle sits on the floor (takeoff.h): the quadrotor model, or CONFIG floor_imu. */
 static int imu_floor(const estimator_config_t *cfg)
 {
@@ -70,7 +84,10 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
     est->t_imu_us = t_us;
     est->has_imu_time = 1;
     if (imu_floor(&est->cfg)) { /* UWB-only: R is the identity, the vehicle taken as level */
-        takeoff_on_imu(&est->takeoff, t_us, acc[2], est->ekf.R[2][2]);
+        const int flying = est->takeoff.airborne;
+        if (!takeoff_on_imu(&est->takeoff, t_us, acc[2], est->ekf.R[2][2]) && flying) {
+            hold_at_rest(&est->ekf); /* a touchdown: the vehicle stopped */
+        }
     }
     if (est->cfg.mode == EST_MODE_UWB_ONLY) {
         est->imu_ignored++;
@@ -211,20 +228,6 @@ static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, u
     out->gain[0] = m->K[EKF_X];
     out->gain[1] = m->K[EKF_Y];
     out->gain[2] = m->K[EKF_Z];
-}
-
-/* A vehicle at rest (UWB-only on the floor): velocity zero and known, the position's covariance kept. */
-static void hold_at_rest(ekf_t *ekf)
-{
-    int i, j;
-    for (i = EKF_PX; i <= EKF_PZ; i++) {
-        ekf->x[i] = 0.0f;
-        for (j = 0; j < EKF_N; j++) {
-            ekf->P[i][j] = 0.0f;
-            ekf->P[j][i] = 0.0f;
-        }
-        ekf->P[i][i] = EKF_P_MIN;
-    }
 }
 
 /* The start of every measurement: the CV prediction, the time rule's reference, and d_max, reported

@@ -3,9 +3,9 @@
  * (NLOS along the floor), so until the vehicle climbs the estimator gates without re-opening (estimator.c).
  * The climb shows in the thrust-axis accelerometer alone: a leaky integral of the vertical specific force
  * minus g (before take-off the logs read 9.7-9.9 m/s^2, during the climb 10.2-10.9 for about a second).
- * The touchdown shows as a shock: the shared logs read 5.7-38 m/s^2 above g when the vehicle meets the floor
- * or its motors stop on it, never more than 3.1 in flight; it puts the vehicle back on the floor until the
- * next climb. harness/twin/takeoff.py is the twin. */
+ * The touchdown shows as a shock: after the flight the shared logs read up to 6.8-38 m/s^2 above g (the vehicle
+ * meets the floor, its motors stop), in flight never more than 3.0; it puts the vehicle back on the floor until
+ * the next climb. harness/twin/takeoff.py is the twin. */
 #ifndef UWB_TAKEOFF_H
 #define UWB_TAKEOFF_H
 

@@ -298,8 +298,8 @@ class ErrorStateEkf:
         self.x[ATT] = 0.0
 
     def hold_at_rest(self) -> None:
-        """A vehicle at rest: velocity zero and known (P_MIN), its correlations dropped, the position's covariance
-        kept (estimator.c hold_at_rest)."""
+        """A vehicle at rest (after a touchdown; UWB-only: on the floor): velocity zero and known (P_MIN), its
+        correlations dropped, the position's covariance kept (estimator.c hold_at_rest)."""
         self.x[VEL] = 0.0
         self.P[VEL, :] = 0.0
         self.P[:, VEL] = 0.0

@@ -176,7 +176,9 @@ class TwinEstimator:
         self.t_imu_us = t_us
         c = self.config
         if self._imu_floor():   # UWB-only: R is the identity, the vehicle taken as level
-            self.takeoff.on_imu(t_us, float(acc[2]), float(self.ekf.R[2, 2]))
+            flying = self.takeoff.airborne
+            if not self.takeoff.on_imu(t_us, float(acc[2]), float(self.ekf.R[2, 2])) and flying:
+                self.ekf.hold_at_rest()   # a touchdown: the vehicle stopped
         if c.mode == MODE_UWB_ONLY:
             self.imu_ignored += 1
             return
