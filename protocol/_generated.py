@@ -8,7 +8,7 @@ from typing import ClassVar
 
 from protocol.config_check import ConfigError, ConfigField, check_field  # noqa: F401
 
-PROTOCOL_VERSION = 11
+PROTOCOL_VERSION = 12
 MAX_BODY = 250
 CRC_NAME = 'crc-32c'
 MAX_ANCHORS = 16
@@ -158,9 +158,9 @@ class Config:
     MSG_ID: ClassVar[int] = 0x02
     NAME: ClassVar[str] = 'CONFIG'
     DIRECTION: ClassVar[str] = 'to_device'
-    FORMAT: ClassVar[str] = '<BBBBffffffffffffffffffffffffff'
-    SIZE: ClassVar[int] = 108
-    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('tdoa_match', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'), ('lever_x', 'f32'), ('lever_y', 'f32'), ('lever_z', 'f32'), ('std_tof', 'f32'), ('tof_x', 'f32'), ('tof_y', 'f32'), ('tof_z', 'f32'))
+    FORMAT: ClassVar[str] = '<BBBBffffffffffffffffffffffffffB'
+    SIZE: ClassVar[int] = 109
+    FIELDS: ClassVar[tuple[tuple[str, str], ...]] = (('mode', 'u8'), ('stages', 'u8'), ('reset', 'u8'), ('tdoa_match', 'u8'), ('std_twr', 'f32'), ('std_tdoa', 'f32'), ('a_max_twr', 'f32'), ('a_max_tdoa', 'f32'), ('gate_dt_min', 'f32'), ('chi2_twr', 'f32'), ('chi2_tdoa', 'f32'), ('proc_acc_xy', 'f32'), ('proc_acc_z', 'f32'), ('proc_cv_acc', 'f32'), ('init_x', 'f32'), ('init_y', 'f32'), ('init_z', 'f32'), ('init_std_xy', 'f32'), ('init_std_z', 'f32'), ('nn_min_z', 'f32'), ('sup_margin', 'f32'), ('sup_max_speed', 'f32'), ('sup_max_var', 'f32'), ('lever_x', 'f32'), ('lever_y', 'f32'), ('lever_z', 'f32'), ('std_tof', 'f32'), ('tof_x', 'f32'), ('tof_y', 'f32'), ('tof_z', 'f32'), ('floor_imu', 'u8'))
 
     mode: int  # estimator mode
     stages: int  # pipeline stages on
@@ -192,6 +192,7 @@ class Config:
     tof_x: float  # TOF: the ranger's position in the body frame, from the point the state estimates
     tof_y: float
     tof_z: float
+    floor_imu: int  # 1: a vehicle that starts on the floor (a quadrotor's log): its thrust-axis accelerometer tells when it sits there (before its climb, after a touchdown; core/takeoff.h) in every mode; IMU_THRUST always does
 
 
 @dataclass(frozen=True)
@@ -615,6 +616,7 @@ CONFIG_FIELDS: tuple[ConfigField, ...] = (
     ConfigField('tof_x', 'f32', 0.0, unit='m', doc="TOF: the ranger's position in the body frame, from the point the state estimates"),
     ConfigField('tof_y', 'f32', 0.0, unit='m'),
     ConfigField('tof_z', 'f32', 0.0, unit='m'),
+    ConfigField('floor_imu', 'u8', 0, doc="1: a vehicle that starts on the floor (a quadrotor's log): its thrust-axis accelerometer tells when it sits there (before its climb, after a touchdown; core/takeoff.h) in every mode; IMU_THRUST always does", le=1.0),
     ConfigField('reset', 'u8', 1, doc='1: re-initialise the filter at init_pos', le=1.0, control=True),
 )
 
@@ -653,6 +655,7 @@ class EstimatorConfigBase:
     tof_x: float = 0.0  # TOF: the ranger's position in the body frame, from the point the state estimates [m]
     tof_y: float = 0.0  # [m]
     tof_z: float = 0.0  # [m]
+    floor_imu: int = 0  # 1: a vehicle that starts on the floor (a quadrotor's log): its thrust-axis accelerometer tells when it sits there (before its climb, after a touchdown; core/takeoff.h) in every mode; IMU_THRUST always does, <= 1
 
     def validate(self) -> None:
         """Raise ConfigError naming the first invalid field (the device refuses the same values)."""
@@ -693,4 +696,5 @@ class EstimatorConfigBase:
             tof_x=self.tof_x,
             tof_y=self.tof_y,
             tof_z=self.tof_z,
+            floor_imu=self.floor_imu,
         )

@@ -58,7 +58,7 @@ def _setup_and_sensor_vectors() -> list[tuple[str, int, Any]]:
             mode=1, stages=0, tdoa_match=2, std_twr=0.1, std_tdoa=0.3, a_max_twr=1.0, a_max_tdoa=2.0, gate_dt_min=0.005,
             chi2_twr=2.25, chi2_tdoa=3.24, proc_acc_xy=0.0, proc_acc_z=0.0, proc_cv_acc=1.0, init_x=-3.5,
             init_y=4.0, init_z=0.25, init_std_xy=100.0, init_std_z=1.0, nn_min_z=-1.0, sup_margin=0.0,
-            sup_max_speed=1e6, sup_max_var=0.25).to_message(reset=0)),
+            sup_max_speed=1e6, sup_max_var=0.25, floor_imu=1).to_message(reset=0)),
         ("anchor0", 4, m.Anchor(anchor_id=0, x=-3.5, y=-4.0, z=0.0)),
         ("anchor15", 5, m.Anchor(anchor_id=15, x=3.1479, y=3.5671, z=0.16637)),
         ("imu_rest", 6, m.Imu(t_us=1000, ax=0.0, ay=0.0, az=9.81, gx=0.0, gy=0.0, gz=0.0)),

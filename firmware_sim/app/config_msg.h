@@ -38,6 +38,7 @@ static inline void config_from_msg(const uwb_config_t *m, estimator_config_t *cf
     cfg->tof_x = m->tof_x;
     cfg->tof_y = m->tof_y;
     cfg->tof_z = m->tof_z;
+    cfg->floor_imu = m->floor_imu;
 }
 
 /* 1 if the message's own fields (reset) are valid. */

@@ -53,6 +53,26 @@ void estimator_configure(estimator_t *est, const estimator_config_t *cfg, int re
     }
 }
 
+/* A vehicle at rest (after a touchdown; UWB-only: on the floor): velocity zero and known, the position's covariance kept. */
+static void hold_at_rest(ekf_t *ekf)
+{
+    int i, j;
+    for (i = EKF_PX; i <= EKF_PZ; i++) {
+        ekf->x[i] = 0.0f;
+        for (j = 0; j < EKF_N; j++) {
+            ekf->P[i][j] = 0.0f;
+            ekf->P[j][i] = 0.0f;
+        }
+        ekf->P[i][i] = EKF_P_MIN;
+    }
+}
+
+/* The IMU tells when the vehicle sits on the floor (takeoff.h): the quadrotor model, or CONFIG floor_imu. */
+static int imu_floor(const estimator_config_t *cfg)
+{
+    return cfg->mode == EST_MODE_IMU_THRUST || cfg->floor_imu;
+}
+
 int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3])
 {
     uint32_t c0;
@@ -63,6 +83,12 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
     }
     est->t_imu_us = t_us;
     est->has_imu_time = 1;
+    if (imu_floor(&est->cfg)) { /* UWB-only: R is the identity, the vehicle taken as level */
+        const int flying = est->takeoff.airborne;
+        if (!takeoff_on_imu(&est->takeoff, t_us, acc[2], est->ekf.R[2][2]) && flying) {
+            hold_at_rest(&est->ekf); /* a touchdown: the vehicle stopped */
+        }
+    }
     if (est->cfg.mode == EST_MODE_UWB_ONLY) {
         est->imu_ignored++;
         return EST_OK;
@@ -73,7 +99,6 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
     a[1] = acc[1];
     a[2] = acc[2];
     if (est->cfg.mode == EST_MODE_IMU_THRUST) {
-        takeoff_on_imu(&est->takeoff, t_us, acc[2], est->ekf.R[2][2]);
         /* A quadrotor's rotors push along body z only: its horizontal specific force is drag, small, while
          * what the accelerometer reads there in flight is mostly vibration (a Crazyflie's: -2 m/s^2 mean,
          * 2 m/s^2 std, docs/real-flights.md). The Crazyflie's estimator uses the same model in flight. */
@@ -166,14 +191,15 @@ static float corrected_bias(estimator_t *est, const mm_kind_t *kind, const uint8
 }
 
 /* The gates' verdict on innovation y (variance S): kinematic first, then chi-square, which lets a link
- * through whose anchors have been rejected for longer than GATE_CHI2_REOPEN_US (rejected_us). */
+ * through whose anchors have been rejected for longer than GATE_CHI2_REOPEN_US (rejected_us). On the floor
+ * the chi-square test applies whatever the stages (the floor rule, not an outlier stage: begin_measurement). */
 static uint8_t gate_status(const estimator_config_t *cfg, const mm_kind_t *kind, float y, float d_max, float S,
-                           int64_t rejected_us)
+                           int64_t rejected_us, int on_floor)
 {
     if ((cfg->stages & EST_STAGE_KINEMATIC_GATE) && !gate_kinematic_pass(y, d_max, kind->gate_factor)) {
         return EST_REJECTED_KINEMATIC;
     }
-    if ((cfg->stages & EST_STAGE_CHI2_GATE) && !gate_chi2_pass(y, S, mm_cfg(cfg, kind->chi2_off)) &&
+    if (((cfg->stages & EST_STAGE_CHI2_GATE) || on_floor) && !gate_chi2_pass(y, S, mm_cfg(cfg, kind->chi2_off)) &&
         !gate_chi2_reopened(rejected_us)) {
         return EST_REJECTED_CHI2;
     }
@@ -206,16 +232,18 @@ static void fuse(estimator_t *est, ekf_scalar_t *m, const float H[3], float y, u
 
 /* The start of every measurement: the CV prediction, the time rule's reference, and d_max, reported
  * whatever happens next (plots). The velocity norm is frame independent and the CV prediction does not
- * change the velocity. On the floor (before take-off, or as a range to the floor says) the links to low anchors
- * read metres long for seconds: the gates do not re-open there (no widening, no lock-out guard); the vehicle
- * cannot have moved. */
-static void begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, const uint8_t ids[2],
-                              float z, estimator_result_t *out)
+ * change the velocity. On the floor (the IMU says so: before take-off, after a touchdown; or a range to the
+ * floor) the links to low anchors read metres long for seconds: the gates do not re-open there (no widening,
+ * no lock-out guard), the chi-square test applies in every configuration, and the CV model (UWB-only), which
+ * cannot see the vehicle stop, holds it at rest. Returns 1 on the floor. */
+static int begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, const uint8_t ids[2],
+                             float z, estimator_result_t *out)
 {
     const estimator_config_t *cfg = &est->cfg;
     const uint64_t t_ref = est->ekf.t_us;
     const int have_ref = est->ekf.has_time;
     float dt;
+    int on_floor;
     /* every field zeroed, field by field (GCC turns a struct clear into a memset call: ~120 instructions) */
     out->status = 0;
     out->flags = 0;
@@ -230,9 +258,13 @@ static void begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t 
     if (kind->floor_below > 0.0f) {
         takeoff_on_floor_range(&est->takeoff, t_us, z < kind->floor_below);
     }
-    dt = gate_kinematic_window(&est->kin, t_us, ids[0], ids[1], t_ref, have_ref, cfg->gate_dt_min,
-                               !takeoff_on_floor(&est->takeoff, cfg->mode == EST_MODE_IMU_THRUST, t_us));
+    on_floor = takeoff_on_floor(&est->takeoff, imu_floor(cfg), t_us);
+    if (on_floor && cfg->mode == EST_MODE_UWB_ONLY) {
+        hold_at_rest(&est->ekf);
+    }
+    dt = gate_kinematic_window(&est->kin, t_us, ids[0], ids[1], t_ref, have_ref, cfg->gate_dt_min, !on_floor);
     out->d_max = gate_kinematic_dmax(&est->ekf.x[EKF_PX], dt, mm_cfg(cfg, kind->a_max_off));
+    return on_floor;
 }
 
 /* The pipeline for one measurement z of a kind; ids and anchors: the kind's anchors' slots and positions
@@ -248,8 +280,8 @@ static void process(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, cons
     ekf_scalar_t m;
     uint32_t c0, c1, c2, c3;
     int rc;
+    const int on_floor = begin_measurement(est, kind, t_us, ids, z, out);
 
-    begin_measurement(est, kind, t_us, ids, z, out);
     /* 1. measurement model */
     c0 = platform_cost_now();
     rc = kind->model(&in, &h, H);
@@ -272,7 +304,7 @@ static void process(estimator_t *est, const mm_kind_t *kind, uint64_t t_us, cons
     c2 = platform_cost_now();
     /* 3./4. gates (S is needed by the chi-square gate and reported in every case) */
     ekf_scalar_prepare(ekf, &m, H, y, std * std + var_st);
-    out->status = gate_status(cfg, kind, y, out->d_max, m.S, est->kin.rejected_us);
+    out->status = gate_status(cfg, kind, y, out->d_max, m.S, est->kin.rejected_us, on_floor);
     /* the monitor compares what the filter sees with and without the correction, whatever the gates said */
     if ((cfg->stages & EST_STAGE_NN_MONITOR) && bias != 0.0f &&
         nn_monitor_observe(&est->nnmon, ids[0], ids[1], y, bias, m.S)) {

@@ -99,7 +99,7 @@ typedef struct {
     uint8_t flags;                    /* EST_FLAG_* since the last result */
     nn_monitor_t nnmon;               /* per-pair monitor of the network's corrections (reset with the filter) */
     bias_states_t bstates;            /* per-anchor bias states (BIAS_STATES; reset with the filter) */
-    takeoff_t takeoff;                /* IMU_THRUST: on the ground until the climb is seen (reset with the filter) */
+    takeoff_t takeoff;                /* IMU_THRUST or floor_imu: on the floor until the climb, after a touchdown */
     float last_good_pos[3];           /* re-initialisation point of the supervisor */
     uint32_t cost_predict;            /* cost of the predictions since the last measurement */
     uint32_t predictions;             /* IMU or CV predictions since power-up */

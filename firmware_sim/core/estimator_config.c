@@ -35,6 +35,7 @@ static const estimator_config_t defaults = {
     .tof_x = 0.0f,
     .tof_y = 0.0f,
     .tof_z = 0.0f,
+    .floor_imu = 0u,
 };
 
 void estimator_default_config(estimator_config_t *cfg)
@@ -52,6 +53,9 @@ int estimator_config_valid(const estimator_config_t *cfg)
         return 0;
     }
     if (!(cfg->tdoa_match == 0u || cfg->tdoa_match == 1u || cfg->tdoa_match == 2u)) {
+        return 0;
+    }
+    if (!(cfg->floor_imu <= 1u)) {
         return 0;
     }
     {
@@ -122,4 +126,5 @@ const estimator_config_field_t estimator_config_fields[ESTIMATOR_CONFIG_N_FIELDS
     {"tof_x", (uint16_t)offsetof(estimator_config_t, tof_x), 1},
     {"tof_y", (uint16_t)offsetof(estimator_config_t, tof_y), 1},
     {"tof_z", (uint16_t)offsetof(estimator_config_t, tof_z), 1},
+    {"floor_imu", (uint16_t)offsetof(estimator_config_t, floor_imu), 0},
 };

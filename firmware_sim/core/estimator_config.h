@@ -36,9 +36,10 @@ typedef struct {
     float tof_x; /* TOF: the ranger's position in the body frame, from the point the state estimates [m] */
     float tof_y; /* [m] */
     float tof_z; /* [m] */
+    uint8_t floor_imu; /* 1: a vehicle that starts on the floor (a quadrotor's log): its thrust-axis accelerometer tells when it sits there (before its climb, after a touchdown; core/takeoff.h) in every mode; IMU_THRUST always does, <= 1 */
 } estimator_config_t;
 
-#define ESTIMATOR_CONFIG_N_FIELDS 29u
+#define ESTIMATOR_CONFIG_N_FIELDS 30u
 
 /* The power-up values (harness/config.py EstimatorConfig's defaults). */
 void estimator_default_config(estimator_config_t *cfg);

@@ -163,6 +163,7 @@ static void unpack_config(const uint8_t *p, uwb_config_t *m)
     m->tof_x = get_f32(p + 96);
     m->tof_y = get_f32(p + 100);
     m->tof_z = get_f32(p + 104);
+    m->floor_imu = p[108];
 }
 
 static void pack_config(const uwb_config_t *m, uint8_t *p)
@@ -197,6 +198,7 @@ static void pack_config(const uwb_config_t *m, uint8_t *p)
     put_f32(p + 96, m->tof_x);
     put_f32(p + 100, m->tof_y);
     put_f32(p + 104, m->tof_z);
+    p[108] = m->floor_imu;
 }
 
 static void unpack_anchor(const uint8_t *p, uwb_anchor_t *m)

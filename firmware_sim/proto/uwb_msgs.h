@@ -5,7 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define UWB_PROTO_VERSION 11u
+#define UWB_PROTO_VERSION 12u
 #define UWB_MAX_BODY 250u       /* type + seq + payload + crc */
 #define UWB_MAX_ANCHORS 16u
 #define UWB_HEADER_SIZE 3u
@@ -130,7 +130,7 @@ typedef struct {
 
 /* CONFIG (to_device): Estimator configuration. Refused as a whole (ERROR BAD_CONFIG) if any value is invalid. */
 #define UWB_MSG_CONFIG 0x02u
-#define UWB_MSG_CONFIG_LEN 108u
+#define UWB_MSG_CONFIG_LEN 109u
 typedef struct {
     uint8_t mode;
     uint8_t stages;
@@ -162,6 +162,7 @@ typedef struct {
     float tof_x;
     float tof_y;
     float tof_z;
+    uint8_t floor_imu;
 } uwb_config_t;
 
 /* ANCHOR (to_device): Anchor position, as the LPP short packet ANCHOR_POSITION (id + 3 x float32). */

@@ -68,6 +68,7 @@ static int uwb_msg_format(const uwb_msg_t *msg, char *out, size_t cap)
         w += fmt_f32(out + w, cap - w, "tof_x", msg->u.config.tof_x);
         w += fmt_f32(out + w, cap - w, "tof_y", msg->u.config.tof_y);
         w += fmt_f32(out + w, cap - w, "tof_z", msg->u.config.tof_z);
+        w += fmt_u64(out + w, cap - w, "floor_imu", (unsigned long long)msg->u.config.floor_imu);
         break;
     case UWB_MSG_ANCHOR:
         w += fmt_u64(out + w, cap - w, "anchor_id", (unsigned long long)msg->u.anchor.anchor_id);

@@ -14,12 +14,15 @@ from harness.flight.data import Flight
 def config_for(flight: Flight, base: EstimatorConfig | None = None, stages: int | None = None,
                uwb_only: bool | None = None) -> EstimatorConfig:
     """Estimator configuration for a flight: start at its first true position, IMU mode if it has IMU (the
-    quadrotor model, MODE_IMU_THRUST, for a flight whose meta says `vehicle: quadrotor`, as a Crazyflie log)."""
+    quadrotor model, MODE_IMU_THRUST, for a flight whose meta says `vehicle: quadrotor`, as a Crazyflie log; such
+    a flight with IMU gets floor_imu = 1 in every mode, UWB-only included)."""
     cfg = base or EstimatorConfig()
     p0 = flight.truth.position_at([int(flight.uwb.t_us[0])])[0] if len(flight.uwb) else (0.0, 0.0, 0.0)
     imu_mode = MODE_IMU_THRUST if flight.meta.get("vehicle") == "quadrotor" else MODE_IMU
     mode = MODE_UWB_ONLY if (uwb_only or not flight.has_imu) else imu_mode
-    cfg = replace(cfg, mode=mode).with_init(*p0)
+    # a quadrotor log starts on the floor: its IMU tells when it sits there, in every mode (core/takeoff.h)
+    quad = flight.meta.get("vehicle") == "quadrotor" and flight.has_imu
+    cfg = replace(cfg, mode=mode, floor_imu=int(quad) or cfg.floor_imu).with_init(*p0)
     if flight.aux is not None and "tof_offset_m" in flight.meta:   # the ranger's offset from the state's point
         tx, ty, tz = (float(v) for v in flight.meta["tof_offset_m"])   # type: ignore[attr-defined]
         cfg = replace(cfg, tof_x=tx, tof_y=ty, tof_z=tz)

@@ -297,6 +297,14 @@ class ErrorStateEkf:
             self.P = sym_clamp(A @ self.P @ A.T)
         self.x[ATT] = 0.0
 
+    def hold_at_rest(self) -> None:
+        """A vehicle at rest (after a touchdown; UWB-only: on the floor): velocity zero and known (P_MIN), its
+        correlations dropped, the position's covariance kept (estimator.c hold_at_rest)."""
+        self.x[VEL] = 0.0
+        self.P[VEL, :] = 0.0
+        self.P[:, VEL] = 0.0
+        self.P[VEL, VEL] = np.eye(3) * P_MIN
+
     def is_finite(self) -> bool:
         """True if the state, ``q`` and the diagonal of P are finite."""
         return bool(np.all(np.isfinite(self.x)) and np.all(np.isfinite(self.q))

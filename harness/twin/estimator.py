@@ -42,14 +42,11 @@ FLAG_HEIGHT_FUSED = int(ResultFlag.HEIGHT_FUSED)
 FLAG_NN_PAIR_OFF = int(ResultFlag.NN_PAIR_OFF)
 
 # protocol enum status
-ACCEPTED = int(Status.ACCEPTED)
-REJECTED_KINEMATIC = int(Status.REJECTED_KINEMATIC)
-REJECTED_CHI2 = int(Status.REJECTED_CHI2)
+ACCEPTED, REJECTED_KINEMATIC, REJECTED_CHI2 = int(Status.ACCEPTED), int(Status.REJECTED_KINEMATIC), int(Status.REJECTED_CHI2)
 REJECTED_GEOMETRY, REJECTED_BASELINE = int(Status.REJECTED_GEOMETRY), int(Status.REJECTED_BASELINE)
 
 # protocol enum error_code (what the firmware answers with ERROR)
-ERR_UNKNOWN_ANCHOR = int(ErrorCode.UNKNOWN_ANCHOR)
-ERR_TIME_BACKWARDS = int(ErrorCode.TIME_BACKWARDS)
+ERR_UNKNOWN_ANCHOR, ERR_TIME_BACKWARDS = int(ErrorCode.UNKNOWN_ANCHOR), int(ErrorCode.TIME_BACKWARDS)
 ERR_BAD_ANCHOR_ID = int(ErrorCode.BAD_ANCHOR_ID)
 ERR_BAD_VALUE = int(ErrorCode.BAD_VALUE)
 
@@ -177,17 +174,23 @@ class TwinEstimator:
         if self.t_imu_us is not None and t_us < self.t_imu_us:
             raise TwinError(ERR_TIME_BACKWARDS, f"IMU time {t_us} < {self.t_imu_us}")
         self.t_imu_us = t_us
-        if self.config.mode == MODE_UWB_ONLY:
+        c = self.config
+        if self._imu_floor():   # UWB-only: R is the identity, the vehicle taken as level
+            flying = self.takeoff.airborne
+            if not self.takeoff.on_imu(t_us, float(acc[2]), float(self.ekf.R[2, 2])) and flying:
+                self.ekf.hold_at_rest()   # a touchdown: the vehicle stopped
+        if c.mode == MODE_UWB_ONLY:
             self.imu_ignored += 1
             return
-        c = self.config
         a = np.array(acc, dtype=np.float64)
         if c.mode == MODE_IMU_THRUST:   # quadrotor: the horizontal specific force taken as zero (estimator.c)
-            self.takeoff.on_imu(t_us, float(a[2]), float(self.ekf.R[2, 2]))
             a[:2] = 0.0
         if self.ekf.imu_sample(t_us, a, np.asarray(gyro, dtype=np.float64), c.proc_acc_xy, c.proc_acc_z):
             self.predictions += 1
             self._supervise()
+
+    def _imu_floor(self) -> bool:   # the IMU tells when the vehicle sits on the floor (estimator.c imu_floor)
+        return self.config.mode == MODE_IMU_THRUST or bool(self.config.floor_imu)
 
     def on_meas(self, kind: int, t_us: int, ids: tuple[int, ...], z: float) -> TwinResult:
         """One measurement of any kind (harness/kinds.py) naming anchors ``ids`` (A, or A and B, or none), as
@@ -302,7 +305,10 @@ class TwinEstimator:
         ekf = self.ekf
         if kind.floor_below > 0.0:   # a range to the floor: does the vehicle sit on it?
             self.takeoff.on_floor_range(t_us, np.float32(z) < np.float32(kind.floor_below))
-        on_floor = self.takeoff.on_floor(c.mode == MODE_IMU_THRUST, t_us)   # the gates do not re-open there
+        # on the floor: no re-opening, chi-square whatever the stages, UWB-only at rest (begin_measurement)
+        on_floor = self.takeoff.on_floor(self._imu_floor(), t_us)
+        if on_floor and c.mode == MODE_UWB_ONLY:
+            self.ekf.hold_at_rest()
         dt = self.kin.window(t_us, ids, t_ref, c.gate_dt_min, widen=not on_floor)
         d_max = gates.kinematic_dmax(ekf.x[3:6], dt, kind.a_max(c))
 
@@ -324,7 +330,7 @@ class TwinEstimator:
         # NN_STD: the network's own std of what it leaves, when it predicts one; else the configured std
         std = std_nn if (c.stages & STAGE_NN_STD and std_nn > 0.0) else kind.meas_std(inp)
         upd = ekf.prepare(H3, y, std * std + var_st)
-        status = self._gate_status(kind, y, d_max, upd.S)
+        status = self._gate_status(kind, y, d_max, upd.S, on_floor)
         # the monitor compares what the filter sees with and without the correction, whatever the gates said
         if c.stages & STAGE_NN_MONITOR and bias != 0.0 and self.nnmon.observe(ids[0], ids[1], y, bias, upd.S):
             self.flags |= FLAG_NN_PAIR_OFF
@@ -344,13 +350,14 @@ class TwinEstimator:
             self._supervise()
         return self._result(status, y, upd.S, bias + b_st, d_max, gain, upd.mahalanobis)
 
-    def _gate_status(self, kind: MeasurementKind, y: float, d_max: float, S: float) -> int:
+    def _gate_status(self, kind: MeasurementKind, y: float, d_max: float, S: float, on_floor: bool = False) -> int:
         """The gates' verdict on innovation y (variance S): kinematic first, then chi-square, open for a link
-        whose anchors had been rejected for long (estimator.c gate_status)."""
+        whose anchors had been rejected for long; on the floor the chi-square test applies whatever the stages
+        (estimator.c gate_status)."""
         c = self.config
         if c.stages & STAGE_KINEMATIC_GATE and not gates.kinematic_pass(y, d_max, kind.gate_factor):
             return REJECTED_KINEMATIC
-        if (c.stages & STAGE_CHI2_GATE and not gates.chi2_pass(y, S, kind.chi2(c))
+        if ((c.stages & STAGE_CHI2_GATE or on_floor) and not gates.chi2_pass(y, S, kind.chi2(c))
                 and not self._chi2_reopened()):
             return REJECTED_CHI2
         return ACCEPTED

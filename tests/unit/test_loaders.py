@@ -68,6 +68,9 @@ def test_official_util_csv_fixture_with_imu_and_attitude() -> None:
     assert abs(f.truth.pos[0, 2] - (1.0 + 0.0908)) > 1e-3
     assert config_for(f).mode == MODE_IMU_THRUST    # a Crazyflie: the quadrotor model
     assert config_for(replace(f, meta={})).mode == MODE_IMU
+    # its IMU tells the floor in every mode, UWB-only included; not for another vehicle, nor without IMU
+    assert config_for(f, uwb_only=True).floor_imu == 1 and config_for(f).floor_imu == 1
+    assert config_for(replace(f, meta={})).floor_imu == 0 and config_for(replace(f, imu=None)).floor_imu == 0
 
 
 def test_util_survey_files_give_the_same_flight(tmp_path: Path) -> None:
