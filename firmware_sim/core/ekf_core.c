@@ -214,6 +214,20 @@ static void rotate_covariance(float *P, const float G[3][3])
     put_sym(P, EKF_D1, EKF_D2, ekf_clamp_cov(0.5f * (M[1][2] + M[2][1])));
 }
 
+/* Velocity zero and known (the position's covariance kept): ekf_core.h. */
+void ekf_hold_at_rest(ekf_t *ekf)
+{
+    int i, j;
+    for (i = EKF_PX; i <= EKF_PZ; i++) {
+        ekf->x[i] = 0.0f;
+        for (j = 0; j < EKF_N; j++) {
+            ekf->P[i][j] = 0.0f;
+            ekf->P[j][i] = 0.0f;
+        }
+        ekf->P[i][i] = EKF_P_MIN;
+    }
+}
+
 void ekf_finalize(ekf_t *ekf)
 {
     const float v[3] = {ekf->x[EKF_D0], ekf->x[EKF_D1], ekf->x[EKF_D2]};

@@ -83,6 +83,10 @@ void ekf_scalar_update(ekf_t *ekf, ekf_scalar_t *m, const float h[3], float inno
  * covariance clamp leaves it (symmetric, bounded: right after ekf_scalar_apply), as every caller has it. */
 void ekf_finalize(ekf_t *ekf);
 
+/* A vehicle at rest (after a touchdown; UWB-only: on the floor): velocity zero and known, its covariance
+ * rows and columns zeroed but for EKF_P_MIN on the diagonal; the position's covariance kept. */
+void ekf_hold_at_rest(ekf_t *ekf);
+
 /* P = (P + P^T) / 2; a variance above EKF_P_MAX scales its row and column down to it (keeps P positive
  * semi-definite); a non-finite variance becomes EKF_P_MAX without correlations; other NaN -> 0;
  * |P_ij| <= EKF_P_MAX, P_ii >= EKF_P_MIN. */

@@ -53,67 +53,6 @@ void estimator_configure(estimator_t *est, const estimator_config_t *cfg, int re
     }
 }
 
-/* A vehicle at rest (after a touchdown; UWB-only: on the floor): velocity zero and known, the position's covariance kept. */
-static void hold_at_rest(ekf_t *ekf)
-{
-    int i, j;
-    for (i = EKF_PX; i <= EKF_PZ; i++) {
-        ekf->x[i] = 0.0f;
-        for (j = 0; j < EKF_N; j++) {
-            ekf->P[i][j] = 0.0f;
-            ekf->P[j][i] = 0.0f;
-        }
-        ekf->P[i][i] = EKF_P_MIN;
-    }
-}
-
-/* The IMU tells when the vehicle sits on the floor (takeoff.h): the quadrotor model, or CONFIG floor_imu. */
-static int imu_floor(const estimator_config_t *cfg)
-{
-    return cfg->mode == EST_MODE_IMU_THRUST || cfg->floor_imu;
-}
-
-int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3])
-{
-    uint32_t c0;
-    ekf_noise_t noise;
-    float a[3];
-    if (est->has_imu_time && t_us < est->t_imu_us) {
-        return EST_ERR_TIME_BACKWARDS;
-    }
-    est->t_imu_us = t_us;
-    est->has_imu_time = 1;
-    if (imu_floor(&est->cfg)) { /* UWB-only: R is the identity, the vehicle taken as level */
-        const int flying = est->takeoff.airborne;
-        if (!takeoff_on_imu(&est->takeoff, t_us, acc[2], est->ekf.R[2][2]) && flying) {
-            hold_at_rest(&est->ekf); /* a touchdown: the vehicle stopped */
-        }
-    }
-    if (est->cfg.mode == EST_MODE_UWB_ONLY) {
-        est->imu_ignored++;
-        return EST_OK;
-    }
-    noise.acc_xy = est->cfg.proc_acc_xy;
-    noise.acc_z = est->cfg.proc_acc_z;
-    a[0] = acc[0];
-    a[1] = acc[1];
-    a[2] = acc[2];
-    if (est->cfg.mode == EST_MODE_IMU_THRUST) {
-        /* A quadrotor's rotors push along body z only: its horizontal specific force is drag, small, while
-         * what the accelerometer reads there in flight is mostly vibration (a Crazyflie's: -2 m/s^2 mean,
-         * 2 m/s^2 std, docs/real-flights.md). The Crazyflie's estimator uses the same model in flight. */
-        a[0] = 0.0f;
-        a[1] = 0.0f;
-    }
-    c0 = platform_cost_now();
-    if (ekf_imu_sample(&est->ekf, &noise, t_us, a, gyro)) {
-        est->predictions++;
-        estimator_supervise(est);
-        est->cost_predict += platform_cost_now() - c0;
-    }
-    return EST_OK;
-}
-
 /* Bias (measured - true) from the network of this kind, or 0 when the stage is off, there is no
  * network, or the estimate is below nn_min_z (power-up -1: every height; 0.5 m is the paper's take-off rule,
  * the out-of-range fade below guards heights the network never saw).
@@ -258,9 +197,9 @@ static int begin_measurement(estimator_t *est, const mm_kind_t *kind, uint64_t t
     if (kind->floor_below > 0.0f) {
         takeoff_on_floor_range(&est->takeoff, t_us, z < kind->floor_below);
     }
-    on_floor = takeoff_on_floor(&est->takeoff, imu_floor(cfg), t_us);
+    on_floor = takeoff_on_floor(&est->takeoff, estimator_floor_from_imu(cfg), t_us);
     if (on_floor && cfg->mode == EST_MODE_UWB_ONLY) {
-        hold_at_rest(&est->ekf);
+        ekf_hold_at_rest(&est->ekf);
     }
     dt = gate_kinematic_window(&est->kin, t_us, ids[0], ids[1], t_ref, have_ref, cfg->gate_dt_min, !on_floor);
     out->d_max = gate_kinematic_dmax(&est->ekf.x[EKF_PX], dt, mm_cfg(cfg, kind->a_max_off));

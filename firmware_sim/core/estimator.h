@@ -54,6 +54,12 @@ enum {
 /* Modes and stage bits (= protocol enums ekf_mode, stage). */
 /* EST_MODE_IMU_THRUST: IMU mode for a quadrotor, the horizontal specific force taken as zero (estimator.c). */
 enum { EST_MODE_IMU = 0, EST_MODE_UWB_ONLY = 1, EST_MODE_IMU_THRUST = 2 };
+
+/* The IMU tells when the vehicle sits on the floor (takeoff.h): the quadrotor model, or CONFIG floor_imu. */
+static inline int estimator_floor_from_imu(const estimator_config_t *cfg)
+{
+    return cfg->mode == EST_MODE_IMU_THRUST || cfg->floor_imu;
+}
 enum {
     EST_STAGE_BIAS_NN = 1,
     EST_STAGE_KINEMATIC_GATE = 2,
