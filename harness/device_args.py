@@ -40,7 +40,7 @@ def add_device_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--qemu-clock", choices=("icount", "host"), default="icount",
                    help="qemu only: icount (-icount shift=0: every guest instruction is 1 ns of virtual time, the "
                         "RESULT costs are exact instruction counts; default) or host (QEMU's virtual clock follows "
-                        "the host's: ~15 %% faster replays, costs in ns of that clock; docs/qemu.md \"Speed\")")
+                        "the host's: no instruction counting, costs in ns of that clock; docs/qemu.md \"Speed\")")
     g.add_argument("--timeout", type=options.timeout_s, default=5.0,
                    help="seconds of device silence before giving up (> 0)")
     g.add_argument("--log-dir", help="where device logs go")
