@@ -69,7 +69,7 @@ static inline void clamp_in_range(float *P, int average)
     for (i = 0; i < EKF_N; i++) {
         float *row = P + i * EKF_N;
         const float d = row[i];
-        row[i] = d < EKF_P_MIN ? EKF_P_MIN : d;
+        row[i] = ekf_var_floor(d);
         for (j = i + 1; j < EKF_N; j++) {
             const float v = ekf_clamp_cov(average ? 0.5f * (row[j] + P[j * EKF_N + i]) : row[j]);
             row[j] = v;
@@ -207,7 +207,7 @@ static void rotate_covariance(float *P, const float G[3][3])
         return;
     }
     for (i = 0; i < 3; i++) {
-        P[(EKF_D0 + i) * (EKF_N + 1)] = M[i][i] < EKF_P_MIN ? EKF_P_MIN : M[i][i];
+        P[(EKF_D0 + i) * (EKF_N + 1)] = ekf_var_floor(M[i][i]);
     }
     put_sym(P, EKF_D0, EKF_D1, ekf_clamp_cov(0.5f * (M[0][1] + M[1][0])));
     put_sym(P, EKF_D0, EKF_D2, ekf_clamp_cov(0.5f * (M[0][2] + M[2][0])));

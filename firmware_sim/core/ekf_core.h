@@ -6,6 +6,7 @@
 
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 #define EKF_N 9
 
@@ -100,9 +101,30 @@ void ekf_sym_clamp_upper(float *P);
 
 /* The entry-wise bounds of the clamp's usual path (every variance finite and <= EKF_P_MAX, so no row is
  * scaled; ekf_core.c, ekf_update.c): a variance in range, one off-diagonal entry bounded (NaN -> 0). */
+/* The tests below compare IEEE bit patterns as integers: the same results as the float compares (a finite
+ * float's magnitude orders as its bits, inf and NaN above every finite one), the same instruction count on the
+ * M4, and no VFP compare, which an emulator runs as helper calls (vabs, vcmpe: ~10 % of QEMU's time on a
+ * replay, docs/qemu.md "Speed"). EKF_P_MAX_BITS / EKF_P_MIN_BITS are checked against the floats by
+ * tests/test_ekf.c. */
+#define EKF_P_MAX_BITS 0x42c80000u       /* 100.0f */
+#define EKF_P_MIN_BITS 0x358637bdu       /* 1e-6f */
+
+static inline uint32_t ekf_f32_bits(float v)
+{
+    uint32_t u;
+    memcpy(&u, &v, sizeof u);
+    return u;
+}
+
 static inline int ekf_var_in_range(float d)
 {
-    return fabsf(d) <= EKF_P_MAX; /* 0 also for NaN and -inf */
+    return (ekf_f32_bits(d) & 0x7fffffffu) <= EKF_P_MAX_BITS; /* fabsf(d) <= EKF_P_MAX: 0 also for NaN, -inf */
+}
+
+/* max(d, EKF_P_MIN) for a d that is not NaN (d < EKF_P_MIN ? EKF_P_MIN : d): signed, a negative d is below. */
+static inline float ekf_var_floor(float d)
+{
+    return (int32_t)ekf_f32_bits(d) < (int32_t)EKF_P_MIN_BITS ? EKF_P_MIN : d;
 }
 
 #if defined(__GNUC__)
@@ -116,7 +138,7 @@ EKF_COLD float ekf_clamp_cov_out(float v);
 
 static inline float ekf_clamp_cov(float v)
 {
-    return fabsf(v) <= EKF_P_MAX ? v : ekf_clamp_cov_out(v); /* the usual case: one test */
+    return ekf_var_in_range(v) ? v : ekf_clamp_cov_out(v); /* the usual case: one test, |v| <= EKF_P_MAX */
 }
 
 /* 1 if the state, q and the diagonal of P are all finite. */

@@ -64,7 +64,7 @@ static void joseph_write_clamped(float *P, const joseph_t *t, const float *diag)
         }
     }
     for (i = 0; i < EKF_N; i++) {
-        P[i * EKF_N + i] = diag[i] < EKF_P_MIN ? EKF_P_MIN : diag[i];
+        P[i * EKF_N + i] = ekf_var_floor(diag[i]);
     }
 }
 

@@ -332,6 +332,30 @@ static void test_is_finite(void)
     CHECK(ekf_state_finite(&e) && !ekf_is_finite(&e));
 }
 
+/* The integer forms of the clamp's tests agree with the float compares they replace (ekf_core.h). */
+static void test_clamp_bit_tests_match_float_compares(void)
+{
+    const float vals[] = {0.0f, -0.0f, 1e-7f, 9.99e-7f, EKF_P_MIN, 1.01e-6f, 0.5f, 99.999f, EKF_P_MAX, 100.001f,
+                          -1e-7f, -0.5f, -EKF_P_MAX, -100.001f, 1e30f, -1e30f, 1e-40f, -1e-40f,
+                          INFINITY, -INFINITY, NAN};
+    size_t k;
+    CHECK(ekf_f32_bits(EKF_P_MAX) == EKF_P_MAX_BITS);
+    CHECK(ekf_f32_bits(EKF_P_MIN) == EKF_P_MIN_BITS);
+    for (k = 0; k < sizeof vals / sizeof vals[0]; k++) {
+        const float v = vals[k];
+        CHECK(ekf_var_in_range(v) == (fabsf(v) <= EKF_P_MAX));
+        if (v == v) {
+            const float want = v < EKF_P_MIN ? EKF_P_MIN : v;
+            CHECK(ekf_f32_bits(ekf_var_floor(v)) == ekf_f32_bits(want));
+        }
+        if (fabsf(v) <= EKF_P_MAX) {
+            CHECK(ekf_f32_bits(ekf_clamp_cov(v)) == ekf_f32_bits(v));
+        } else {
+            CHECK(ekf_clamp_cov(v) == (v != v ? 0.0f : (v > 0.0f ? EKF_P_MAX : -EKF_P_MAX)));
+        }
+    }
+}
+
 int main(void)
 {
     RUN(test_scalar_update_hand_computed);
@@ -339,6 +363,7 @@ int main(void)
     RUN(test_joseph_keeps_symmetric_pd);
     RUN(test_update_and_finalize_leave_p_clamped);
     RUN(test_sym_clamp);
+    RUN(test_clamp_bit_tests_match_float_compares);
     RUN(test_sym_clamp_keeps_pd);
     RUN(test_finalize_moves_attitude_error_into_q);
     RUN(test_quat_to_rpy_angles_within_three_ulp);
