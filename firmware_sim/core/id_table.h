@@ -1,6 +1,8 @@
 /* The first of 16 slots holding an 8-bit id, four ids compared per step: in each word of four ids,
  * id ^ word has a zero byte where they are equal, and (x - 0x01..) & ~x & 0x80.. marks the lowest zero
- * byte exactly. Used by the TDoA engine's remote/ToF tables and the estimator's anchor table. */
+ * byte exactly. Used by the TDoA engine's remote/ToF tables and the estimator's anchor table. The same
+ * zero-byte test as proto/zero_bytes.h's zero_flags(): core/ and proto/ may not include each other
+ * (docs/ARCHITECTURE.md), so each keeps its one line. */
 #ifndef UWB_ID_TABLE_H
 #define UWB_ID_TABLE_H
 

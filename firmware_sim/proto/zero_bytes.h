@@ -14,7 +14,8 @@
 #endif
 
 /* The zero-byte test of 4 bytes (little-endian word w): bit 7 of every byte that is 0x00 set, and of no byte
- * below the first zero; a byte above a zero may be flagged falsely (a borrow), so those need a check. */
+ * below the first zero; a byte above a zero may be flagged falsely (a borrow), so those need a check. The same
+ * test is core/id_table.h's (proto/ and core/ may not include each other: docs/ARCHITECTURE.md). */
 static inline uint32_t zero_flags(uint32_t w)
 {
     return (w - 0x01010101u) & ~w & 0x80808080u;

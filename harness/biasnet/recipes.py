@@ -14,12 +14,14 @@ the shelf flights of 0426 (3: TDoA2, 5: TDoA3; non-line-of-sight) are never trai
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Callable
 
 from harness.errors import UsageError
 from harness.flight.data import Flight
 from harness.flight.formats.cf_usd_flight import UsdOptions
+from harness.flight.formats.cf_usd_summary import FileStamp, file_stamp
 
 FIRST_EVAL_SEED = 1000
 
@@ -125,24 +127,43 @@ def cf_usd_shelf_files(data: Path) -> list[Path]:
     return cf_usd_files(data, CF_USD_SHELF)
 
 
-def cf_usd_lever_arms(data: Path) -> dict[str, tuple[float, float, float]]:
+#: a tag lever arm, body frame [m]
+LeverArm = tuple[float, float, float]
+
+
+def cf_usd_lever_arms(data: Path) -> dict[str, LeverArm]:
     """The tag's lever arm every shared uSD flight is read with (flight name -> body-frame metres), calibrated
     as `uwb-hil lever-arm` does on flights other than the evaluated ones: a 0425 flight takes the fit on the
     0425 training flights (training and evaluation flights alike; the network is trained on that tag point),
     a shelf flight the fit on the other shelf flight (the vehicle was set up anew on 0426). Empty without
-    the shared data."""
-    from harness.flight.lever_arm import fit_lever_arm
-    from harness.flight.loaders import load_recordings
+    the shared data. The logs are loaded and fitted once per process while they and their anchor files are
+    unchanged (_fitted_lever_arms)."""
+    from harness.flight.loaders import find_usd_anchor_file
     train, shelf = cf_usd_train_files(data), cf_usd_shelf_files(data)
     if not train:
         return {}
-    day0425 = fit_lever_arm(load_recordings(train)).lever_arm_m
+    logs = (*train, *shelf)
+    anchor_files = sorted({a for a in map(find_usd_anchor_file, logs) if a is not None})
+    day0425, shelf_fits = _fitted_lever_arms(tuple(train), tuple(shelf),
+                                             tuple(file_stamp(p) for p in (*logs, *anchor_files)))
     out = {p.name: day0425 for p in (*train, *cf_usd_heldout_files(data))}
-    for p in shelf:
-        others = [q for q in shelf if q != p]
-        if others:
-            out[p.name] = fit_lever_arm(load_recordings(others)).lever_arm_m
+    out.update(shelf_fits)
     return out
+
+
+# lru_cache on a function of the files and their identity (FileStamp: path, size, mtime_ns; `stamps` only keys
+# the cache) rather than a cache object: the campaign plan, `make real-flights` and the shipped-model checks each
+# ask for the same fits; the cache is bounded and no module-level state of ours. Its values are immutable tuples.
+@lru_cache(maxsize=8)
+def _fitted_lever_arms(train: tuple[Path, ...], shelf: tuple[Path, ...], stamps: tuple[FileStamp, ...]
+                       ) -> tuple[LeverArm, tuple[tuple[str, LeverArm], ...]]:
+    """(the fit on the 0425 training flights, (shelf flight name, the fit on the other shelf flight) ...)."""
+    from harness.flight.lever_arm import fit_lever_arm
+    from harness.flight.loaders import load_recordings
+    day0425 = fit_lever_arm(load_recordings(train)).lever_arm_m
+    shelf_fits = tuple((p.name, fit_lever_arm(load_recordings(others)).lever_arm_m)
+                       for p in shelf if (others := [q for q in shelf if q != p]))
+    return day0425, shelf_fits
 
 
 def load_cf_usd_calibrated(paths: list[Path], levers: dict[str, tuple[float, float, float]]) -> list[Flight]:

@@ -96,11 +96,11 @@ def usd_flights(data_dir: Path, with_models: bool = True
 def _replays(path: Path, notes: list[str]) -> list[tuple[str, bool, bool]]:
     """(label suffix, UWB-only, ToF) of each replay of one log: the paper's system (IMU, no ranger), UWB-only,
     and IMU + ToF ranger when the log has readings (`uwb-hil run`'s default on such a log)."""
-    from harness.flight.formats.cf_usd_flight import has_tof_readings
+    from harness.flight.formats.cf_usd_summary import usd_summary
     from harness.flight.formats.common import RecordingError
     replays = [("", False, False), (UWB_ONLY_SUFFIX, True, False)]
     try:
-        if has_tof_readings(path):
+        if usd_summary(path).has_tof_readings:
             replays.append((TOF_SUFFIX, False, True))
     except RecordingError as e:     # the replays themselves fail with the reason; the plan says it here
         notes.append(f"{path.name}: not readable at plan time ({e}): no ToF replay planned")

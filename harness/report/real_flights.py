@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.biasnet.recipes import CF_USD_EVAL, CF_USD_LOS, CF_USD_SHELF, cf_usd_lever_arms
-from harness.flight.formats.cf_usd_flight import has_tof_readings
+from harness.flight.formats.cf_usd_summary import usd_summary
 from harness.paths import REPO_ROOT, shared_data_dir
 from harness.report.replay_all import run_json
 
@@ -87,7 +87,7 @@ def plan(data: Path, fits: dict[str, str], model: Path | None, logs: tuple[str, 
             continue
         lever = ("--lever-arm", fits[flight]) if flight in fits else ()
         model_args = ("--model", str(model)) if model is not None else ()
-        variants = (("", "--no-tof"), (", ToF", "--tof")) if has_tof_readings(rec) else (("", "--no-tof"),)
+        variants = (("", "--no-tof"), (", ToF", "--tof")) if usd_summary(rec).has_tof_readings else (("", "--no-tof"),)
         for label, args, nn in MAIN:
             if nn and model is None:
                 continue

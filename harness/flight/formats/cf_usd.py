@@ -90,38 +90,67 @@ def read_usd_log(path: Path | str, *, ignore_crc: bool = False) -> UsdLog:
     """Decode a whole log. A CRC mismatch is refused unless ignore_crc (then it is kept in crc_message)."""
     path = Path(path)
     data = path.read_bytes()
+    index = index_records(data, path)
+    crc_message = ""
+    if not index.crc_ok:
+        reason, offset = crc_mismatch(data)
+        if not ignore_crc:
+            raise RecordingError(reason + " (pass --ignore-crc to load it anyway)", path=path, offset=offset)
+        crc_message = f"{path}, byte offset {offset}: {reason}"
+    log = UsdLog(path=path, version=index.version, types=index.types, crc_ok=index.crc_ok, crc_message=crc_message,
+                 records_start=index.records_start, size=len(data))
+    buf = np.frombuffer(data, dtype=np.uint8)
+    time_bytes = index.time_bytes
+    for type_id, et in index.types.items():
+        at = index.starts[index.ids == type_id]
+        if at.size == 0:
+            continue
+        dt = et.values_dtype(time_bytes)
+        raw = buf[at[:, None] + np.arange(dt.itemsize)]                    # (n, record size) bytes
+        log.times[et.name] = index.stamps_us(raw[:, 2:2 + time_bytes])
+        log.events[et.name] = _native(raw.reshape(-1).view(dt), et)
+        log.offsets[et.name] = at
+    return log
+
+
+@dataclass(frozen=True)
+class RecordIndex:
+    """A log's header and where each record starts, with its event id: one walk, no payload decoded (what
+    read_usd_log gathers the records by, and all cf_usd_summary needs)."""
+
+    version: int
+    types: dict[int, EventType]
+    records_start: int
+    crc_ok: bool
+    starts: np.ndarray            # byte offset of every record (int64)
+    ids: np.ndarray               # its event id (int64)
+
+    @property
+    def time_bytes(self) -> int:
+        return int(np.dtype(VERSIONS[self.version][0]).itemsize)
+
+    def stamps_us(self, stamp_bytes: np.ndarray) -> np.ndarray:
+        """(n, time_bytes) uint8 timestamp fields -> int64 microseconds."""
+        time_dtype, tick_us = VERSIONS[self.version]
+        return np.ascontiguousarray(stamp_bytes).view(time_dtype)[:, 0].astype(np.int64) * tick_us
+
+
+def index_records(data: bytes, path: Path) -> RecordIndex:
+    """The header, the CRC check and the record walk of read_usd_log; its refusals (a CRC mismatch is only
+    noted in crc_ok: the caller decides)."""
     version, types, start = parse_header(data, path)
     at = len(data) - CRC_BYTES
     crc_ok = struct.unpack_from("<I", data, at)[0] == zlib.crc32(data[:at]) & 0xFFFFFFFF
-    time_dtype, tick_us = VERSIONS[version]
-    time_bytes = np.dtype(time_dtype).itemsize
+    time_bytes = np.dtype(VERSIONS[version][0]).itemsize
     try:
         starts = walk_records(data, start, at, types, time_bytes, path)
     except RecordingError as exc:      # the more specific reason; a truncated file fails its CRC too
         if crc_ok:
             raise
         raise RecordingError(f"{exc.reason}; the CRC does not match either", path=path, offset=exc.offset) from None
-    crc_message = ""
-    if not crc_ok:
-        reason, offset = crc_mismatch(data)
-        if not ignore_crc:
-            raise RecordingError(reason + " (pass --ignore-crc to load it anyway)", path=path, offset=offset)
-        crc_message = f"{path}, byte offset {offset}: {reason}"
-    log = UsdLog(path=path, version=version, types=types, crc_ok=crc_ok, crc_message=crc_message,
-                 records_start=start, size=len(data))
     buf = np.frombuffer(data, dtype=np.uint8)
     ids = buf[starts].astype(np.int64) | (buf[starts + 1].astype(np.int64) << 8)
-    for type_id, et in types.items():
-        at = starts[ids == type_id]
-        if at.size == 0:
-            continue
-        dt = et.values_dtype(time_bytes)
-        raw = buf[at[:, None] + np.arange(dt.itemsize)]                    # (n, record size) bytes
-        stamps = np.ascontiguousarray(raw[:, 2:2 + time_bytes]).view(time_dtype)[:, 0]
-        log.times[et.name] = stamps.astype(np.int64) * tick_us
-        log.events[et.name] = _native(raw.reshape(-1).view(dt), et)
-        log.offsets[et.name] = at
-    return log
+    return RecordIndex(version=version, types=types, records_start=start, crc_ok=crc_ok, starts=starts, ids=ids)
 
 
 def _native(raw: np.ndarray, et: EventType) -> np.ndarray:

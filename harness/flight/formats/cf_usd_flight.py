@@ -74,12 +74,6 @@ class UsdOptions:
         return cls(ignore_crc=bool(ignore_crc), lever_arm=(x, y, z), tof=bool(tof))
 
 
-def has_tof_readings(path: Path | str) -> bool:
-    """The log carries ToF ranger readings (a flow deck): the 0426 logs declare estTOF but have none. A log that
-    cannot be read raises RecordingError, as load_cf_usd would."""
-    return read_usd_log(path, ignore_crc=True).count(TOF) > 0
-
-
 def load_cf_usd(path: Path | str, anchors: Anchors, options: UsdOptions = UsdOptions()) -> Flight:
     """A whole uSD log as a Flight (TDoA or TWR, IMU, truth with attitude), or a RecordingError."""
     log = read_usd_log(path, ignore_crc=options.ignore_crc)
