@@ -66,6 +66,13 @@ void ekf_init(ekf_t *ekf, const float pos[3], float std_xy, float std_z);
 int ekf_imu_sample(ekf_t *ekf, const ekf_noise_t *noise, uint64_t t_us, const float acc[3],
                    const float gyro[3]);
 
+/* 1 if a sample at t_us makes ekf_imu_sample predict: the caller times only those (reading the cost counter
+ * masks interrupts, which costs an emulator a return to its main loop, on every one of ~1,000 samples a second). */
+static inline int ekf_imu_due(const ekf_t *ekf, uint64_t t_us)
+{
+    return ekf->has_time && t_us >= ekf->t_us && t_us - ekf->t_us >= EKF_PREDICT_INTERVAL_US;
+}
+
 /* One IMU-mode prediction over dt [s] with mean specific force acc and body rates gyro. */
 void ekf_predict_imu(ekf_t *ekf, const ekf_noise_t *noise, const float acc[3], const float gyro[3],
                      float dt);

@@ -271,7 +271,7 @@ int ekf_imu_sample(ekf_t *ekf, const ekf_noise_t *noise, uint64_t t_us, const fl
         ekf->gyro_sum[i] += gyro[i];
     }
     ekf->imu_count++;
-    if (t_us >= ekf->t_us && t_us - ekf->t_us >= EKF_PREDICT_INTERVAL_US) {
+    if (ekf_imu_due(ekf, t_us)) {
         const float inv = 1.0f / (float)ekf->imu_count;
         const float dt = uwb_u64_to_float(t_us - ekf->t_us) * 1e-6f;
         float a[3], g[3];

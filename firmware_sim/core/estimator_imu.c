@@ -37,11 +37,14 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
         a[0] = 0.0f;
         a[1] = 0.0f;
     }
-    c0 = platform_cost_now();
-    if (ekf_imu_sample(&est->ekf, &noise, t_us, a, gyro)) {
-        est->predictions++;
-        estimator_supervise(est);
-        est->cost_predict += platform_cost_now() - c0;
+    if (!ekf_imu_due(&est->ekf, t_us)) {
+        (void)ekf_imu_sample(&est->ekf, &noise, t_us, a, gyro); /* summed for the next prediction */
+        return EST_OK;
     }
+    c0 = platform_cost_now();
+    (void)ekf_imu_sample(&est->ekf, &noise, t_us, a, gyro);
+    est->predictions++;
+    estimator_supervise(est);
+    est->cost_predict += platform_cost_now() - c0;
     return EST_OK;
 }
