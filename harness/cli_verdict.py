@@ -2,7 +2,7 @@
 and `uwb-hil demo`. The logic lives in harness/report/verdict.py and harness/report/geometry.py (the planar
 mode's in harness/flight/planar.py, used by harness/run/source.py); this module only parses and prints.
 
-Exit codes (README "Verdicts and exit codes"): 0 pass, 1 verdict failed, 2 usage or input error,
+Exit codes (harness/errors.py, README "Reading a report"): 0 pass, 1 verdict failed, 2 usage or input error,
 3 device or link failure.
 """
 
@@ -15,10 +15,9 @@ from pathlib import Path
 from typing import Any, Callable, Collection
 
 from harness import options
+from harness.errors import EXIT_PASS, EXIT_VERDICT
 from harness.report import jsonsafe
 from harness.report.verdict import Criteria, CriteriaError, Verdict, evaluate, evaluate_all
-
-EXIT_PASS, EXIT_VERDICT, EXIT_INPUT, EXIT_DEVICE = 0, 1, 2, 3
 
 _CRITERIA_OPTIONS = (
     ("max_rmse", "position RMSE [m] (3-D; over the observable axes when z is not observable)"),

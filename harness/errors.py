@@ -163,7 +163,7 @@ def _layouts(layouts: tuple[int, int]) -> str:
 
 
 #: exit codes of every command (docs/verdicts.md): 0 pass, 1 verdict failed, then by error family
-EXIT_INPUT, EXIT_DEVICE, EXIT_BUG = 2, 3, 4
+EXIT_PASS, EXIT_VERDICT, EXIT_INPUT, EXIT_DEVICE, EXIT_BUG = 0, 1, 2, 3, 4
 
 
 def exit_code(exc: BaseException) -> int:

@@ -16,10 +16,10 @@ from harness.campaign.boards import BoardExecutor, note_boards_in_verdict
 from harness.device.board_list import boards_from_options, check_unique, load_board_list
 from harness.device.registry import TARGET_CHOICES
 from harness.device_args import add_labgrid_options
-from harness.errors import UsageError
+from harness.errors import EXIT_DEVICE, EXIT_PASS, EXIT_VERDICT, UsageError
 from harness.campaign.store import CampaignDir
 from harness.campaign.verdict import BASELINE_CONFIG, check_judged, default_judged, judge_campaign
-from harness.cli_verdict import EXIT_DEVICE, EXIT_PASS, EXIT_VERDICT, add_verdict_options, criteria_from
+from harness.cli_verdict import add_verdict_options, criteria_from
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
