@@ -10,6 +10,9 @@ from typing import Callable
 
 #: longest simulated flight `run`/`demo` build [s]: 4 h (a 1 h flight is ~3 GB built whole today)
 MAX_SIM_DURATION_S = 4 * 3600.0
+#: real-time pacing speed factor (harness/stream/streamer.py's Pacing): at most 100 times slower than real
+#: time, a million times faster (a speed of 1e-300 would pace for ever)
+MIN_SPEED, MAX_SPEED = 0.01, 1e6
 
 
 def number(kind: type, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
@@ -42,8 +45,7 @@ baud = number(int, 1, 100_000_000, unit=" baud")
 timeout_s = number(float, 0.0, 86_400.0, lo_open=True, unit=" s")
 sim_duration_s = number(float, 0.0, MAX_SIM_DURATION_S, lo_open=True, unit=" s")
 window = number(int, 1, 1024)
-#: as harness/stream/streamer.py's MIN_SPEED, MAX_SPEED (a speed of 1e-300 would pace for ever)
-speed = number(float, 0.01, 1e6)
+speed = number(float, MIN_SPEED, MAX_SPEED)
 
 #: largest |component| of a tag lever arm [m] (a Crazyflie-sized vehicle; a mistyped mm value is refused)
 MAX_LEVER_ARM_M = 1.0

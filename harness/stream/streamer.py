@@ -23,6 +23,7 @@ from harness.config import EstimatorConfig
 from harness.device.channel import DeviceChannel, Replies, as_channel
 from harness.errors import DeviceTimeout, UsageError
 from harness.flight.data import Flight
+from harness.options import MAX_SPEED, MIN_SPEED
 from harness.stream.prepare import PreparedFlight, frame_count, prepare
 from harness.stream.results_file import (OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_NO_MEAS, OUTCOME_PENDING,
                                          OUTCOME_RESULT, REC_DEVICE_ERROR, REC_STATS, RESULT_BYTES,
@@ -32,10 +33,6 @@ from protocol.batch import RESULT_DTYPE
 from protocol.framing import DecoderErrors
 
 PACING_MODES = ("lockstep", "windowed", "realtime")
-
-
-#: real-time pacing speed factor: at most 100 times slower than real time, a million times faster
-MIN_SPEED, MAX_SPEED = 0.01, 1e6
 
 
 @dataclass(frozen=True)
