@@ -24,6 +24,7 @@ from harness.cli_run import (HelpFormatter, VersionAction, check_header_source, 
 from harness.config import PRESETS
 from harness.device_args import add_device_options, device_spec, labgrid_lease, model_device_spec
 from harness.errors import UsageError, UwbHilError, report_failure
+from harness.flight.scenarios import SCENARIOS
 from harness.report.phases import DEFAULT_FLIGHT_ABOVE_M
 from harness.run.demo import DemoFlights, run_demo
 from harness.run.single import checked_results_path, resume_one, run_one
@@ -193,7 +194,7 @@ def _add_flight_options(p: argparse.ArgumentParser, recorded: bool = True) -> No
     """Simulated-flight options; with `recorded`, also those of a recorded flight (not for `demo`, which
     flies its own simulated TWR and TDoA flights)."""
     g = p.add_argument_group("flight")
-    g.add_argument("--scenario", default="circle", help="simulated flight: circle, circle-z, random, spin")
+    g.add_argument("--scenario", default="circle", help=f"simulated flight: {', '.join(SCENARIOS)}")
     if recorded:
         g.add_argument("--mode", choices=("twr", "tdoa"), default="twr", help="UWB measurement type (simulation)")
     g.add_argument("--duration", type=options.sim_duration_s, default=30.0,
