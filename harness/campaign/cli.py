@@ -40,17 +40,18 @@ def _csv(text: str) -> tuple[str, ...]:
 
 def add_parser(sub: Any) -> None:
     p = sub.add_parser("campaign", help="run the paper's experiments (simulated + recorded) in parallel",
-                       description="Simulated {TWR, TDoA} x {none, outlier, outlier+nn} x trajectories x seeds "
-                                   "and held-out recorded flights, each run through the firmware on its own "
+                       description=f"Simulated {{{', '.join(MODES)}}} x {{{', '.join(CONFIGS)}}} x trajectories x "
+                                   "seeds and held-out recorded flights, each run through the firmware on its own "
                                    "host build. Re-running the same command resumes (complete runs are skipped).")
     p.add_argument("--out", required=True, help="campaign directory (created; resumed if it exists)")
-    p.add_argument("--seeds", type=int, default=10, help="simulated flights per mode and trajectory")
+    p.add_argument("--seeds", type=int, default=10, help="simulated flights per mode and trajectory (default %(default)s)")
     p.add_argument("--first-seed", type=int, default=FIRST_EVAL_SEED,
-                   help="first seed (training uses seeds below 1000: keep >= 1000 for unseen flights)")
-    p.add_argument("--duration", type=float, default=70.0, help="simulated flight length incl. take-off [s]")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="flights in parallel")
-    p.add_argument("--modes", type=_csv, default=MODES, help="twr,tdoa")
-    p.add_argument("--trajectories", type=_csv, default=TRAJECTORIES, help="circle,circle-z")
+                   help=f"first seed (default %(default)s; training uses seeds below {FIRST_EVAL_SEED}: keep >= {FIRST_EVAL_SEED} "
+                        "for unseen flights)")
+    p.add_argument("--duration", type=float, default=70.0, help="simulated flight length incl. take-off [s] (default %(default)s)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="flights in parallel (default: the CPU count, %(default)s)")
+    p.add_argument("--modes", type=_csv, default=MODES, help=f"comma list of {','.join(MODES)} (default: all)")
+    p.add_argument("--trajectories", type=_csv, default=TRAJECTORIES, help=f"comma list of {','.join(TRAJECTORIES)} (default: all)")
     p.add_argument("--configs", type=_csv, default=CONFIGS, help=f"comma list of configurations (default {','.join(CONFIGS)}; also robust, "
                         "robust+nn, outlier+nn+states, ...: harness/config.py PRESETS)")
     p.add_argument("--recorded", action=argparse.BooleanOptionalAction, default=None,
@@ -69,7 +70,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--radio", type=_csv, default=(), metavar="tdoa2,tdoa3",
                    help="also fly the TDoA flights (simulated, and held-out UTIL recordings of that protocol) at LPS "
                         "radio level: their own rows, both levels of each flight, beside the measurement-level ones")
-    p.add_argument("--timeout", type=float, default=10.0, help="device silence before a run fails [s]")
+    p.add_argument("--timeout", type=float, default=10.0, help="device silence before a run fails [s] (default %(default)s)")
     p.add_argument("--report", action=argparse.BooleanOptionalAction, default=True,
                    help="write the report when the runs are done (a shard: its own partial report)")
     p.add_argument("--shard", metavar="K/N", default=None,
@@ -103,7 +104,7 @@ def _add_board_options(p: argparse.ArgumentParser) -> None:
                         help="a board's serial port or pyserial URL (repeat for several boards)")
     boards.add_argument("--boards", metavar="FILE", default=None,
                         help="board list (YAML: name, port or serial_number, target, baud, firmware per board)")
-    boards.add_argument("--baud", type=int, default=115200, help="baud rate of --port boards")
+    boards.add_argument("--baud", type=int, default=115200, help="baud rate of --port boards (default %(default)s)")
     add_labgrid_options(boards)
 
 
