@@ -23,7 +23,8 @@ from harness.cli_run import (HelpFormatter, VersionAction, check_header_source, 
                              subparser)
 from harness.config import PRESETS
 from harness.device_args import add_device_options, device_spec, labgrid_lease, model_device_spec
-from harness.errors import UsageError, UwbHilError, report_failure
+from harness.errors import (EXIT_BUG, EXIT_DEVICE, EXIT_INPUT, EXIT_PASS, EXIT_VERDICT, UsageError, UwbHilError,
+                            report_failure)
 from harness.flight.scenarios import SCENARIOS
 from harness.report.phases import DEFAULT_FLIGHT_ABOVE_M
 from harness.run.demo import DemoFlights, run_demo
@@ -190,6 +191,12 @@ def _print_demo_table(rows: list[dict[str, Any]], device: dict[str, Any]) -> Non
 
 
 # ------------------------------------------------------------------------------------------ parser
+#: the exit codes of every command (harness/errors.py), at the end of `uwb-hil --help`
+EXIT_CODES_HELP = (f"exit codes: {EXIT_PASS} every check passed, {EXIT_VERDICT} the verdict failed, {EXIT_INPUT} usage "
+                   f"or input error, {EXIT_DEVICE} device or link failure,\n            {EXIT_BUG} a bug in uwb-hil "
+                   "(stderr names the file holding its traceback), 130 interrupted")
+
+
 def _add_flight_options(p: argparse.ArgumentParser, recorded: bool = True) -> None:
     """Simulated-flight options; with `recorded`, also those of a recorded flight (not for `demo`, which
     flies its own simulated TWR and TDoA flights)."""
@@ -273,7 +280,7 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="uwb-hil", description=__doc__,
+    ap = argparse.ArgumentParser(prog="uwb-hil", description=__doc__, epilog=EXIT_CODES_HELP,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--version", action=VersionAction,
                     help="print the package, protocol and firmware versions and exit")
