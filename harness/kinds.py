@@ -225,11 +225,3 @@ def kind_named(key: str) -> MeasurementKind:
         if k.key == key:
             return k
     raise UnknownKindError(f"unknown measurement kind {key!r} (known: {', '.join(k.key for k in KINDS.values())})")
-
-
-def kind_of_layout(layout: int) -> MeasurementKind:
-    """The kind whose network takes an input layout."""
-    for k in KINDS.values():
-        if int(layout) in k.layouts:
-            return k
-    raise UnknownKindError(f"no measurement kind takes network layout {layout!r}")

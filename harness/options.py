@@ -38,9 +38,7 @@ def number(kind: type, lo: float | None = None, hi: float | None = None, lo_open
     return parse
 
 
-positive_int = number(int, 1)
 non_negative_int = number(int, 0)
-positive_float = number(float, 0.0, lo_open=True)
 baud = number(int, 1, 100_000_000, unit=" baud")
 timeout_s = number(float, 0.0, 86_400.0, lo_open=True, unit=" s")
 sim_duration_s = number(float, 0.0, MAX_SIM_DURATION_S, lo_open=True, unit=" s")

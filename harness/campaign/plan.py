@@ -61,7 +61,6 @@ ROLE_LATENCY = "latency"
 # packets through the tag's TDoA engine, and the same flight's differences (its measurement-level twin).
 ROLE_RADIO = "radio"
 ROLE_RADIO_MEAS = "radio-meas"
-RADIO_ROLES = (ROLE_RADIO, ROLE_RADIO_MEAS)
 
 
 @dataclass(frozen=True)

@@ -39,10 +39,6 @@ class QemuError(DeviceError):
     """QEMU could not be started, or stopped answering its monitor."""
 
 
-def qemu_binary() -> str | None:
-    return shutil.which("qemu-system-arm")
-
-
 @dataclass(frozen=True)
 class QemuOptions:
     machine: str = "netduinoplus2"
