@@ -20,7 +20,6 @@ from harness import options
 from harness.errors import UsageError
 from harness.flight.formats.cf_usd_flight import UsdOptions
 from harness.optional import require_torch
-from harness.paths import SHARED_DATA
 from harness.report import jsonsafe
 from harness.paths import shared_data_dir
 
@@ -280,8 +279,9 @@ def _add_fit_std_parser(sub: Any) -> None:
 
 def _add_models_parser(sub: Any) -> None:
     mo = sub.add_parser("models", help="train the shipped default networks (what `make models` runs)")
-    mo.add_argument("--data", default=str(SHARED_DATA),
-                    help="the shared recordings (util/, rcv_twr/, cf_usd/) to train on (default ../shared/data)")
+    mo.add_argument("--data", default=str(shared_data_dir()),
+                    help="the shared recordings (util/, rcv_twr/, cf_usd/) to train on (default $UWB_HIL_DATA, else "
+                         "../shared/data)")
     mo.add_argument("--quick", action="store_true", help="small data sets (smoke test)")
     mo.add_argument("--only", choices=("sim", "nlos", "util", "rcv", "cfusd"), help="build only one of the models")
     mo.add_argument("--keep-summary", action="store_true",
