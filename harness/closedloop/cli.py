@@ -82,27 +82,34 @@ def add_fly_parser(sub: Any) -> None:
     p = sub.add_parser("fly", help="closed loop: the device flies a simulated Crazyflie on UWB alone",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--mode", type=_csv(("twr", "tdoa"), "--mode"), default=("twr", "tdoa"),
-                   help="twr, tdoa or both (comma list)")
-    p.add_argument("--mission", type=_csv(MISSIONS, "--mission"), default=("circle", "circle-z"),
-                   help=f"comma list of {', '.join(MISSIONS)} (default circle,circle-z)")
+                   help="twr, tdoa or both (comma list; default both)")
+    missions = ("circle", "circle-z")
+    p.add_argument("--mission", type=_csv(MISSIONS, "--mission"), default=missions,
+                   help=f"comma list of {', '.join(MISSIONS)} (default {','.join(missions)})")
     p.add_argument("--config", type=_csv(tuple(PRESETS), "--config"), default=PAPER_PRESETS,
-                   help=f"comma list of {', '.join(PRESETS)} (default none, outlier, outlier+nn)")
-    p.add_argument("--seeds", type=int, default=10, help="flights per cell (seeds seed0 .. seed0+N-1)")
-    p.add_argument("--seed0", type=int, default=1, help="seed of the first flight (seeds seed0 .. seed0 + seeds - 1)")
-    p.add_argument("--laps", type=float, default=1.0, help="circle laps (2 m radius at 0.375 m/s: 33.5 s each)")
-    p.add_argument("--hover-s", type=float, default=10.0, help="length of the hover mission's main segment")
-    p.add_argument("--radius", type=float, default=2.0, help="circle radius [m] (the simulator's: 2 m)")
-    p.add_argument("--height", type=float, default=1.2, help="circle / hover height [m]")
-    p.add_argument("--profile", choices=PROFILES, default="los", help="simulator error profile")
-    p.add_argument("--noise", choices=NOISE_KINDS, default="realistic", help="simulated UWB error model")
-    p.add_argument("--mass", type=float, default=0.032, help="simulated vehicle mass [kg] (controller assumes 0.032)")
+                   help=f"comma list of {', '.join(PRESETS)} (default {', '.join(PAPER_PRESETS)})")
+    p.add_argument("--seeds", type=int, default=10,
+                   help="flights per cell (seeds seed0 .. seed0+N-1; default %(default)s)")
+    p.add_argument("--seed0", type=int, default=1, help="seed of the first flight (default %(default)s)")
+    p.add_argument("--laps", type=float, default=1.0,
+                   help="circle laps (2 m radius at 0.375 m/s: 33.5 s each; default %(default)s)")
+    p.add_argument("--hover-s", type=float, default=10.0,
+                   help="length of the hover mission's main segment [s] (default %(default)s)")
+    p.add_argument("--radius", type=float, default=2.0, help="circle radius [m] (default %(default)s, the simulator's)")
+    p.add_argument("--height", type=float, default=1.2, help="circle / hover height [m] (default %(default)s)")
+    p.add_argument("--profile", choices=PROFILES, default="los", help="simulator error profile (default %(default)s)")
+    p.add_argument("--noise", choices=NOISE_KINDS, default="realistic",
+                   help="simulated UWB error model (default %(default)s)")
+    p.add_argument("--mass", type=float, default=0.032,
+                   help="simulated vehicle mass [kg] (default %(default)s, what the controller assumes)")
     p.add_argument("--pacing", choices=PACINGS, default="lockstep",
-                   help="lockstep (deterministic, as fast as possible) or realtime (flight speed, for boards)")
-    p.add_argument("--speed", type=float, default=1.0, help="realtime pacing speed factor")
+                   help="lockstep (deterministic, as fast as possible; default) or realtime (flight speed, for boards)")
+    p.add_argument("--speed", type=float, default=1.0, help="realtime pacing speed factor (default %(default)s)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override an estimator setting for every flight, e.g. --set std_tdoa=0.25 (repeatable; "
                         "as `uwb-hil run --set`)")
-    p.add_argument("--imu-every", type=int, default=1, help="physics steps (2 ms) per IMU frame (averaged)")
+    p.add_argument("--imu-every", type=int, default=1,
+                   help="physics steps (2 ms) per IMU frame (averaged; default %(default)s)")
     p.add_argument("--model", help="bias model (.npz) for outlier+nn: the host build is built with it; "
                                    "any other device must report its hash (default: the compiled-in model)")
     p.add_argument("--max-rmse", type=float, default=None, metavar="X",
