@@ -17,7 +17,7 @@ from harness.closedloop.cosim import PACINGS, LoopConfig
 from harness.closedloop.mission import MISSIONS
 from harness.closedloop.sensors import NOISE_KINDS
 from harness.cli_verdict import criteria_from
-from harness.config import PAPER_PRESETS, PRESETS, config_with
+from harness.config import PRESETS, config_with
 from harness.device_args import add_device_options, model_device_spec
 from harness.errors import UsageError
 from harness.flight.measurement_errors import PROFILES
@@ -81,34 +81,38 @@ def _csv(choices: Sequence[str], what: str) -> Callable[[str], tuple[str, ...]]:
 def add_fly_parser(sub: Any) -> None:
     p = sub.add_parser("fly", help="closed loop: the device flies a simulated Crazyflie on UWB alone",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--mode", type=_csv(("twr", "tdoa"), "--mode"), default=("twr", "tdoa"),
+    d = FlySpec()      # the defaults
+    p.add_argument("--mode", type=_csv(("twr", "tdoa"), "--mode"), default=d.modes,
                    help="twr, tdoa or both (comma list; default both)")
-    missions = ("circle", "circle-z")
-    p.add_argument("--mission", type=_csv(MISSIONS, "--mission"), default=missions,
-                   help=f"comma list of {', '.join(MISSIONS)} (default {','.join(missions)})")
-    p.add_argument("--config", type=_csv(tuple(PRESETS), "--config"), default=PAPER_PRESETS,
-                   help=f"comma list of {', '.join(PRESETS)} (default {', '.join(PAPER_PRESETS)})")
-    p.add_argument("--seeds", type=int, default=10,
+    p.add_argument("--mission", type=_csv(MISSIONS, "--mission"), default=d.missions,
+                   help=f"comma list of {', '.join(MISSIONS)} (default {','.join(d.missions)})")
+    p.add_argument("--config", type=_csv(tuple(PRESETS), "--config"), default=d.configs,
+                   help=f"comma list of {', '.join(PRESETS)} (default {', '.join(d.configs)})")
+    p.add_argument("--seeds", type=int, default=len(d.seeds),
                    help="flights per cell (seeds seed0 .. seed0+N-1; default %(default)s)")
-    p.add_argument("--seed0", type=int, default=1, help="seed of the first flight (default %(default)s)")
-    p.add_argument("--laps", type=float, default=1.0,
+    p.add_argument("--seed0", type=int, default=d.seeds[0], help="seed of the first flight (default %(default)s)")
+    p.add_argument("--laps", type=float, default=d.laps,
                    help="circle laps (2 m radius at 0.375 m/s: 33.5 s each; default %(default)s)")
-    p.add_argument("--hover-s", type=float, default=10.0,
+    p.add_argument("--hover-s", type=float, default=d.hover_s,
                    help="length of the hover mission's main segment [s] (default %(default)s)")
-    p.add_argument("--radius", type=float, default=2.0, help="circle radius [m] (default %(default)s, the simulator's)")
-    p.add_argument("--height", type=float, default=1.2, help="circle / hover height [m] (default %(default)s)")
-    p.add_argument("--profile", choices=PROFILES, default="los", help="simulator error profile (default %(default)s)")
-    p.add_argument("--noise", choices=NOISE_KINDS, default="realistic",
+    p.add_argument("--radius", type=float, default=d.radius,
+                   help="circle radius [m] (default %(default)s, the simulator's)")
+    p.add_argument("--height", type=float, default=d.height, help="circle / hover height [m] (default %(default)s)")
+    p.add_argument("--profile", choices=PROFILES, default=d.profile,
+                   help="simulator error profile (default %(default)s)")
+    p.add_argument("--noise", choices=NOISE_KINDS, default=d.noise,
                    help="simulated UWB error model (default %(default)s)")
-    p.add_argument("--mass", type=float, default=0.032,
+    p.add_argument("--mass", type=float, default=d.mass,
                    help="simulated vehicle mass [kg] (default %(default)s, what the controller assumes)")
-    p.add_argument("--pacing", choices=PACINGS, default="lockstep",
-                   help="lockstep (deterministic, as fast as possible; default) or realtime (flight speed, for boards)")
-    p.add_argument("--speed", type=float, default=1.0, help="realtime pacing speed factor (default %(default)s)")
+    p.add_argument("--pacing", choices=PACINGS, default=d.loop.pacing,
+                   help="lockstep (deterministic, as fast as possible) or realtime (flight speed, for boards); "
+                        "default %(default)s")
+    p.add_argument("--speed", type=float, default=d.loop.speed,
+                   help="realtime pacing speed factor (default %(default)s)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override an estimator setting for every flight, e.g. --set std_tdoa=0.25 (repeatable; "
                         "as `uwb-hil run --set`)")
-    p.add_argument("--imu-every", type=int, default=1,
+    p.add_argument("--imu-every", type=int, default=d.loop.imu_every,
                    help="physics steps (2 ms) per IMU frame (averaged; default %(default)s)")
     p.add_argument("--model", help="bias model (.npz) for outlier+nn: the host build is built with it; "
                                    "any other device must report its hash (default: the compiled-in model)")

@@ -12,7 +12,7 @@ from harness.closedloop.metrics import aggregate, flight_metrics
 from harness.closedloop.mission import Mission, plan
 from harness.closedloop.sensors import SensorConfig
 from harness.closedloop.vehicle import VehicleParams
-from harness.config import MODE_IMU, PRESETS, EstimatorConfig
+from harness.config import MODE_IMU, PAPER_PRESETS, PRESETS, EstimatorConfig
 from harness.flight.arena import NLOS_BOXES, Arena
 from harness.flight.measurement_errors import sim_config
 from harness.device.registry import DeviceSpec, open_device
@@ -20,17 +20,19 @@ from harness.device.registry import DeviceSpec, open_device
 
 @dataclass(frozen=True)
 class FlySpec:
+    """A closed-loop campaign; its defaults are `uwb-hil fly`'s (the mission's and vehicle's from their own
+    dataclasses)."""
     modes: tuple[str, ...] = ("twr", "tdoa")
     missions: tuple[str, ...] = ("circle", "circle-z")
-    configs: tuple[str, ...] = ("none", "outlier", "outlier+nn")
+    configs: tuple[str, ...] = PAPER_PRESETS
     seeds: tuple[int, ...] = tuple(range(1, 11))
-    laps: float = 1.0
-    hover_s: float = 10.0
-    radius: float = 2.0
-    height: float = 1.2
+    laps: float = Mission.laps
+    hover_s: float = Mission.hover_s
+    radius: float = Mission.radius
+    height: float = Mission.height
     profile: str = "los"
     noise: str = "realistic"
-    mass: float = 0.032
+    mass: float = VehicleParams.mass
     loop: LoopConfig = LoopConfig()
     estimator: EstimatorConfig = EstimatorConfig()
 
