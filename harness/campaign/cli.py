@@ -43,16 +43,21 @@ def add_parser(sub: Any) -> None:
                        description=f"Simulated {{{', '.join(MODES)}}} x {{{', '.join(CONFIGS)}}} x trajectories x "
                                    "seeds and held-out recorded flights, each run through the firmware on its own "
                                    "host build. Re-running the same command resumes (complete runs are skipped).")
+    d, e = CampaignOptions(), ExecOptions()      # the defaults
     p.add_argument("--out", required=True, help="campaign directory (created; resumed if it exists)")
-    p.add_argument("--seeds", type=int, default=10, help="simulated flights per mode and trajectory (default %(default)s)")
-    p.add_argument("--first-seed", type=int, default=FIRST_EVAL_SEED,
-                   help=f"first seed (default %(default)s; training uses seeds below {FIRST_EVAL_SEED}: keep >= {FIRST_EVAL_SEED} "
-                        "for unseen flights)")
-    p.add_argument("--duration", type=float, default=70.0, help="simulated flight length incl. take-off [s] (default %(default)s)")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="flights in parallel (default: the CPU count, %(default)s)")
-    p.add_argument("--modes", type=_csv, default=MODES, help=f"comma list of {','.join(MODES)} (default: all)")
-    p.add_argument("--trajectories", type=_csv, default=TRAJECTORIES, help=f"comma list of {','.join(TRAJECTORIES)} (default: all)")
-    p.add_argument("--configs", type=_csv, default=CONFIGS, help=f"comma list of configurations (default {','.join(CONFIGS)}; also robust, "
+    p.add_argument("--seeds", type=int, default=d.seeds,
+                   help="simulated flights per mode and trajectory (default %(default)s)")
+    p.add_argument("--first-seed", type=int, default=d.first_seed,
+                   help=f"first seed (default %(default)s; training uses seeds below {FIRST_EVAL_SEED}: keep >= "
+                        f"{FIRST_EVAL_SEED} for unseen flights)")
+    p.add_argument("--duration", type=float, default=d.duration_s,
+                   help="simulated flight length incl. take-off [s] (default %(default)s)")
+    p.add_argument("--jobs", type=int, default=e.jobs, help="flights in parallel (default: the CPU count, %(default)s)")
+    p.add_argument("--modes", type=_csv, default=d.modes, help=f"comma list of {','.join(MODES)} (default: all)")
+    p.add_argument("--trajectories", type=_csv, default=d.trajectories,
+                   help=f"comma list of {','.join(TRAJECTORIES)} (default: all)")
+    p.add_argument("--configs", type=_csv, default=d.configs,
+                   help=f"comma list of configurations (default {','.join(CONFIGS)}; also robust, "
                         "robust+nn, outlier+nn+states, ...: harness/config.py PRESETS)")
     p.add_argument("--recorded", action=argparse.BooleanOptionalAction, default=None,
                    help="also replay the held-out recorded flights of the shared data; missing data is an error "
@@ -61,16 +66,17 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--firmware", default=str(DEFAULT_FIRMWARE), help="host firmware binary")
     p.add_argument("--sim-model", default=None,
                    help="bias model (.npz) for the simulated flights (default: the firmware's compiled-in model)")
-    p.add_argument("--recorded-models", action=argparse.BooleanOptionalAction, default=True,
+    p.add_argument("--recorded-models", action=argparse.BooleanOptionalAction, default=d.recorded_models,
                    help="recorded flights on a firmware carrying the real-data networks of firmware_sim/models")
-    p.add_argument("--pacing", choices=PACING_MODES, default="windowed",
+    p.add_argument("--pacing", choices=PACING_MODES, default=d.pacing,
                    help="pacing of the accuracy runs (windowed: same estimates as lockstep, much faster)")
-    p.add_argument("--latency-runs", action=argparse.BooleanOptionalAction, default=True,
+    p.add_argument("--latency-runs", action=argparse.BooleanOptionalAction, default=d.latency_runs,
                    help="per mode, one extra real-time run for end-to-end latency")
     p.add_argument("--radio", type=_csv, default=(), metavar="tdoa2,tdoa3",
                    help="also fly the TDoA flights (simulated, and held-out UTIL recordings of that protocol) at LPS "
                         "radio level: their own rows, both levels of each flight, beside the measurement-level ones")
-    p.add_argument("--timeout", type=float, default=10.0, help="device silence before a run fails [s] (default %(default)s)")
+    p.add_argument("--timeout", type=float, default=e.timeout_s,
+                   help="device silence before a run fails [s] (default %(default)s)")
     p.add_argument("--report", action=argparse.BooleanOptionalAction, default=True,
                    help="write the report when the runs are done (a shard: its own partial report)")
     p.add_argument("--shard", metavar="K/N", default=None,
