@@ -83,6 +83,10 @@ class HelpFormatter(argparse.HelpFormatter):
         return text + " (default: %(default)s)"
 
 
+class RawDescriptionHelpFormatter(HelpFormatter, argparse.RawDescriptionHelpFormatter):
+    """HelpFormatter that keeps the description's own line breaks (a command's examples)."""
+
+
 def version_text() -> str:
     """`uwb-hil --version`: the package, the protocol and the firmware sources it carries."""
     from importlib.metadata import PackageNotFoundError, version

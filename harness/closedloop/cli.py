@@ -16,6 +16,7 @@ from harness.closedloop.fly import FlySpec, fly_on_device
 from harness.closedloop.cosim import PACINGS, LoopConfig
 from harness.closedloop.mission import MISSIONS
 from harness.closedloop.sensors import NOISE_KINDS
+from harness.cli_run import RawDescriptionHelpFormatter
 from harness.cli_verdict import criteria_from
 from harness.config import PRESETS, config_with
 from harness.device_args import add_device_options, model_device_spec
@@ -80,7 +81,7 @@ def _csv(choices: Sequence[str], what: str) -> Callable[[str], tuple[str, ...]]:
 
 def add_fly_parser(sub: Any) -> None:
     p = sub.add_parser("fly", help="closed loop: the device flies a simulated Crazyflie on UWB alone",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__, formatter_class=RawDescriptionHelpFormatter)
     d = FlySpec()      # the defaults
     p.add_argument("--mode", type=_csv(("twr", "tdoa"), "--mode"), default=d.modes,
                    help="twr, tdoa or both (comma list; default both)")
@@ -88,32 +89,24 @@ def add_fly_parser(sub: Any) -> None:
                    help=f"comma list of {', '.join(MISSIONS)} (default {','.join(d.missions)})")
     p.add_argument("--config", type=_csv(tuple(PRESETS), "--config"), default=d.configs,
                    help=f"comma list of {', '.join(PRESETS)} (default {', '.join(d.configs)})")
-    p.add_argument("--seeds", type=int, default=len(d.seeds),
-                   help="flights per cell (seeds seed0 .. seed0+N-1; default %(default)s)")
-    p.add_argument("--seed0", type=int, default=d.seeds[0], help="seed of the first flight (default %(default)s)")
-    p.add_argument("--laps", type=float, default=d.laps,
-                   help="circle laps (2 m radius at 0.375 m/s: 33.5 s each; default %(default)s)")
-    p.add_argument("--hover-s", type=float, default=d.hover_s,
-                   help="length of the hover mission's main segment [s] (default %(default)s)")
-    p.add_argument("--radius", type=float, default=d.radius,
-                   help="circle radius [m] (default %(default)s, the simulator's)")
-    p.add_argument("--height", type=float, default=d.height, help="circle / hover height [m] (default %(default)s)")
-    p.add_argument("--profile", choices=PROFILES, default=d.profile,
-                   help="simulator error profile (default %(default)s)")
-    p.add_argument("--noise", choices=NOISE_KINDS, default=d.noise,
-                   help="simulated UWB error model (default %(default)s)")
+    p.add_argument("--seeds", type=int, default=len(d.seeds), help="flights per cell (seeds seed0 .. seed0+N-1)")
+    p.add_argument("--seed0", type=int, default=d.seeds[0], help="seed of the first flight")
+    p.add_argument("--laps", type=float, default=d.laps, help="circle laps (2 m radius at 0.375 m/s: 33.5 s each)")
+    p.add_argument("--hover-s", type=float, default=d.hover_s, help="length of the hover mission's main segment [s]")
+    p.add_argument("--radius", type=float, default=d.radius, help="circle radius [m] (the simulator's)")
+    p.add_argument("--height", type=float, default=d.height, help="circle / hover height [m]")
+    p.add_argument("--profile", choices=PROFILES, default=d.profile, help="simulator error profile")
+    p.add_argument("--noise", choices=NOISE_KINDS, default=d.noise, help="simulated UWB error model")
     p.add_argument("--mass", type=float, default=d.mass,
-                   help="simulated vehicle mass [kg] (default %(default)s, what the controller assumes)")
+                   help="simulated vehicle mass [kg] (what the controller assumes)")
     p.add_argument("--pacing", choices=PACINGS, default=d.loop.pacing,
-                   help="lockstep (deterministic, as fast as possible) or realtime (flight speed, for boards); "
-                        "default %(default)s")
-    p.add_argument("--speed", type=float, default=d.loop.speed,
-                   help="realtime pacing speed factor (default %(default)s)")
+                   help="lockstep (deterministic, as fast as possible) or realtime (flight speed, for boards)")
+    p.add_argument("--speed", type=float, default=d.loop.speed, help="realtime pacing speed factor")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override an estimator setting for every flight, e.g. --set std_tdoa=0.25 (repeatable; "
                         "as `uwb-hil run --set`)")
     p.add_argument("--imu-every", type=int, default=d.loop.imu_every,
-                   help="physics steps (2 ms) per IMU frame (averaged; default %(default)s)")
+                   help="physics steps (2 ms) per IMU frame (averaged)")
     p.add_argument("--model", help="bias model (.npz) for outlier+nn: the host build is built with it; "
                                    "any other device must report its hash (default: the compiled-in model)")
     p.add_argument("--max-rmse", type=float, default=None, metavar="X",
