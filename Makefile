@@ -9,7 +9,7 @@ all: firmware
 
 help:
 	@echo "make demo      set up, build the firmware, fly TWR + TDoA in three configurations"
-	@echo "make test      set up and run every test (C unit tests with sanitizers + pytest)"
+	@echo "make test      set up and run every test (C unit tests with sanitizers, bounded fuzzing, pytest, the board and install checks)"
 	@echo "make bench     speed figures (ratios against baselines measured in the same run)"
 	@echo "make firmware  build firmware_sim/build/uwb-fw (+ an ASan/UBSan build)"
 	@echo "make stm32     STM32F405 build for QEMU / a board (installs the ARM toolchain + QEMU if missing)"
@@ -17,6 +17,11 @@ help:
 	@echo "make fuzz      libFuzzer over the frame parser and firmware input path (FUZZ_SECONDS=600)"
 	@echo "make longflight  1-hour simulated flight with faults through the firmware"
 	@echo "make campaign  the paper's experiments through the firmware + report (CAMPAIGN_DIR, CAMPAIGN_ARGS)"
+	@echo "make models    train the shipped bias networks (simulated; UTIL, rcv_twr, uSD logs: \$$UWB_HIL_DATA, else ../shared/data)"
+	@echo "make replay-all  every shared recording in every configuration against --max-rmse 2 (docs/verdicts.md)"
+	@echo "make real-flights  the estimator on the held-out real Crazyflie flights (docs/real-flights.md)"
+	@echo "make test-board  the device tests against one host firmware kept up as a board on a pty"
+	@echo "make test-light-install  pip install without extras, and the wheel outside the checkout"
 
 # Extras (pyproject.toml): [train] = PyTorch (uwb-hil train / models, the M4 bench's check), [test] = what
 # the test suite adds, [cluster] = Dask distributed (campaign --scheduler), [farm] = labgrid (--labgrid-place).
