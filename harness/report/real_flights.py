@@ -169,7 +169,8 @@ def means(rows: list[Row], flights: tuple[str, ...]) -> dict[str, dict[str, floa
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data-dir", type=Path, default=None, help="shared recordings (default ../shared/data)")
+    ap.add_argument("--data-dir", type=Path, default=None,
+                    help="shared recordings (default $UWB_HIL_DATA, else ../shared/data)")
     ap.add_argument("--jobs", type=int, default=2, help="runs in parallel")
     ap.add_argument("--model", type=Path, default=DEFAULT_MODEL,
                     help="the real-flight TDoA network for the outlier+nn rows (`uwb-hil models --only cfusd`)")

@@ -147,7 +147,8 @@ def markdown(rows: list[Row]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data-dir", type=Path, default=None, help="shared recordings (default ../shared/data)")
+    ap.add_argument("--data-dir", type=Path, default=None,
+                    help="shared recordings (default $UWB_HIL_DATA, else ../shared/data)")
     ap.add_argument("--only", choices=("rcv", "util"), help="only the rcv_twr sequences or the UTIL flights")
     ap.add_argument("--jobs", type=int, default=2, help="runs in parallel")
     ap.add_argument("--per-anchor", action="store_true",
