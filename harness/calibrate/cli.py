@@ -16,6 +16,7 @@ from harness.calibrate.compare import calibrate
 from harness.calibrate.plots import write_plots
 from harness.calibrate.stats import STATS_KEYS
 from harness.errors import UsageError
+from harness.flight.data import FLIGHT_ABOVE_M
 from harness.report import jsonsafe
 from harness.paths import shared_data_dir
 
@@ -132,7 +133,7 @@ def add_lever_arm_parser(sub: Any) -> None:
                                          "recordings with attitude, for `--lever-arm FILE`")
     _add_calibration_io(p, "a recording with ground-truth attitude (repeatable); to evaluate, leave the flight "
                            "you replay out")
-    p.add_argument("--flight-above", type=float, default=0.4, metavar="Z",
+    p.add_argument("--flight-above", type=float, default=FLIGHT_ABOVE_M, metavar="Z",
                    help="use measurements with the truth above this height [m] (the ground phase is NLOS)")
     p.set_defaults(func=cmd_lever_arm)
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from harness.config import PRESETS, EstimatorConfig, config_with
 from harness.errors import InputError
-from harness.flight.data import Flight
+from harness.flight.data import FLIGHT_ABOVE_M, Flight
 from harness.flight.run_config import config_for
 from harness.twin.estimator import FLAG_DIVERGED, run_flight
 
@@ -96,7 +96,7 @@ def run_trial(flights: Sequence[Flight], preset: str, base: Sequence[str], combo
 
 
 def grid_search(flights: Sequence[Flight], axes: Sequence[GridAxis], preset: str, base: Sequence[str] = (),
-                flight_above: float = 0.4, uwb_only: bool = False, model: object | None = None) -> list[Trial]:
+                flight_above: float = FLIGHT_ABOVE_M, uwb_only: bool = False, model: object | None = None) -> list[Trial]:
     """Every combination of the axes, ranked: no resets first, then by mean RMSE."""
     if not flights:
         raise InputError("tune: no recordings")

@@ -19,6 +19,10 @@ KIND_TWR = int(MeasKind.TWR)     # protocol enum meas_kind, as plain ints
 KIND_TDOA = int(MeasKind.TDOA)
 KIND_TOF = int(MeasKind.TOF)
 
+#: the ground phase of a recorded flight: truth z [m] below which the tag sits in the floor's NLOS (the
+#: verdict judges the flight above it, `--flight-above`; the calibrations fit on it)
+FLIGHT_ABOVE_M = 0.4
+
 
 class Source(IntEnum):
     """The kind of an event of a flight (Flight.events(), the streamer's frames)."""

@@ -21,12 +21,10 @@ from typing import Sequence
 import numpy as np
 
 from harness.errors import InputError
-from harness.flight.data import Flight
+from harness.flight.data import FLIGHT_ABOVE_M, Flight
 from harness.kinds import kind_of
 from harness.flight.formats.common import quat_to_rotmat
 
-#: flight phase: truth above this height [m] (below, the tag sits in the floor's NLOS)
-FLIGHT_ABOVE_M = 0.4
 XI_M = 0.7
 
 

@@ -17,12 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from harness.errors import InputError
+from harness.flight.data import FLIGHT_ABOVE_M
 from harness.flight.formats.cf_usd import read_usd_log
 from harness.flight.formats.cf_usd_flight import POSE, TOF
 from harness.flight.formats.common import quat_to_rotmat
 
-#: the flight phase, as the verdict's (truth above this height [m])
-FLIGHT_ABOVE_M = 0.4
 
 
 @dataclass(frozen=True)

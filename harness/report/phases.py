@@ -20,14 +20,14 @@ from typing import Any
 import numpy as np
 
 from harness.config import MODE_UWB_ONLY
-from harness.flight.data import Flight
+from harness.flight.data import FLIGHT_ABOVE_M, Flight
 from harness.flight.trajectory import quat_to_euler
 from harness.report.metrics import accuracy_of, position_errors
 from harness.stream.results_file import OUTCOME_RESULT
 from harness.stream.streamer import RunResult
 
 #: truth z [m] below which a measurement belongs to the ground phase (`--flight-above`)
-DEFAULT_FLIGHT_ABOVE_M = 0.4
+DEFAULT_FLIGHT_ABOVE_M = FLIGHT_ABOVE_M
 
 PHASES = ("flight", "ground")
 
