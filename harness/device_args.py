@@ -29,7 +29,8 @@ def add_device_options(p: argparse.ArgumentParser) -> None:
                                   "(default: $UWB_HIL_PORT; `uwb-hil ports` lists this machine's ports)")
     g.add_argument("--port-serial", metavar="SERIAL",
                    help="the board whose USB serial number is SERIAL (see `uwb-hil ports`), whatever its path")
-    g.add_argument("--baud", type=options.baud, default=115200, help="serial line speed of a board on --port")
+    g.add_argument("--baud", type=options.baud, default=options.DEFAULT_BAUD,
+                   help="serial line speed of a board on --port")
     g.add_argument("--firmware", default=None,
                    help=f"firmware to run: the host binary for host (default {DEFAULT_FIRMWARE}), "
                         f"the STM32F405 ELF for qemu (default {DEFAULT_STM32_ELF})")

@@ -8,6 +8,8 @@ import argparse
 import math
 from typing import Callable
 
+#: a board's serial line speed when none is given (the firmware's UWB_BAUD default, firmware_sim/stm32/Makefile)
+DEFAULT_BAUD = 115200
 #: longest simulated flight `run`/`demo` build [s]: 4 h (a 1 h flight is ~3 GB built whole today)
 MAX_SIM_DURATION_S = 4 * 3600.0
 #: real-time pacing speed factor (harness/stream/streamer.py's Pacing): at most 100 times slower than real

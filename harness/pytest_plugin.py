@@ -40,6 +40,7 @@ import pytest
 from harness.device.registry import (QEMU_LINKS, TARGET_CHOICES, TARGETS, DeviceSpec, canonical_target,
                                      create_device, default_firmware, started)
 from harness.errors import UsageError, UwbHilError
+from harness.options import DEFAULT_BAUD
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
 if TYPE_CHECKING:
@@ -47,7 +48,6 @@ if TYPE_CHECKING:
     from harness.device.board_list import BoardSpec
 
 SCOPES = ("session", "module", "function")
-DEFAULT_BAUD = 115200
 DEFAULT_TIMEOUT_S = 5.0
 DEFAULT_FLASH_TIMEOUT_S = 600.0
 _PORT_KEY = pytest.StashKey[Optional[str]]()

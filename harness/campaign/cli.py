@@ -16,6 +16,7 @@ from harness.campaign.boards import BoardExecutor, note_boards_in_verdict
 from harness.device.board_list import boards_from_options, check_unique, load_board_list
 from harness.device.registry import TARGET_CHOICES
 from harness.device_args import add_labgrid_options
+from harness.options import DEFAULT_BAUD
 from harness.errors import EXIT_DEVICE, EXIT_PASS, EXIT_VERDICT, UsageError
 from harness.campaign.store import CampaignDir
 from harness.campaign.verdict import BASELINE_CONFIG, check_judged, default_judged, judge_campaign
@@ -110,7 +111,8 @@ def _add_board_options(p: argparse.ArgumentParser) -> None:
                         help="a board's serial port or pyserial URL (repeat for several boards)")
     boards.add_argument("--boards", metavar="FILE", default=None,
                         help="board list (YAML: name, port or serial_number, target, baud, firmware per board)")
-    boards.add_argument("--baud", type=int, default=115200, help="baud rate of --port boards (default %(default)s)")
+    boards.add_argument("--baud", type=int, default=DEFAULT_BAUD,
+                        help="baud rate of --port boards (default %(default)s)")
     add_labgrid_options(boards)
 
 

@@ -23,6 +23,7 @@ from harness.campaign.plan import FIRST_EVAL_SEED, ROLE_RADIO, FlightSpec, RunSp
 from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_array_atomic, save_flight,
                                     write_json_atomic)
 from harness.errors import InputError
+from harness.options import DEFAULT_BAUD
 from harness.flight.data import Flight
 from harness.report.summarize import summarize_run
 from harness.device.registry import DeviceSpec, open_device
@@ -54,7 +55,8 @@ class WorkerJob:
     def device_spec(self, run: RunSpec, log_dir: Path) -> DeviceSpec:
         if self.device is not None:
             return DeviceSpec(target=str(self.device["target"]), port=self.device.get("port"),
-                              baud=int(self.device.get("baud", 115200)), timeout_s=self.timeout_s, log_dir=log_dir)
+                              baud=int(self.device.get("baud", DEFAULT_BAUD)), timeout_s=self.timeout_s,
+                              log_dir=log_dir)
         return DeviceSpec(firmware=Path(run.firmware), timeout_s=self.timeout_s, log_dir=log_dir)
 
     @staticmethod

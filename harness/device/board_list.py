@@ -23,6 +23,7 @@ from typing import Any
 
 from harness.device.registry import TARGETS, DeviceSpec, canonical_target
 from harness.errors import InputError
+from harness.options import DEFAULT_BAUD
 
 FIELDS = ("name", "port", "serial_number", "target", "baud", "firmware")
 
@@ -35,7 +36,7 @@ class BoardSpec:
     target: str = "host"
     port: str | None = None
     serial_number: str | None = None     # USB serial number (resolved to a port when used)
-    baud: int = 115200
+    baud: int = DEFAULT_BAUD
     firmware: Path | None = None         # host binary / ELF of a board the harness starts; None: the default
     extra: dict[str, Any] = field(default_factory=dict, compare=False)
 
@@ -97,7 +98,7 @@ def _entry(i: int, raw: Any, base: Path) -> BoardSpec:
     if target == "serial" and not (port or serial):
         raise InputError(f"{where}: target serial needs a port or a serial_number")
     try:
-        baud = int(raw.get("baud", 115200))
+        baud = int(raw.get("baud", DEFAULT_BAUD))
     except (TypeError, ValueError):
         raise InputError(f"{where}: baud must be an integer, got {raw.get('baud')!r}") from None
     fw = raw.get("firmware")
@@ -122,7 +123,7 @@ def load_board_list(path: Path) -> list[BoardSpec]:
     return check_unique([_entry(i, raw, Path(path).parent) for i, raw in enumerate(data)])
 
 
-def boards_from_options(targets: list[str], ports: list[str], baud: int = 115200,
+def boards_from_options(targets: list[str], ports: list[str], baud: int = DEFAULT_BAUD,
                         firmware: Path | None = None) -> list[BoardSpec]:
     """Boards from repeated --target / --port: one board per port (each with the --target of the same
     position, or the one --target given, default serial), or without ports one board per --target."""

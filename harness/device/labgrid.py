@@ -25,6 +25,7 @@ from typing import Any
 
 from harness.errors import DeviceError, InputError
 from harness.optional import MissingDependencyError
+from harness.options import DEFAULT_BAUD
 
 COORDINATOR_ENV = "LG_COORDINATOR"         # labgrid's own variable
 DEFAULT_COORDINATOR = "127.0.0.1:20408"    # labgrid-coordinator's default
@@ -52,7 +53,7 @@ class Lease:
 
     @property
     def baud(self) -> int:
-        return int(self.resource.get("speed") or 115200)
+        return int(self.resource.get("speed") or DEFAULT_BAUD)
 
 
 def client_binary() -> str:

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from harness.errors import InputFileNotFound, UsageError
+from harness.options import DEFAULT_BAUD
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, DEFAULT_STM32_SEMIHOST_ELF
 
 if TYPE_CHECKING:
@@ -38,7 +39,7 @@ class DeviceSpec:
 
     target: str = "host"             # a kind of KINDS, or an alias of one (TARGET_ALIASES)
     port: str | None = None
-    baud: int = 115200
+    baud: int = DEFAULT_BAUD
     firmware: Path | None = None     # None: the kind's default (host binary, ASan binary, STM32 ELF)
     timeout_s: float = 5.0           # device silence before giving up; bounds a board's link writes too
     log_dir: Path | None = None

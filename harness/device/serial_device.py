@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from harness.device.base import Device
 from harness.link.base import Link
 from harness.link.serial_link import SerialLink
+from harness.options import DEFAULT_BAUD
 
 
 @dataclass(frozen=True)
@@ -23,7 +24,8 @@ class SerialDeviceOptions:
 class SerialDevice(Device):
     """A running board on `url` (/dev/ttyACM0, rfc2217://host:port, socket://host:port, ...)."""
 
-    def __init__(self, url: str, baud: int = 115200, options: SerialDeviceOptions = SerialDeviceOptions()) -> None:
+    def __init__(self, url: str, baud: int = DEFAULT_BAUD,
+                 options: SerialDeviceOptions = SerialDeviceOptions()) -> None:
         super().__init__()
         self.url = url
         self.baud = baud

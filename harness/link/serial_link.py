@@ -26,6 +26,7 @@ import serial
 from harness.errors import LinkClosed, LinkError, LinkTimeout
 from harness.link.base import DEFAULT_READ_SIZE, Link
 from harness.link.ports import is_local_device, ports_present
+from harness.options import DEFAULT_BAUD
 
 _POLL_S = 0.001
 #: pyserial drivers that refuse a write timeout ("write_timeout is currently not supported")
@@ -34,7 +35,7 @@ _NO_WRITE_TIMEOUT = frozenset({"serial.rfc2217"})
 
 @dataclass(frozen=True)
 class SerialOptions:
-    baud: int = 115200
+    baud: int = DEFAULT_BAUD
     write_timeout_s: float = 5.0
     low_latency: bool = True      # ASYNC_LOW_LATENCY where the driver supports it (Linux UARTs)
     exclusive: bool = True        # advisory flock on device files: two harnesses, one board
@@ -58,7 +59,7 @@ class SerialLink(Link):
         self._info.update(_set_low_latency(port, url) if options.low_latency else {"low_latency": False})
 
     @classmethod
-    def open(cls, url: str, baud: int = 115200, timeout: float = 5.0, **kwargs: Any) -> SerialLink:
+    def open(cls, url: str, baud: int = DEFAULT_BAUD, timeout: float = 5.0, **kwargs: Any) -> SerialLink:
         """Open `url` (a device path or pyserial URL); `timeout` bounds writes. Options: SerialOptions."""
         options = SerialOptions(baud=baud, write_timeout_s=timeout, **kwargs)
         extra: dict[str, Any] = {}
