@@ -237,7 +237,7 @@ def _add_pacing_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--pacing", choices=PACING_MODES, default="windowed",
                    help="windowed (up to --window measurements in flight), lockstep (one at a time) or "
                         "realtime (at the flight's own time stamps x --speed)")
-    g.add_argument("--window", type=options.window, default=64, help="measurements in flight (windowed, 1..1024)")
+    g.add_argument("--window", type=options.window, default=Pacing.window, help="measurements in flight (windowed, 1..1024)")
     g.add_argument("--speed", type=options.speed, default=1.0, help="real-time pacing speed factor, 0.01 to 1e6 (default %(default)s)")
 
 

@@ -38,7 +38,7 @@ class WorkerJob:
 
     root: str
     runs: tuple[RunSpec, ...]
-    window: int = 64
+    window: int = Pacing.window
     timeout_s: float = 10.0
     firmware_sha256: str = ""       # of the binary the runner saw (resume compares it)
     keep_jsonl: bool = False        # keep the run's JSON Lines (gzip-compressed) besides the binary rows
