@@ -162,7 +162,8 @@ def _layouts(layouts: tuple[int, int]) -> str:
         return str(tuple(layouts))
 
 
-#: exit codes of every command (docs/verdicts.md): 0 pass, 1 verdict failed, then by error family
+#: exit codes of every command (README "Reading a report", `uwb-hil --help`): 0 pass, 1 verdict failed, then by
+#: error family
 EXIT_PASS, EXIT_VERDICT, EXIT_INPUT, EXIT_DEVICE, EXIT_BUG = 0, 1, 2, 3, 4
 
 
