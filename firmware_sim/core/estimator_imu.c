@@ -8,6 +8,7 @@
 int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const float gyro[3])
 {
     uint32_t c0;
+    int due;
     ekf_noise_t noise;
     float a[3];
     if (est->has_imu_time && t_us < est->t_imu_us) {
@@ -37,14 +38,13 @@ int estimator_on_imu(estimator_t *est, uint64_t t_us, const float acc[3], const 
         a[0] = 0.0f;
         a[1] = 0.0f;
     }
-    if (!ekf_imu_due(&est->ekf, t_us)) {
-        (void)ekf_imu_sample(&est->ekf, &noise, t_us, a, gyro); /* summed for the next prediction */
-        return EST_OK;
-    }
-    c0 = platform_cost_now();
+    due = ekf_imu_due(&est->ekf, t_us); /* the other samples are only summed: not timed */
+    c0 = due ? platform_cost_now() : 0u;
     (void)ekf_imu_sample(&est->ekf, &noise, t_us, a, gyro);
-    est->predictions++;
-    estimator_supervise(est);
-    est->cost_predict += platform_cost_now() - c0;
+    if (due) {
+        est->predictions++;
+        estimator_supervise(est);
+        est->cost_predict += platform_cost_now() - c0;
+    }
     return EST_OK;
 }
