@@ -160,9 +160,11 @@ def cmd_models(args: argparse.Namespace) -> int:
     from harness.biasnet.shipped import build_shipped_models
     summary = build_shipped_models(Path(args.data), quick=args.quick, only=args.only,
                                    write_summary=not args.keep_summary)
+    kept = "" if args.quick or args.keep_summary else "; models.json keeps its entry"
     for name, entry in summary.items():      # a recorded network without its recordings: say so, not silence
         if isinstance(entry, dict) and "skipped" in entry:
-            print(f"uwb-hil models: {name} not built: {entry['skipped']} (looked in {args.data})", file=sys.stderr)
+            print(f"uwb-hil models: {name} not built: {entry['skipped']} (looked in {args.data}){kept}",
+                  file=sys.stderr)
     if args.json:
         print(jsonsafe.dumps(summary))
     return 0

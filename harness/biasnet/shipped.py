@@ -224,7 +224,17 @@ def build_shipped_models(data: Path, quick: bool = False, only: str | None = Non
                                            load=lambda paths: load_cf_usd_calibrated(paths, levers))
         if isinstance(summary[cf.name], dict) and levers:
             summary[cf.name]["lever_arms_m"] = {k: [round(v, 4) for v in arm] for k, arm in sorted(levers.items())}
-    if not quick and write_summary:  # merge: `--only X` refreshes X's entry and keeps the others
-        old = json.loads(SUMMARY.read_text()) if SUMMARY.is_file() else {}
-        SUMMARY.write_text(json.dumps(old | summary, indent=2, default=float) + "\n")
+    if not quick and write_summary:
+        _merge_summary(summary)
     return summary
+
+
+def _merge_summary(summary: dict[str, Any]) -> None:
+    """Write the models built into models.json and keep its other entries (`--only X` refreshes X's entry). A
+    network skipped for want of its recordings keeps its committed entry; nothing built: the file is untouched."""
+    built = {k: v for k, v in summary.items() if isinstance(v, dict) and "skipped" not in v}
+    if not built:
+        return
+    header = {k: v for k, v in summary.items() if not isinstance(v, dict)}   # command, machine, python
+    old = json.loads(SUMMARY.read_text()) if SUMMARY.is_file() else {}
+    SUMMARY.write_text(json.dumps(old | header | built, indent=2, default=float) + "\n")
