@@ -42,7 +42,7 @@ def add_device_options(p: argparse.ArgumentParser) -> None:
                    help="qemu only: icount (-icount shift=0: every guest instruction is 1 ns of virtual time, the "
                         "RESULT costs are exact instruction counts; default) or host (QEMU's virtual clock follows "
                         "the host's: no instruction counting, costs in ns of that clock; docs/qemu.md \"Speed\")")
-    g.add_argument("--timeout", type=options.timeout_s, default=5.0,
+    g.add_argument("--timeout", type=options.timeout_s, default=options.DEVICE_TIMEOUT_S,
                    help="seconds of device silence before giving up (> 0)")
     g.add_argument("--log-dir", help="where device logs go")
     g.add_argument("--flash-cmd", metavar="CMD",

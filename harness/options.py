@@ -10,6 +10,11 @@ from typing import Callable
 
 #: a board's serial line speed when none is given (the firmware's UWB_BAUD default, firmware_sim/stm32/Makefile)
 DEFAULT_BAUD = 115200
+#: seconds of device silence before a command, a fixture or a replay gives up (`--timeout`, `--uwb-timeout`,
+#: DeviceSpec, the streamer, the closed loop)
+DEVICE_TIMEOUT_S = 5.0
+#: seconds of device silence before a campaign's run fails (`uwb-hil campaign --timeout`'s default)
+CAMPAIGN_TIMEOUT_S = 10.0
 #: longest simulated flight `run`/`demo` build [s]: 4 h (a 1 h flight is ~3 GB built whole today)
 MAX_SIM_DURATION_S = 4 * 3600.0
 #: real-time pacing speed factor (harness/stream/streamer.py's Pacing): at most 100 times slower than real

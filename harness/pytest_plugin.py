@@ -40,7 +40,7 @@ import pytest
 from harness.device.registry import (QEMU_LINKS, TARGET_CHOICES, TARGETS, DeviceSpec, canonical_target,
                                      create_device, default_firmware, started)
 from harness.errors import UsageError, UwbHilError
-from harness.options import DEFAULT_BAUD
+from harness.options import DEFAULT_BAUD, DEVICE_TIMEOUT_S
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
 
 if TYPE_CHECKING:
@@ -48,7 +48,6 @@ if TYPE_CHECKING:
     from harness.device.board_list import BoardSpec
 
 SCOPES = ("session", "module", "function")
-DEFAULT_TIMEOUT_S = 5.0
 DEFAULT_FLASH_TIMEOUT_S = 600.0
 _PORT_KEY = pytest.StashKey[Optional[str]]()
 _SUITE_PROPS_KEY = pytest.StashKey[Set[Tuple[str, str]]]()
@@ -76,7 +75,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                     help="qemu: the guest's link, the emulated USART (default) or semihosting (uwb-fw-semihost.elf, "
                          "whole blocks per trap: the fastest replays; docs/qemu.md)")
     group.addoption("--uwb-timeout", type=float, default=None,
-                    help=f"seconds to wait for the device (default {DEFAULT_TIMEOUT_S:g})")
+                    help=f"seconds to wait for the device (default {DEVICE_TIMEOUT_S:g})")
     group.addoption("--uwb-scope", choices=SCOPES, default=None,
                     help="lifetime of one device: session, module or function (default; ini uwb_scope)")
     group.addoption("--uwb-flash-cmd", default=None, metavar="CMD",
@@ -279,7 +278,7 @@ def uwb_firmware(request: pytest.FixtureRequest, uwb_target: str) -> Path:
 
 @pytest.fixture(scope=_device_scope)
 def uwb_timeout(request: pytest.FixtureRequest) -> float:
-    return float(_param_or_option(request, "uwb_timeout", DEFAULT_TIMEOUT_S))
+    return float(_param_or_option(request, "uwb_timeout", DEVICE_TIMEOUT_S))
 
 
 @pytest.fixture(scope=_device_scope)

@@ -27,6 +27,7 @@ from harness.campaign.plan import (MODELS_SUMMARY, CampaignOptions, PlanError, R
 from harness.campaign.shards import costliest_first, shard_runs
 from harness.campaign.store import STATUS_FAILED, STATUS_OK, CampaignDir, read_json, write_json_atomic
 from harness.campaign.worker import WorkerJob
+from harness.options import CAMPAIGN_TIMEOUT_S
 from harness.paths import REPO_ROOT
 from harness.stream.streamer import Pacing
 
@@ -35,7 +36,7 @@ from harness.stream.streamer import Pacing
 class ExecOptions:
     jobs: int = max(1, os.cpu_count() or 1)
     window: int = Pacing.window    # measurements in flight (windowed pacing)
-    timeout_s: float = 10.0        # device silence before a run fails
+    timeout_s: float = CAMPAIGN_TIMEOUT_S  # device silence before a run fails
     # Wall-clock limit of one worker (a flight in every configuration); None: derived from the flight
     # length, generously (a loaded 2-core machine replays far slower than the unloaded figure).
     group_timeout_s: float | None = None

@@ -23,7 +23,7 @@ from harness.campaign.plan import FIRST_EVAL_SEED, ROLE_RADIO, FlightSpec, RunSp
 from harness.campaign.store import (STATUS_FAILED, STATUS_OK, CampaignDir, save_array_atomic, save_flight,
                                     write_json_atomic)
 from harness.errors import InputError
-from harness.options import DEFAULT_BAUD
+from harness.options import CAMPAIGN_TIMEOUT_S, DEFAULT_BAUD
 from harness.flight.data import Flight
 from harness.report.summarize import summarize_run
 from harness.device.registry import DeviceSpec, open_device
@@ -39,7 +39,7 @@ class WorkerJob:
     root: str
     runs: tuple[RunSpec, ...]
     window: int = Pacing.window
-    timeout_s: float = 10.0
+    timeout_s: float = CAMPAIGN_TIMEOUT_S
     firmware_sha256: str = ""       # of the binary the runner saw (resume compares it)
     keep_jsonl: bool = False        # keep the run's JSON Lines (gzip-compressed) besides the binary rows
     # a board to run on ({"target": "serial", "port": ..., "baud": ...}: campaign/boards.py); None: the run's

@@ -34,6 +34,7 @@ from harness.device.channel import DeviceChannel, as_channel
 from harness.errors import DeviceError, DeviceTimeout, UsageError
 from harness.flight.arena import Arena
 from harness.flight.measurement_errors import SimConfig
+from harness.options import DEVICE_TIMEOUT_S
 from protocol import messages as m
 
 PACINGS = ("lockstep", "realtime")
@@ -45,7 +46,7 @@ class LoopConfig:
     imu_every: int = 1              # physics steps per IMU frame (the frame carries their average)
     pacing: str = "lockstep"
     speed: float = 1.0              # realtime pacing: simulated seconds per wall second
-    timeout_s: float = 5.0          # device silence before a step fails
+    timeout_s: float = DEVICE_TIMEOUT_S  # device silence before a step fails
     abort_tilt_deg: float = 60.0
     abort_margin_m: float = 0.5
     abort_error_m: float = 2.0

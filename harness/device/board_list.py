@@ -23,7 +23,7 @@ from typing import Any
 
 from harness.device.registry import TARGETS, DeviceSpec, canonical_target
 from harness.errors import InputError
-from harness.options import DEFAULT_BAUD
+from harness.options import DEFAULT_BAUD, DEVICE_TIMEOUT_S
 
 FIELDS = ("name", "port", "serial_number", "target", "baud", "firmware")
 
@@ -47,7 +47,7 @@ class BoardSpec:
         from harness.link.ports import port_for_serial
         return port_for_serial(self.serial_number)
 
-    def device_spec(self, timeout_s: float = 5.0, log_dir: Path | None = None) -> DeviceSpec:
+    def device_spec(self, timeout_s: float = DEVICE_TIMEOUT_S, log_dir: Path | None = None) -> DeviceSpec:
         return DeviceSpec(target=self.target, port=self.resolved_port(), baud=self.baud, firmware=self.firmware,
                           timeout_s=timeout_s, log_dir=log_dir)
 

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from harness.errors import InputFileNotFound, UsageError
-from harness.options import DEFAULT_BAUD
+from harness.options import DEFAULT_BAUD, DEVICE_TIMEOUT_S
 from harness.paths import DEFAULT_ASAN_FIRMWARE, DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, DEFAULT_STM32_SEMIHOST_ELF
 
 if TYPE_CHECKING:
@@ -41,7 +41,7 @@ class DeviceSpec:
     port: str | None = None
     baud: int = DEFAULT_BAUD
     firmware: Path | None = None     # None: the kind's default (host binary, ASan binary, STM32 ELF)
-    timeout_s: float = 5.0           # device silence before giving up; bounds a board's link writes too
+    timeout_s: float = DEVICE_TIMEOUT_S  # device silence before giving up; bounds a board's link writes too
     log_dir: Path | None = None
     flash_cmd: str | None = None     # run (shell) before the device starts, e.g. to flash the board
     flash_timeout_s: float = 600.0

@@ -31,6 +31,7 @@ import numpy as np
 from harness.config import EstimatorConfig
 from harness.errors import ResultsFileError
 from harness.flight.data import Flight
+from harness.options import DEVICE_TIMEOUT_S
 from harness.stream.digest import flight_digest
 from harness.stream.results_file import (OUTCOME_PENDING, OUTCOME_RESULT, REC_RESUME, LockedResults, ResultsWriter,
                                          RunRecords, read_run, truncate_partial_line)
@@ -210,7 +211,8 @@ def check_device(rec: RecordedRun, device: dict[str, Any] | None) -> None:
                               "resume on the same firmware (or start a new run)")
 
 
-def resume_run(device: Any, rec: RecordedRun, flight: Flight, locked: LockedResults, timeout_s: float = 5.0,
+def resume_run(device: Any, rec: RecordedRun, flight: Flight, locked: LockedResults,
+               timeout_s: float = DEVICE_TIMEOUT_S,
                progress: Callable[[int, int], None] | None = None) -> tuple[RunResult, dict[str, Any]]:
     """Replay the recorded part, stream the rest, append to the (locked) file. Returns the whole-flight
     RunResult (read back from the file) and what the resume did. A replay that differs from the record

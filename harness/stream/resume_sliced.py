@@ -19,6 +19,7 @@ from typing import Any, Callable
 from harness.config import EstimatorConfig
 from harness.flight.chunked import SimPlan
 from harness.flight.data import Flight
+from harness.options import DEVICE_TIMEOUT_S
 from harness.stream.chunked_run import CHUNK_S, _Compact, _SliceWriter
 from harness.stream.digest import FlightDigest
 from harness.stream.resume import RecordedRun, ResumeError, replay_differences, run_from_file, split_flight
@@ -100,7 +101,8 @@ class _Resumer:
 
 
 def resume_plan(device: Any, rec: RecordedRun, plan: SimPlan, config: Callable[[Flight], EstimatorConfig],
-                locked: LockedResults, timeout_s: float = 5.0, progress: Callable[[int, int], None] | None = None,
+                locked: LockedResults, timeout_s: float = DEVICE_TIMEOUT_S,
+                progress: Callable[[int, int], None] | None = None,
                 chunk_s: float = CHUNK_S) -> tuple[RunResult, Flight, dict[str, Any]]:
     """Replay the recorded part and stream the rest of `plan`'s flight slice by slice, appending to the
     (locked) file. Returns the whole-flight RunResult (read back from the file), the compact summary

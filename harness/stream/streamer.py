@@ -23,7 +23,7 @@ from harness.config import EstimatorConfig
 from harness.device.channel import DeviceChannel, Replies, as_channel
 from harness.errors import DeviceTimeout, UsageError
 from harness.flight.data import Flight
-from harness.options import MAX_SPEED, MIN_SPEED
+from harness.options import DEVICE_TIMEOUT_S, MAX_SPEED, MIN_SPEED
 from harness.stream.prepare import PreparedFlight, frame_count, prepare
 from harness.stream.results_file import (OUTCOME_ERROR, OUTCOME_LOST, OUTCOME_NO_MEAS, OUTCOME_PENDING,
                                          OUTCOME_RESULT, REC_DEVICE_ERROR, REC_STATS, RESULT_BYTES,
@@ -109,7 +109,7 @@ class Streamer:
     """Drives one device through flights: pacing and bookkeeping. The frames go through the device's
     DeviceChannel (seq, decoder, link and device errors); the device must be started and HELLO-checked."""
 
-    def __init__(self, device: Any, timeout_s: float = 5.0) -> None:
+    def __init__(self, device: Any, timeout_s: float = DEVICE_TIMEOUT_S) -> None:
         """`device`: a DeviceChannel, or a started device (its `channel` is used)."""
         self.channel: DeviceChannel = as_channel(device)
         self.timeout_s = timeout_s
