@@ -8,6 +8,7 @@ Everything comes from the campaign directory (runs, DIR/models), never from the 
 from __future__ import annotations
 
 import math
+import re
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -20,12 +21,9 @@ if TYPE_CHECKING:
     from harness.report.context import ReportContext
     from harness.report.html import Section, Table
 
-#: table columns: (replay, configuration) -> header
-COLUMNS = {("uwb", "none"): "UWB-only", ("uwb", "outlier"): "UWB-only + outlier", ("imu", "none"): "IMU",
-           ("imu", "outlier"): "IMU + outlier", ("imu", "outlier+nn"): "IMU + outlier + NN",
-           ("tof", "outlier"): "IMU + ToF + outlier", ("tof", "outlier+nn"): "IMU + ToF + outlier + NN"}
+#: the replays of a log, in table order, and their column labels (harness/campaign/recorded_usd.py replay_of)
+REPLAYS = {"uwb": "UWB-only", "imu": "IMU", "tof": "IMU + ToF"}
 ROLES = ("held-out", "shelf", "training")
-ATT_COLUMNS = ("imu none", "imu outlier", "imu outlier+nn")
 #: the error-over-time axis is cut here: the ground phases leave it until the estimator's ground phase holds
 ERROR_AXIS_M = 2.0
 
@@ -56,8 +54,25 @@ def usd_summary(data: CampaignData) -> dict[str, Any]:
         att = ((r.attitude or {}).get("phases") or {}).get("flight", r.attitude or {})
         if isinstance(att.get("angle_p50_deg"), (int, float)):
             row.setdefault("attitude", {})[key] = float(att["angle_p50_deg"])
-    return {"flights": dict(sorted(flights.items())), "means": _role_means(flights, "rmse"),
-            "means_flight": _role_means(flights, "rmse_flight")}
+    return {"flights": dict(sorted(flights.items(), key=lambda kv: log_order(kv[0]))),
+            "means": _role_means(flights, "rmse"), "means_flight": _role_means(flights, "rmse_flight")}
+
+
+def log_order(name: str) -> tuple[Any, ...]:
+    """Sort key of a log name in natural order (0425-traj2 before 0425-traj13)."""
+    return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))
+
+
+def columns(summary: dict[str, Any], what: str = "rmse") -> dict[tuple[str, str], str]:
+    """Every (replay, configuration) the logs have a `what` for -> its column header: replays in REPLAYS' order,
+    configurations in the order flown (the ToF replays' no-rejection runs and further configurations such as
+    outlier+nn+std included: every run flown has its column)."""
+    keys = list(dict.fromkeys(k for f in summary["flights"].values() for k in f.get(what) or {}))
+    pairs = [(replay, cfg) for replay in REPLAYS for cfg in dict.fromkeys(k.split(" ", 1)[1] for k in keys)
+             if f"{replay} {cfg}" in keys]
+    return {(replay, cfg): REPLAYS[replay] + "".join(" + " + ("NN" if part == "nn" else part)
+                                                       for part in cfg.split("+") if cfg != "none")
+            for replay, cfg in pairs}
 
 
 def _role_means(flights: dict[str, dict[str, Any]], what: str) -> dict[str, dict[str, float]]:
@@ -71,9 +86,9 @@ def _role_means(flights: dict[str, dict[str, Any]], what: str) -> dict[str, dict
     return means
 
 
-def _cell(rmse: dict[str, float], replay: str, cfg: str) -> str:
+def _cell(rmse: dict[str, float], replay: str, cfg: str, digits: int = 3) -> str:
     v = rmse.get(f"{replay} {cfg}")
-    return f"{v:.3f}" if isinstance(v, float) and math.isfinite(v) else "-"
+    return f"{v:.{digits}f}" if isinstance(v, float) and math.isfinite(v) else "-"
 
 
 def _change(rmse: dict[str, float], base: str = "imu outlier", new: str = "imu outlier+nn") -> str:
@@ -85,7 +100,7 @@ def error_time_figure(data: CampaignData) -> Figure | None:
     """Position error over time of the flights the network never saw: IMU + outlier, IMU + outlier + NN and
     UWB-only + outlier, one panel per log."""
     runs = [r for r in usd_runs(data) if usd_role(r.trajectory) != "training" and r.err_t_s.size]
-    logs = sorted({log_name(r.trajectory) for r in runs})
+    logs = sorted({log_name(r.trajectory) for r in runs}, key=log_order)
     if not logs:
         return None
     fig = Figure(figsize=(11, 2.4 * len(logs)), layout="constrained")
@@ -141,11 +156,12 @@ def _rmse_tables(summary: dict[str, Any], what: str, means: str, title: str) -> 
 
     def changes(rmse: dict[str, float]) -> list[str]:
         return [_change(rmse), _change(rmse, "tof outlier", "tof outlier+nn"), _change(rmse, "uwb outlier", "imu outlier")]
-    rows = [[log, f["role"], *[_cell(f[what], *k) for k in COLUMNS], *changes(f[what])]
+    cols = columns(summary, what)
+    rows = [[log, f["role"], *[_cell(f[what], *k) for k in cols], *changes(f[what])]
             for log, f in summary["flights"].items()]
-    headers = [*COLUMNS.values(), "NN vs outlier", "NN vs outlier (ToF)", "IMU vs UWB-only (outlier)"]
+    headers = [*cols.values(), "NN vs outlier", "NN vs outlier (ToF)", "IMU vs UWB-only (outlier)"]
     mrows = [[role, str(sum(f["role"] == role and bool(f[what]) for f in summary["flights"].values())),
-              *[_cell(summary[means][role], *k) for k in COLUMNS], *changes(summary[means][role])]
+              *[_cell(summary[means][role], *k) for k in cols], *changes(summary[means][role])]
              for role in ROLES if summary[means].get(role)]
     return [Table(["log", "role", *headers], rows, "Per flight" + title),
             Table(["flights", "n", *headers], mrows, "Means" + title)]
@@ -154,9 +170,10 @@ def _rmse_tables(summary: dict[str, Any], what: str, means: str, title: str) -> 
 def _attitude_table(summary: dict[str, Any]) -> list["Table"]:
     """The firmware's attitude error in flight per log (IMU replays), if the runs carry it."""
     from harness.report.html import Table
-    rows = [[log, f["role"], *[f"{f['attitude'][k]:.2f}" if k in f["attitude"] else "-" for k in ATT_COLUMNS]]
+    cols = columns(summary, "attitude")
+    rows = [[log, f["role"], *[_cell(f["attitude"], *k, digits=2) for k in cols]]
             for log, f in summary["flights"].items() if f.get("attitude")]
-    return [Table(["log", "role", *[f"IMU {k.split(' ', 1)[1]}" for k in ATT_COLUMNS]], rows,
+    return [Table(["log", "role", *cols.values()], rows,
                   "The firmware's attitude against the logged attitude in flight: median total angle [deg]")] if rows else []
 
 

@@ -99,11 +99,33 @@ def test_report_section_splits_the_crazyflie_logs_by_role_replay_and_phase() -> 
     assert row[-3:] == ["-25.0 %", "-20.0 %", "-20.0 %"]  # network vs outlier rejection, with ToF, IMU vs UWB-only
     assert {r[0]: r for r in per_flight.rows}["0425-traj1"][-3:] == ["-", "-", "-25.0 %"]
     assert [r[:2] for r in means.rows] == [["held-out", "1"], ["training", "1"]]
-    assert _attitude_table(s)[0].rows[0] == ["0425-traj1", "training", "-", "1.50", "-"]
+    att = _attitude_table(s)[0]
+    assert att.headers[2:] == ["IMU + outlier", "IMU + outlier + NN", "IMU + ToF + outlier", "IMU + ToF + outlier + NN"]
+    assert att.rows[0] == ["0425-traj1", "training", "1.50", "-", "-", "-"]
     fig = error_time_figure(data)
     assert fig is not None and len(fig.axes) == 1        # only the flight the network never saw
     # the UTIL/rcv recorded summary keeps its own flights
     assert [f["flight_id"] for f in accuracy_section(data)["recorded"]["flights"]] == ["rec-tdoa-util-const1-trial5-tdoa2"]
+
+
+def test_report_section_has_a_column_for_every_run_flown_and_the_logs_in_natural_order() -> None:
+    """The ToF replays' no-rejection runs and further configurations (outlier+nn+std) are flown by the default
+    campaign: each has its column; logs sort as 0425-traj2 < 0425-traj3 < 0425-traj13 (not as strings)."""
+    from harness.report.data import CampaignData
+    from harness.report.usd_section import _rmse_tables, columns, usd_summary
+    runs = [_run(f"cf-0425-traj{n}{suffix}", cfg, 0.1 * n, 1.0) for n in (13, 3, 2)
+            for suffix, cfgs in (("", ("none", "outlier", "outlier+nn", "outlier+nn+std")), ("-uwb", ("none", "outlier")),
+                                 ("-tof", ("none", "outlier", "outlier+nn", "outlier+nn+std")))
+            for cfg in cfgs]
+    s = usd_summary(CampaignData(root=Path("."), manifest={}, runs=runs, failures=[], missing=[], devices=[]))
+    assert list(s["flights"]) == ["0425-traj2", "0425-traj3", "0425-traj13"]
+    assert list(columns(s).values()) == [
+        "UWB-only", "UWB-only + outlier", "IMU", "IMU + outlier", "IMU + outlier + NN", "IMU + outlier + NN + std",
+        "IMU + ToF", "IMU + ToF + outlier", "IMU + ToF + outlier + NN", "IMU + ToF + outlier + NN + std"]
+    per_flight, _ = _rmse_tables(s, "rmse_flight", "means_flight", "")
+    row = {r[0]: r for r in per_flight.rows}["0425-traj13"]
+    assert row[per_flight.headers.index("IMU + ToF")] == "1.300"
+    assert len(row) == len(per_flight.headers) == 15
 
 
 def test_a_calibrated_flight_survives_the_plan_file_round_trip() -> None:
