@@ -254,17 +254,13 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
         raise PlanError("no runs planned (--seeds 0 and no recorded flight): a campaign that flies nothing "
                         "cannot pass; give --seeds N or recorded data")
     blind = {f.flight_id for f in flights if f.uwb_only and _needs_attitude(models[f.flight_id], f.mode)}
-    for f in flights:
-        if f.flight_id in blind:
-            notes.append(f"{f.trajectory}: replayed UWB-only and its network ({models[f.flight_id]}) takes roll, "
-                         "pitch and yaw: its network configurations are left out (a level attitude would make "
-                         "the correction up; `uwb-hil run` refuses the same)")
+    notes += _left_out_notes(flights, blind, models, "replayed UWB-only, and the network ({model}) takes roll, pitch "
+                             "and yaw: its configurations are left out (a level attitude would make the correction "
+                             "up; `uwb-hil run` refuses the same)")
     from harness.campaign.recorded_usd import trained_on
     seen = {f.flight_id for f in flights if f.source == "recorded" and trained_on(models[f.flight_id], f)} - blind
-    for f in flights:
-        if f.flight_id in seen:
-            notes.append(f"{f.trajectory}: its network ({models[f.flight_id]}) was trained on it: its network "
-                         "configurations are left out")
+    notes += _left_out_notes(flights, seen, models, "the network ({model}) was trained on it: its configurations "
+                             "are left out")
     blind |= seen
     runs = [RunSpec(flight=f, config=c, firmware=str(opts.firmware), pacing=opts.pacing, model=models[f.flight_id])
             for f in flights for c in opts.configs
@@ -278,6 +274,16 @@ def plan_campaign(opts: CampaignOptions) -> tuple[list[RunSpec], list[str]]:
                                     role=ROLE_LATENCY, model=models[first.flight_id]))
     runs += radio_runs(opts, flights, models)
     return ([replace(r, settings=opts.settings) for r in runs] if opts.settings else runs), notes
+
+
+def _left_out_notes(flights: list[FlightSpec], ids: set[str], models: dict[str, str | None], why: str) -> list[str]:
+    """One note per network for the flights `ids` whose network configurations are left out: the flights, then
+    `why` (with {model}); one note for all of them, not one per flight (36 on the shared uSD logs)."""
+    by_model: dict[str | None, list[str]] = {}
+    for f in flights:
+        if f.flight_id in ids:
+            by_model.setdefault(models[f.flight_id], []).append(f.trajectory)
+    return [f"{', '.join(trajs)}: {why.format(model=model)}" for model, trajs in by_model.items()]
 
 
 def _needs_attitude(model: str | None, mode: str) -> bool:

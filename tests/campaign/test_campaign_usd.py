@@ -56,7 +56,11 @@ def test_campaign_replays_every_log_with_imu_and_uwb_only_and_the_network_only_w
     assert nn == {(Path(r).name, False) for r in (*CF_USD_EVAL, *CF_USD_SHELF)}
     assert len(cf) == 16 * 2 * 2 + 6
     assert {r.flight.uwb_only for r in cf if r.config == "outlier"} == {True, False}
-    assert any("was trained on it" in n for n in notes)
+    # one note per reason and network, naming the flights (not one per flight)
+    trained = [n for n in notes if "was trained on it" in n]
+    blind = [n for n in notes if "replayed UWB-only" in n]
+    assert len(trained) == 1 and trained[0].startswith("cf-0425-traj1, cf-0425-traj2, ")
+    assert len(blind) == 1 and blind[0].count("-uwb") == 16
     # stand-in logs cannot be calibrated: read with UTIL's lever arm, and the campaign says so
     assert all(r.flight.lever_arm is None for r in cf) and any("UTIL's lever arm" in n for n in notes)
     assert recorded_usd.usd_role("cf-0425-traj13-uwb") == "held-out"
