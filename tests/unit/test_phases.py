@@ -250,4 +250,6 @@ def test_crazyflie_section_shows_the_flight_phase() -> None:
     assert summary["means_flight"]["held-out"]["imu outlier"] == pytest.approx(np.linalg.norm(FLIGHT_ERR), abs=1e-5)
     per_flight, means = _rmse_tables(summary, "rmse_flight", "means_flight", ", flight phase (truth above 0.4 m)")
     assert per_flight.caption == "Per flight, flight phase (truth above 0.4 m)"
-    assert per_flight.rows[0][:4] == ["0425-traj3", "held-out", "-", "0.224"] and means.rows[0][:2] == ["held-out", "1"]
+    # a column for each (replay, configuration) flown, UWB-only first: no empty columns for runs not flown
+    assert per_flight.headers[2:4] == ["UWB-only + outlier", "IMU + outlier"]
+    assert per_flight.rows[0][:4] == ["0425-traj3", "held-out", "0.224", "0.224"] and means.rows[0][:2] == ["held-out", "1"]
