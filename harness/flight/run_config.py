@@ -18,11 +18,11 @@ def config_for(flight: Flight, base: EstimatorConfig | None = None, stages: int 
     a flight with IMU gets floor_imu = 1 in every mode, UWB-only included)."""
     cfg = base or EstimatorConfig()
     p0 = flight.truth.position_at([int(flight.uwb.t_us[0])])[0] if len(flight.uwb) else (0.0, 0.0, 0.0)
-    imu_mode = MODE_IMU_THRUST if flight.meta.get("vehicle") == "quadrotor" else MODE_IMU
-    mode = MODE_UWB_ONLY if (uwb_only or not flight.has_imu) else imu_mode
+    quadrotor = flight.meta.get("vehicle") == "quadrotor"
+    mode = MODE_UWB_ONLY if (uwb_only or not flight.has_imu) else (MODE_IMU_THRUST if quadrotor else MODE_IMU)
     # a quadrotor log starts on the floor: its IMU tells when it sits there, in every mode (core/takeoff.h)
-    quad = flight.meta.get("vehicle") == "quadrotor" and flight.has_imu
-    cfg = replace(cfg, mode=mode, floor_imu=int(quad) or cfg.floor_imu).with_init(*p0)
+    floor_imu = int(quadrotor and flight.has_imu) or cfg.floor_imu
+    cfg = replace(cfg, mode=mode, floor_imu=floor_imu).with_init(*p0)
     if flight.aux is not None and "tof_offset_m" in flight.meta:   # the ranger's offset from the state's point
         tx, ty, tz = (float(v) for v in flight.meta["tof_offset_m"])   # type: ignore[attr-defined]
         cfg = replace(cfg, tof_x=tx, tof_y=ty, tof_z=tz)

@@ -299,7 +299,7 @@ class ErrorStateEkf:
 
     def hold_at_rest(self) -> None:
         """A vehicle at rest (after a touchdown; UWB-only: on the floor): velocity zero and known (P_MIN), its
-        correlations dropped, the position's covariance kept (estimator.c hold_at_rest)."""
+        correlations dropped, the position's covariance kept (ekf_core.c ekf_hold_at_rest)."""
         self.x[VEL] = 0.0
         self.P[VEL, :] = 0.0
         self.P[:, VEL] = 0.0

@@ -189,7 +189,7 @@ class TwinEstimator:
             self.predictions += 1
             self._supervise()
 
-    def _imu_floor(self) -> bool:   # the IMU tells when the vehicle sits on the floor (estimator.c imu_floor)
+    def _imu_floor(self) -> bool:   # the IMU tells when the vehicle sits on the floor (estimator.h estimator_floor_from_imu)
         return self.config.mode == MODE_IMU_THRUST or bool(self.config.floor_imu)
 
     def on_meas(self, kind: int, t_us: int, ids: tuple[int, ...], z: float) -> TwinResult:

@@ -127,12 +127,17 @@ class RecordIndex:
 
     @property
     def time_bytes(self) -> int:
-        return int(np.dtype(VERSIONS[self.version][0]).itemsize)
+        return _time_bytes(self.version)
 
     def stamps_us(self, stamp_bytes: np.ndarray) -> np.ndarray:
         """(n, time_bytes) uint8 timestamp fields -> int64 microseconds."""
         time_dtype, tick_us = VERSIONS[self.version]
         return np.ascontiguousarray(stamp_bytes).view(time_dtype)[:, 0].astype(np.int64) * tick_us
+
+
+def _time_bytes(version: int) -> int:
+    """Bytes of a record's timestamp in this log version."""
+    return int(np.dtype(VERSIONS[version][0]).itemsize)
 
 
 def index_records(data: bytes, path: Path) -> RecordIndex:
@@ -141,9 +146,8 @@ def index_records(data: bytes, path: Path) -> RecordIndex:
     version, types, start = parse_header(data, path)
     at = len(data) - CRC_BYTES
     crc_ok = struct.unpack_from("<I", data, at)[0] == zlib.crc32(data[:at]) & 0xFFFFFFFF
-    time_bytes = np.dtype(VERSIONS[version][0]).itemsize
     try:
-        starts = walk_records(data, start, at, types, time_bytes, path)
+        starts = walk_records(data, start, at, types, _time_bytes(version), path)
     except RecordingError as exc:      # the more specific reason; a truncated file fails its CRC too
         if crc_ok:
             raise
