@@ -1,5 +1,5 @@
 """Campaigns on Dask distributed (`uwb-hil campaign --scheduler`, harness/campaign/cluster.py) against a real
-LocalCluster of two worker processes on this machine: the same campaign gives the same RMSE figures as the
+scheduler and two worker processes on this machine: the same campaign gives the same RMSE figures as the
 local process pool, the workers get the firmware by content (cached by hash) and send every file back (only
 the client writes the campaign directory), and killing a worker mid-campaign loses no run: its flight is
 run again elsewhere and the campaign counts the retry."""
@@ -9,9 +9,11 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Iterator
 
 import pytest
 
@@ -30,21 +32,68 @@ SMALL = ["--seeds", "2", "--modes", "twr,tdoa", "--trajectories", "circle", "--c
          "--duration", "11", "--no-recorded", "--no-latency-runs", "--no-report"]
 
 
+class _Cluster:
+    """A scheduler and two single-threaded workers in their own processes, as on a real cluster. Not a
+    LocalCluster: that runs the scheduler and the nannies on an IO-loop thread of the test process, whose
+    logged tracebacks (CPython 3.11 parses source lines to place the carets) raced the main thread's
+    `np.load` header parse and broke it (`SystemError: AST constructor recursion depth mismatch`,
+    CPython gh-106905), a flake seen in fresh-clone CI."""
+
+    def __init__(self, root: Path) -> None:
+        self.cache_dir = root / "worker-cache"
+        self.cache_dir.mkdir()
+        self._file = root / "scheduler.json"
+        self._log = (root / "cluster.log").open("w")
+        env = {**os.environ, "UWB_HIL_CACHE": str(self.cache_dir)}     # the workers get the cache dir
+        py = [sys.executable, "-m"]
+        self._procs = [subprocess.Popen([*py, "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+                                         "--port", "0", "--dashboard-address", ":0",
+                                         "--scheduler-file", str(self._file)],
+                                        env=env, stdout=self._log, stderr=subprocess.STDOUT,
+                                        start_new_session=True)]
+        self.scheduler_address = self._wait_for_file()
+        self._procs.append(subprocess.Popen([*py, "distributed.cli.dask_worker", "--scheduler-file",
+                                             str(self._file), "--nworkers", "2", "--nthreads", "1",
+                                             "--local-directory", str(root / "workers")],
+                                            env=env, stdout=self._log, stderr=subprocess.STDOUT,
+                                            start_new_session=True))
+        with distributed.Client(self.scheduler_address, set_as_default=False, timeout=30) as c:
+            c.wait_for_workers(2, timeout=60)
+
+    def _wait_for_file(self) -> str:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            if self._file.exists():
+                try:
+                    return str(json.loads(self._file.read_text())["address"])
+                except (ValueError, KeyError):
+                    pass                     # written but not complete yet
+            if self._procs[0].poll() is not None:
+                break
+            time.sleep(0.1)
+        self.close()
+        raise RuntimeError(f"the Dask scheduler did not start (log: {self._log.name})")
+
+    def close(self) -> None:
+        for p in reversed(self._procs):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in self._procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait(timeout=20)
+        self._log.close()
+
+
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
-    cache = tmp_path_factory.mktemp("worker-cache")
-    old = os.environ.get("UWB_HIL_CACHE")
-    os.environ["UWB_HIL_CACHE"] = str(cache)           # the worker processes inherit it
+def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[_Cluster]:
+    lc = _Cluster(tmp_path_factory.mktemp("dask"))
     try:
-        with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                      dashboard_address=":0", silence_logs=40) as lc:
-            lc.cache_dir = cache
-            yield lc
+        yield lc
     finally:
-        if old is None:
-            os.environ.pop("UWB_HIL_CACHE", None)
-        else:
-            os.environ["UWB_HIL_CACHE"] = old
+        lc.close()
 
 
 def _rmse(root: Path) -> dict[str, float]:
@@ -54,7 +103,7 @@ def _rmse(root: Path) -> dict[str, float]:
     return {f"{mode}.{k}": rep[mode][k] for mode in ("twr", "tdoa") for k in ("rmse_raw", "rmse_outlier_nn")}
 
 
-def test_cluster_gives_the_local_figures(cluster: Any, tmp_path: Path) -> None:
+def test_cluster_gives_the_local_figures(cluster: _Cluster, tmp_path: Path) -> None:
     assert main(["campaign", "--out", str(tmp_path / "local"), *SMALL, "--jobs", "2"]) == 0
     assert main(["campaign", "--out", str(tmp_path / "dask"), *SMALL, "--scheduler", cluster.scheduler_address]) == 0
     local, dask = _rmse(tmp_path / "local"), _rmse(tmp_path / "dask")
@@ -87,7 +136,7 @@ def _kill_a_busy_worker(scheduler: str, killed: list[int]) -> None:
             time.sleep(0.05)
 
 
-def test_killing_a_worker_mid_campaign_loses_no_run(cluster: Any, tmp_path: Path) -> None:
+def test_killing_a_worker_mid_campaign_loses_no_run(cluster: _Cluster, tmp_path: Path) -> None:
     opts = CampaignOptions(seeds=4, modes=("twr",), trajectories=("circle",), configs=("none", "outlier"),
                            duration_s=11.0, recorded=False, latency_runs=False)
     killed: list[int] = []
