@@ -89,11 +89,3 @@ def firmware_for(model: BiasModel, build_root: Path | None = None, timeout_s: fl
     out = (build_root or FIRMWARE_BUILD_DIR / "models") / model.hash_hex
     return build_firmware("host", model, out, timeout_s=timeout_s)
 
-
-def build_nn_eval(header: Path, out: Path, timeout_s: float = 120.0) -> Path:
-    """firmware_sim/tools/nn_eval (the network alone, not a firmware) compiled against ``header`` (an exported
-    model) by the Makefile's nn_eval target."""
-    out = Path(out).resolve()
-    run_make(["-C", str(FIRMWARE_DIR), f"MODEL_HEADER={Path(header).resolve()}", f"NN_EVAL={out}", str(out)],
-             timeout_s)
-    return out

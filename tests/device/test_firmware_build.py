@@ -21,8 +21,8 @@ def test_one_build_error_class_that_the_cli_reports() -> None:
 
 
 def test_only_firmware_build_passes_a_model_header_to_make() -> None:
-    """The model header reaches make (MODEL_HEADER) or the compiler (-DBIAS_MODEL_HEADER) from one module
-    (which also builds the nn_eval tool, not a firmware, by the Makefile's nn_eval target)."""
+    """The model header reaches make (MODEL_HEADER) or the compiler (-DBIAS_MODEL_HEADER) from one product
+    module (the nn_eval test tool, not a firmware, is built by tests/unit/nn_eval_build.py)."""
     users = sorted(str(f.relative_to(ROOT)) for f in (ROOT / "harness").rglob("*.py")
                    if any(s in f.read_text() for s in ("MODEL_HEADER=", "EXTRA_CFLAGS", "[\"CFLAGS\"]")))
     assert users == ["harness/firmware_build.py"]

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from harness.biasnet.baselines import PairConstant, VoxelTable
-from harness.firmware_build import build_nn_eval, firmware_for
+from harness.firmware_build import firmware_for
 from harness.biasnet.dataset import Samples, build_samples, flight_samples, split_by_flight
 from harness.biasnet.evaluate import evaluate
 from harness.biasnet.export import DEFAULT_NPZ, export_c, header_text
@@ -22,6 +22,7 @@ from harness.errors import ModelMismatch
 from harness.flight.data import KIND_TDOA, Anchors, Flight, Truth, UwbStream
 from harness.paths import shared_data_dir
 from harness.twin.features import LAYOUT_TDOA_POSE, LAYOUT_TWR_POS, LAYOUT_TWR_POSE
+from nn_eval_build import build_nn_eval
 
 LO6 = np.array([-8.0, -8.0, -3.5, -0.6, -0.6, -np.pi])
 LO9 = np.concatenate([LO6[:3], LO6])

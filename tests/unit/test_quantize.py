@@ -66,7 +66,7 @@ def test_c_q15_kernel_equals_the_numpy_integers(tmp_path) -> None:  # noqa: ANN0
     the training range (saturation) and both heads."""
     import subprocess
     from harness.biasnet.export import export_c
-    from harness.firmware_build import build_nn_eval
+    from nn_eval_build import build_nn_eval
     model = BiasModel.load(DEFAULT_NPZ).quantized("q15")
     exe = build_nn_eval(export_c(model, tmp_path / "q15.h"), tmp_path / "nn_eval_q15")
     rng = np.random.default_rng(5)
