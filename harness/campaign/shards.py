@@ -90,8 +90,3 @@ def shard_runs(runs: list[RunSpec], index: int, count: int) -> list[RunSpec]:
     mine = deal(groups, count)[index - 1]
     return [r for i in mine for r in groups[i]]
 
-
-def shard_costs(runs: list[RunSpec], count: int) -> list[float]:
-    """Estimated wall time of each of `count` shards [s]."""
-    groups = group_by_flight(runs)
-    return [sum(group_cost_s(groups[i]) for i in idx) for idx in deal(groups, count)]

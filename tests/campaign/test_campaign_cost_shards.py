@@ -9,11 +9,16 @@ from dataclasses import replace
 import pytest
 
 from harness.campaign.plan import ROLE_LATENCY, CampaignOptions, FlightSpec, RunSpec, group_by_flight, plan_campaign
-from harness.campaign.shards import (GROUP_SETUP_S, costliest_first, deal, group_cost_s, run_cost_s, shard_costs,
-                                     shard_runs)
+from harness.campaign.shards import GROUP_SETUP_S, costliest_first, deal, group_cost_s, run_cost_s, shard_runs
 from harness.paths import DEFAULT_FIRMWARE
 
 pytestmark = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason="host firmware not built (make firmware)")
+
+
+def shard_costs(runs: list[RunSpec], count: int) -> list[float]:
+    """Estimated wall time of each of `count` shards [s], as shards.deal splits the plan."""
+    groups = group_by_flight(runs)
+    return [sum(group_cost_s(groups[i]) for i in idx) for idx in deal(groups, count)]
 
 
 @pytest.mark.parametrize("count", [2, 3])
