@@ -231,13 +231,3 @@ def _load_yaml(path: Path) -> Anchors:
     return Anchors(ids=np.array(ids, dtype=np.int64), positions=np.array(pos, dtype=np.float64),
                    orientations=orientations)
 
-
-def save_constellation_yaml(anchors: Anchors, path: Path | str) -> None:
-    lines = ["anchors:"]
-    for k, i in enumerate(anchors.ids):
-        p = ", ".join(f"{v:.6f}" for v in anchors.positions[k])
-        entry = f"  - {{id: {int(i)}, position: [{p}]"
-        if anchors.orientations is not None:
-            entry += ", orientation: [" + ", ".join(f"{v:.9f}" for v in anchors.orientations[k]) + "]"
-        lines.append(entry + "}")
-    Path(path).write_text("\n".join(lines) + "\n")

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.flight.arena import (Arena, Box, ConstellationError, default_anchors, load_constellation,
-                                  save_constellation_yaml)
+from constellation_yaml import save_constellation_yaml
+from harness.flight.arena import Arena, Box, ConstellationError, default_anchors, load_constellation
 from harness.flight.measurement_errors import sim_config, uwb_errors
 from harness.flight.data import KIND_TDOA, KIND_TWR
 from harness.flight.scenarios import SCENARIOS, ScenarioError, scenario_flight

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.flight.arena import ConstellationError, load_constellation, save_constellation_yaml
+from constellation_yaml import save_constellation_yaml
+from harness.flight.arena import ConstellationError, load_constellation
 from harness.flight.formats.anchors import load_anchor_yaml, load_anchors
 from harness.flight.formats.common import RecordingError
 from harness.flight.scenarios import default_anchors
