@@ -65,11 +65,6 @@ class FastPart:
         return float(np.sqrt(np.mean(self.residual[m] ** 2 * n / (n - 1.0))))
 
 
-def fast_residual(samples: Samples, half_window_s: float = HALF_WINDOW_S) -> np.ndarray:
-    """Each sample's error minus the moving average of its own (flight, anchor pair) series."""
-    return fast_part(samples, half_window_s).residual
-
-
 def window_counts(t_s: np.ndarray, half_window_s: float) -> np.ndarray:
     """How many samples lie within +-half_window_s of each (t non-decreasing), itself included."""
     lo = np.searchsorted(t_s, t_s - half_window_s, side="left")
@@ -98,15 +93,6 @@ def fast_part(samples: Samples, half_window_s: float = HALF_WINDOW_S) -> FastPar
         out[idx] = e - moving_average(samples.t_s[idx], e, half_window_s)
         count[idx] = window_counts(samples.t_s[idx], half_window_s)
     return FastPart(out, count)
-
-
-def floor_rmse(samples: Samples, half_window_s: float = HALF_WINDOW_S, unbiased: bool = False) -> float:
-    """RMSE of the fast residual: what no pose-dependent correction can remove (the issue's literal floor,
-    or with ``unbiased`` the small-window-corrected one, FastPart.floor_unbiased)."""
-    if len(samples) == 0:
-        return float("nan")
-    part = fast_part(samples, half_window_s)
-    return part.floor_unbiased() if unbiased else part.floor()
 
 
 def share_of_ceiling(rmse_raw: float, rmse_corrected: float, floor: float) -> float:

@@ -6,11 +6,25 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from harness.biasnet.ceiling import fast_part, fast_residual, floor_rmse, moving_average, share_of_ceiling
+from harness.biasnet.ceiling import HALF_WINDOW_S, fast_part, moving_average, share_of_ceiling
 from harness.biasnet.dataset import Samples
 from harness.biasnet.evaluate import evaluate
 
 DT = 1.0 / 64.0  # exact in binary: a +-0.25 s window holds exactly 16 samples on each side
+
+
+def fast_residual(samples: Samples, half_window_s: float = HALF_WINDOW_S) -> np.ndarray:
+    """Each sample's error minus the moving average of its own (flight, anchor pair) series."""
+    return fast_part(samples, half_window_s).residual
+
+
+def floor_rmse(samples: Samples, half_window_s: float = HALF_WINDOW_S, unbiased: bool = False) -> float:
+    """The literal floor (FastPart.floor) or with ``unbiased`` the small-window-corrected one; NaN for no
+    samples."""
+    if len(samples) == 0:
+        return float("nan")
+    part = fast_part(samples, half_window_s)
+    return part.floor_unbiased() if unbiased else part.floor()
 
 
 def make_samples(errors: list[tuple[int, int, int, np.ndarray]], dt: float | list[float] = DT) -> Samples:
