@@ -1,5 +1,5 @@
 """The campaign report opens in a browser: report.html of a small campaign in headless Chromium
-(harness/report/browser_check.py; `make test` installs Debian's chromium through scripts/ensure_chromium.sh):
+(browser_check.py beside this test; `make test` installs Debian's chromium through scripts/ensure_chromium.sh):
 no console error, every figure decodes and is visible, the screenshot is not blank. Skipped, with the
 reason, only where Chromium cannot start."""
 
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from browser_check import check_report, chromium_problem
 from harness.cli import main
-from harness.report.browser_check import check_report, chromium_problem
 
 WHY_NOT = chromium_problem()
 pytestmark = pytest.mark.skipif(WHY_NOT is not None, reason=f"headless Chromium cannot start: {WHY_NOT}")

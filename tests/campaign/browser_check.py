@@ -1,5 +1,6 @@
-"""The campaign report as people see it: report.html opened in headless Chromium (Debian's `chromium`,
-scripts/ensure_chromium.sh), without a driver (no Playwright, no WebSocket): two runs of the browser itself.
+"""The campaign report as people see it (test_report_browser.py): report.html opened in headless Chromium
+(Debian's `chromium`, scripts/ensure_chromium.sh), without a driver (no Playwright, no WebSocket): two runs
+of the browser itself.
 
 1. `--dump-dom` of a copy of the page with a probe script put first in <head>: it records console.error /
    console.warn calls, uncaught errors and resource load errors (an image that does not decode), and once
