@@ -18,8 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol import messages as m
-from protocol.framing import decode_body, encode_frame
-from protocol.cobs import cobs_decode
+from protocol.framing import encode_frame
 from protocol.spec import load_spec
 
 VECTORS_PATH = Path(__file__).with_name("golden") / "vectors.txt"
@@ -181,12 +180,6 @@ def parse(text: str) -> list[dict[str, Any]]:
         out.append({"name": name, "seq": int(seq), "frame": bytes.fromhex(frame_hex), "msg_name": msg_name,
                     "fields": " ".join(fields)})
     return out
-
-
-def decode_frame_bytes(frame: bytes) -> Any:
-    if not frame.endswith(b"\x00"):
-        raise ValueError("golden frame lacks its delimiter")
-    return decode_body(cobs_decode(frame[:-1]))
 
 
 def main(argv: list[str] | None = None) -> int:
