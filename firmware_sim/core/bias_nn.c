@@ -29,7 +29,8 @@
 
 const bias_model_t bias_model_compiled = {BIAS_MODEL_TWR, BIAS_MODEL_TDOA, BIAS_MODEL_HASH};
 
-uint8_t bias_nn_layout_inputs(uint8_t layout)
+/* Number of inputs of a layout (0 for unknown). */
+static uint8_t bias_nn_layout_inputs(uint8_t layout)
 {
     switch (layout) {
     case BIAS_LAYOUT_TWR_POSE:

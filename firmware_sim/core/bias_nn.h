@@ -63,9 +63,6 @@ typedef struct {
     uint64_t hash;       /* harness/biasnet/network.py: first 8 bytes of SHA-256, little-endian */
 } bias_model_t;
 
-/* Number of inputs of a layout (0 for unknown). */
-uint8_t bias_nn_layout_inputs(uint8_t layout);
-
 /* Build the feature vector for `layout` from the estimated tag position, Euler angles
  * (roll, pitch, yaw [rad]) and the anchor positions (anchor_b unused for TWR layouts).
  * Returns the number of features written (0 for an unknown layout). */

@@ -10,11 +10,6 @@ void tdoa_engine_init(tdoa_engine_t *e)
     memset(e, 0, sizeof *e);
 }
 
-uint32_t tdoa_engine_ms(uint64_t t_us)
-{
-    return uwb_ms_of_us(t_us);
-}
-
 static tdoa_anchor_t *find(tdoa_engine_t *e, uint8_t id)
 {
     unsigned i;
@@ -217,7 +212,7 @@ float tdoa_skew_ppm(const tdoa_anchor_t *a)
 int tdoa_engine_process(tdoa_engine_t *e, const lps_packet_t *pkt, uint8_t sender, uint64_t rx_ts,
                         uint64_t t_us, int match, tdoa_meas_t *out)
 {
-    const uint32_t now_ms = tdoa_engine_ms(t_us);
+    const uint32_t now_ms = uwb_ms_of_us(t_us);
     int created, rc = TDOA_DROP_CLOCK;
     tdoa_anchor_t *an = get_or_create(e, sender, now_ms, &created);
     rx_ts &= TDOA_MASK40;

@@ -85,9 +85,6 @@ typedef struct {
 
 void tdoa_engine_init(tdoa_engine_t *e);
 
-/* Tag time in whole milliseconds, the clock of every expiry. */
-uint32_t tdoa_engine_ms(uint64_t t_us);
-
 /* One parsed packet. rx_ts: tag RX time (40 bits, higher bits ignored), t_us: tag system time,
  * match: TDOA_MATCH_*. Returns TDOA_MEASUREMENT (*out filled) or a TDOA_DROP_* reason; the anchor
  * state is updated either way (remote data, ToFs, clock correction, the last packet). */
