@@ -9,18 +9,18 @@ from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
-from harness.campaign.plan import CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, parse_shard
-from harness.campaign.cluster import scheduler_from
-from harness.campaign.runner import CampaignOutcome, ExecOptions, GroupExecutor, plan_and_run
 from harness.campaign.boards import BoardExecutor, note_boards_in_verdict
-from harness.device.board_list import boards_from_options, check_unique, load_board_list
-from harness.device.registry import TARGET_CHOICES
-from harness.device_args import add_labgrid_options
-from harness.options import DEFAULT_BAUD
-from harness.errors import EXIT_DEVICE, EXIT_PASS, EXIT_VERDICT, UsageError
+from harness.campaign.cluster import scheduler_from
+from harness.campaign.plan import CONFIGS, FIRST_EVAL_SEED, MODES, TRAJECTORIES, CampaignOptions, parse_shard
+from harness.campaign.runner import CampaignOutcome, ExecOptions, GroupExecutor, plan_and_run
 from harness.campaign.store import CampaignDir
 from harness.campaign.verdict import BASELINE_CONFIG, check_judged, default_judged, judge_campaign
 from harness.cli_verdict import add_verdict_options, criteria_from
+from harness.device.board_list import boards_from_options, check_unique, load_board_list
+from harness.device.registry import TARGET_CHOICES
+from harness.device_args import add_labgrid_options
+from harness.errors import EXIT_DEVICE, EXIT_PASS, EXIT_VERDICT, UsageError
+from harness.options import DEFAULT_BAUD
 from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
