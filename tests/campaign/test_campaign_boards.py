@@ -113,8 +113,7 @@ def test_boards_that_die_after_their_last_flight_are_reported(tmp_path: Path, mo
 
     monkeypatch.setattr(campaign_cli, "plan_and_run", run_then_kill)
     out = tmp_path / "c"
-    code = main(["campaign", "--out", str(out), "--seeds", "2", *TINY, "--target", "host", "--target", "host",
-                 "--no-report"])
+    code = main(["campaign", "--out", str(out), "--seeds", "2", *TINY, "--target", "host", "--target", "host"])
     err = capsys.readouterr()
     assert code == 3, err.err
     runs = _summaries(out)
@@ -130,6 +129,7 @@ def test_boards_that_die_after_their_last_flight_are_reported(tmp_path: Path, mo
     assert "stopped answering" in taken[0]["reason"] and taken[1]["reason"] == "its process exited"
     assert executor["flights_per_board"] == {"host-1": 1, "host-2": 1}
     assert json.loads((out / "verdict.json").read_text())["boards_taken_out"] == taken
+    assert "lost after its last flight: its process exited (its runs stand)" in (out / "report.md").read_text()
 
 
 def test_board_lists_and_options(tmp_path: Path) -> None:
