@@ -9,6 +9,9 @@ records its board ("board": name, target, port, USB serial number, and the board
 within the timeout): a board that stops answering is taken out, the flight's failed runs go back to the
 queue for the other boards, and the campaign says so (campaign.json "executor", CampaignOutcome.boards_out;
 the CLI exits 3 when the verdict itself passed). With no board left, the flights not run fail with that reason.
+Once every flight is back, every board still in service is probed once more (the same HELLO): a board that
+died after its last flight would otherwise never be asked again. One that does not answer is taken out the
+same way ("after_last_flight": its runs were complete, they stand and are judged; nothing is moved).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ class Board:
     out: str | None = None                  # why the board was taken out
     flights: int = 0
     moved: int = 0                          # runs moved from it to the other boards
+    after_last_flight: bool = False         # found dead by the check once every flight was back
     active: Active | None = None
 
     def info(self) -> dict[str, Any]:
@@ -62,6 +66,7 @@ class BoardExecutor:
         self.boards = [Board(spec=b) for b in boards]
         self.log_dir = Path(log_dir)
         self.probe_timeout_s = probe_timeout_s
+        self.final_check_s: float | None = None     # how long the end-of-campaign check took
 
     def __enter__(self) -> BoardExecutor:
         try:
@@ -116,6 +121,7 @@ class BoardExecutor:
                 for b in self.boards:
                     if b.active is not None and worker_finished(b.active):
                         self._finish(ctx, b, queue)
+            self._check_at_end(ctx)
         finally:
             for b in self.boards:
                 if b.active is not None:
@@ -156,13 +162,28 @@ class BoardExecutor:
             return True
         return False
 
+    def _check_at_end(self, ctx: ExecContext) -> None:
+        """Every flight is back: one probe of each board still in service (process alive, HELLO within the
+        probe timeout), since a board that died during or after its last flight is otherwise never asked again.
+        Its runs completed before it went and stand; the board is reported as taken out."""
+        t0 = time.monotonic()
+        for b in self.alive():
+            if self._lost(b):
+                b.after_last_flight = True
+                ctx.log(f"  board {b.spec.name} taken out ({b.out}) after its last flight: the runs of its "
+                        f"{b.flights} flights stand")
+        self.final_check_s = time.monotonic() - t0
+
     def boards_out(self) -> list[dict[str, Any]]:
-        return [{"board": b.spec.name, "reason": b.out, "moved_runs": b.moved} for b in self.boards if b.out]
+        return [{"board": b.spec.name, "reason": b.out, "moved_runs": b.moved,
+                 "after_last_flight": b.after_last_flight} for b in self.boards if b.out]
 
     def _record(self, ctx: ExecContext) -> None:
         manifest = read_json(ctx.cdir.manifest)
+        check = round(self.final_check_s, 3) if self.final_check_s is not None else None
         manifest["executor"] = {**self.describe(), "taken_out": self.boards_out(),
-                                "flights_per_board": {b.spec.name: b.flights for b in self.boards}}
+                                "flights_per_board": {b.spec.name: b.flights for b in self.boards},
+                                "final_check_s": check}
         write_json_atomic(ctx.cdir.manifest, manifest)
         ctx.outcome.boards_out = self.boards_out()
 

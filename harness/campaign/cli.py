@@ -103,7 +103,8 @@ def add_parser(sub: Any) -> None:
 def _add_board_options(p: argparse.ArgumentParser) -> None:
     boards = p.add_argument_group("boards", "run the flights on boards instead of one host build per flight: each "
                                   "board serves one flight at a time, the boards in parallel; a board that stops "
-                                  "answering is taken out and its runs move to the others (exit 3)")
+                                  "answering is taken out and its runs move to the others; every board is asked once more after the "
+                                  "last flight (a lost board: exit 3)")
     boards.add_argument("--target", action="append", choices=TARGET_CHOICES, default=[],
                         help="a board of this kind (repeat: --target qemu --target qemu = two QEMU boards; host = "
                              "the host build on a pty); with --port: the kind of the ports' boards (default serial)")
@@ -156,9 +157,16 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     return _conclude(args, outcome, criteria, judged)
 
 
+def _board_out_text(b: dict[str, Any]) -> str:
+    if b.get("after_last_flight"):
+        return f"board {b['board']} taken out after its last flight ({b['reason']}), its runs stand"
+    return f"board {b['board']} taken out ({b['reason']}), {b['moved_runs']} runs moved to the others"
+
+
 def _conclude(args: argparse.Namespace, outcome: CampaignOutcome, criteria: Any, judged: tuple[str, ...]) -> int:
     """Judge, report and say what happened: 1 when a run failed or the verdict did, else 3 when a board was
-    taken out (the campaign completed on the others), else 0."""
+    taken out (mid-campaign: the campaign completed on the others; found dead by the check after the last
+    flight: its runs stand), else 0."""
     retried = f", {outcome.retries} retried" if outcome.retries else ""
     print(f"campaign: {outcome.total} runs: {outcome.skipped} resumed, {outcome.ok} ran ok, "
           f"{len(outcome.failed)} failed{retried}", file=sys.stderr)
@@ -169,8 +177,7 @@ def _conclude(args: argparse.Namespace, outcome: CampaignOutcome, criteria: Any,
     if args.report:
         from harness.report.cli import write_report
         write_report(Path(args.out), as_json=False)
-    out_text = "".join(f"; board {b['board']} taken out ({b['reason']}), {b['moved_runs']} runs moved to the others"
-                       for b in outcome.boards_out)
+    out_text = "".join(f"; {_board_out_text(b)}" for b in outcome.boards_out)
     print(f"verdict: {'PASS' if verdict.passed else 'FAIL'} ({len(verdict.runs)} runs of "
           f"{', '.join(judged) or 'no configuration'} judged, {verdict.not_judged} not judged){out_text}")
     code = EXIT_DEVICE if outcome.boards_out else EXIT_PASS

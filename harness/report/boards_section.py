@@ -2,7 +2,8 @@
 
 * "Boards" (`campaign --target/--port/--boards`): the boards compared one by one: identity (HELLO at the
   start), runs, RMSE per configuration over the board's accuracy runs (recomputed from the raw results, as
-  every figure of the report), device compute time, and the boards taken out (their runs moved to the others);
+  every figure of the report), device compute time, and the boards taken out (their runs moved to the others,
+  or, found dead by the check after the last flight, their runs standing);
 * "Dask cluster" (`campaign --scheduler`): the scheduler, flights per worker and the retries (flights run
   again after their worker was lost).
 """
@@ -60,7 +61,7 @@ def boards(ctx: ReportContext) -> Section | None:
     for name, b in info.items():
         r = rows.get(name, {"runs": 0, "rmse": {}, "compute_p50": None, "compute_p99": None})
         hello = b.get("hello") or {}
-        status = f"taken out: {out[name]['reason']} ({out[name]['moved_runs']} runs moved)" if name in out else "ok"
+        status = _status(out.get(name))
         table.append([name, f"{b.get('target')} {b.get('port')}", f"{hello.get('build_id', '-')} / "
                       f"{hello.get('model_hash', '-')}", b.get("serial_number") or "-", str(r["runs"]),
                       *[_f(r["rmse"].get(c, {}).get("mean")) for c in configs],
@@ -69,6 +70,15 @@ def boards(ctx: ReportContext) -> Section | None:
                              *[f"RMSE {c}" for c in configs], "compute p50 / p99", "status"], table))
     sec.data = {"boards": rows, "taken_out": list(out.values())}
     return sec
+
+
+def _status(out: dict[str, Any] | None) -> str:
+    """A board's status: ok, taken out mid-campaign (its runs moved), or found dead after its last flight."""
+    if out is None:
+        return "ok"
+    if out.get("after_last_flight"):
+        return f"lost after its last flight: {out['reason']} (its runs stand)"
+    return f"taken out: {out['reason']} ({out['moved_runs']} runs moved)"
 
 
 def cluster(ctx: ReportContext) -> Section | None:

@@ -1,7 +1,8 @@
 """Campaigns on boards (`uwb-hil campaign --target host --target host`, `--target qemu` twice, `--port`,
 `--boards FILE`; harness/campaign/boards.py): the flights are dealt to the boards in parallel, every run
 records its board (name, port, HELLO), the report compares the boards, and a board that stops answering
-mid-campaign is taken out, its runs completed on the other, and the command exits 3 saying so."""
+mid-campaign is taken out, its runs completed on the other, and the command exits 3 saying so; so does a
+board found dead by the check once every flight is back (its runs stand)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,8 @@ from typing import Any
 
 import pytest
 
+import harness.campaign.cli as campaign_cli
+from harness.campaign.boards import BoardExecutor
 from harness.cli import main
 from harness.device.board_list import BoardSpec, boards_from_options, load_board_list
 from harness.errors import InputError
@@ -42,6 +45,9 @@ def test_two_host_boards_share_the_campaign_and_the_report_compares_them(tmp_pat
     assert boards == {"host-1", "host-2"}
     for s in runs:          # the board's identity with every run: its port and its HELLO
         assert s["board"]["port"].startswith("/dev/pts/") and s["board"]["hello"]["build_id"] == s["device"]["build_id"]
+    executor = json.loads((out / "campaign.json").read_text())["executor"]
+    # both boards answered the check after the last flight: one HELLO each, well under a second together
+    assert executor["taken_out"] == [] and 0.0 < executor["final_check_s"] < 2.0
     report = json.loads((out / "report.json").read_text())
     compared = report["sections"]["boards"]["boards"]
     assert set(compared) == {"host-1", "host-2"} and sum(b["runs"] for b in compared.values()) == 8
@@ -88,6 +94,44 @@ def test_a_board_that_dies_is_taken_out_and_its_runs_finish_on_the_other(
     assert sum(1 for s in runs if s["board"]["name"] == "host-1") >= 12 - 4
 
 
+def test_boards_that_die_after_their_last_flight_are_reported(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """Two flights on two boards (one each: both are free when the flights are dealt). Once both flights are
+    back (the log line of flight 2/2, before the campaign ends), host-1 is frozen (SIGSTOP: its process lives
+    but no HELLO comes back) and host-2 killed: nothing asks either again in the flights, only the check at the
+    end. Both are reported as taken out after their last flight, the four runs stand and pass, exit 3."""
+    plan_and_run = campaign_cli.plan_and_run
+
+    def run_then_kill(*args: Any, executor: BoardExecutor, log: Any, **kw: Any) -> Any:
+        def log_and_kill(line: str) -> None:
+            log(line)
+            if "(flight 2/2)" in line:
+                pids = [b.process.pid for b in executor.boards if b.process is not None]
+                os.kill(pids[0], signal.SIGSTOP)
+                os.kill(pids[1], signal.SIGKILL)
+        return plan_and_run(*args, executor=executor, log=log_and_kill, **kw)
+
+    monkeypatch.setattr(campaign_cli, "plan_and_run", run_then_kill)
+    out = tmp_path / "c"
+    code = main(["campaign", "--out", str(out), "--seeds", "2", *TINY, "--target", "host", "--target", "host"])
+    err = capsys.readouterr()
+    assert code == 3, err.err
+    runs = _summaries(out)
+    assert len(runs) == 4 and all(s["status"] == "ok" for s in runs), [s.get("error") for s in runs]
+    assert {s["board"]["name"] for s in runs} == {"host-1", "host-2"}
+    assert "verdict: PASS" in err.out and "board host-2 taken out after its last flight (its process exited), " \
+        "its runs stand" in err.out
+    assert "board host-1 taken out (stopped answering: " in err.err and ") after its last flight" in err.err
+    executor = json.loads((out / "campaign.json").read_text())["executor"]
+    taken = executor["taken_out"]
+    assert [(t["board"], t["moved_runs"], t["after_last_flight"]) for t in taken] == \
+        [("host-1", 0, True), ("host-2", 0, True)]
+    assert "stopped answering" in taken[0]["reason"] and taken[1]["reason"] == "its process exited"
+    assert executor["flights_per_board"] == {"host-1": 1, "host-2": 1}
+    assert json.loads((out / "verdict.json").read_text())["boards_taken_out"] == taken
+    assert "lost after its last flight: its process exited (its runs stand)" in (out / "report.md").read_text()
+
+
 def test_board_lists_and_options(tmp_path: Path) -> None:
     f = tmp_path / "boards.yaml"
     f.write_text("- {name: a, port: /dev/ttyACM0}\n- {name: b, serial_number: X1, baud: 921600}\n"
@@ -125,6 +169,8 @@ def test_two_qemu_boards(tmp_path: Path) -> None:
     assert len(runs) == 2 and all(s["status"] == "ok" for s in runs)
     assert {s["board"]["name"] for s in runs} == {"qemu-1", "qemu-2"}
     assert all(s["device"]["target"] == "stm32f4" for s in runs)
+    executor = json.loads((out / "campaign.json").read_text())["executor"]
+    assert executor["taken_out"] == [] and 0.0 < executor["final_check_s"] < 2.0   # both answered at the end
 
 
 @pytest.mark.skipif(shutil.which("qemu-system-arm") is None or not DEFAULT_STM32_ELF.exists(),
@@ -133,21 +179,20 @@ def test_two_qemu_boards(tmp_path: Path) -> None:
 def test_a_qemu_board_killed_mid_campaign_finishes_on_the_other(tmp_path: Path,
                                                                 capsys: pytest.CaptureFixture[str]) -> None:
     """Two emulated STM32F405 boards; qemu-2's QEMU is SIGKILLed after the first run: every run completes on
-    qemu-1 and the exit code (3) says a board was lost. Five flights: when the kill lands after qemu-2 finished
-    its first flight too (both boards finish together), the flights left still give it one more, where its loss
-    shows (with three, qemu-1 could take the last one and the campaign never ask the dead board again)."""
+    qemu-1 and the exit code (3) says a board was lost. When the kill lands after qemu-2's last flight (both
+    boards finish together and qemu-1 takes the last flight), the check after the last flight finds it."""
     out = tmp_path / "q"
     killed: list[int] = []
     watcher = threading.Thread(target=_kill_board_when_running, args=(out, "qemu-2", killed), daemon=True)
     watcher.start()
-    code = main(["campaign", "--out", str(out), "--seeds", "5", *TINY, "--configs", "outlier", "--timeout", "20",
+    code = main(["campaign", "--out", str(out), "--seeds", "3", *TINY, "--configs", "outlier", "--timeout", "20",
                  "--target", "qemu", "--target", "qemu", "--no-report"])
     watcher.join(5)
     err = capsys.readouterr()
     assert killed, "qemu-2 was never killed"
     assert code == 3, err.err
     runs = _summaries(out)
-    assert len(runs) == 5 and all(s["status"] == "ok" for s in runs), [s.get("error") for s in runs]
+    assert len(runs) == 3 and all(s["status"] == "ok" for s in runs), [s.get("error") for s in runs]
     assert all(s["device"]["target"] == "stm32f4" for s in runs)
     taken = json.loads((out / "campaign.json").read_text())["executor"]["taken_out"]
     assert [t["board"] for t in taken] == ["qemu-2"]
