@@ -275,7 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     print("plausibility: anchors span {anchor_spread_m:.2f} m (closest pair {anchor_min_separation_m:.2f} m, "
           "{off_line_mm:.0f} mm rms off a line), poses a median {pose_median_distance_m:.2f} m from the anchors' "
           "centre, {rate_hz:.1f} Hz, median |value| {median_abs_value_m:.2f} m, gross errors {gross:.2f} %"
-          .format(**fig, off_line_mm=1000 * fig["anchor_off_line_m"], gross=100 * fig.get("gross_share", float("nan"))))
+          .format(**fig, off_line_mm=1000 * fig["anchor_off_line_m"], gross=100 * fig.get("gross_share", float("nan")))
+          + (f"; IMU median |specific force| {fig['acc_median_mps2']:.2f} m/s^2, p99 |body rate| "
+             f"{fig['gyro_p99_rads']:.2f} rad/s" if "acc_median_mps2" in fig else ""))
     s = error_summary(flight)
     print(f"error (|e| < 1 m): median {s['median']:+.3f} m, std {s['std']:.3f} m, rms {s['rms']:.3f} m; "
           f"gross {s['gross']}; per-{kind.link} medians {s['group_median_min']:+.3f}"

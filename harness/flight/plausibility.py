@@ -74,7 +74,15 @@ def figures(flight: Flight) -> dict[str, float]:
            "median_abs_value_m": float(np.median(np.abs(u.value))) if len(u) else float("nan")}
     if u.true_value is not None and len(u):
         out["gross_share"] = float(np.mean(~(np.abs(u.value - u.true_value) < Limits.gross_m)))
+    if flight.imu is not None and len(flight.imu):
+        out["acc_median_mps2"], out["gyro_p99_rads"] = _imu_figures(flight.imu.acc, flight.imu.gyro)
     return out
+
+
+def _imu_figures(acc: np.ndarray, gyro: np.ndarray) -> tuple[float, float]:
+    """Median |specific force| [m/s^2] and 99th percentile |body rate| [rad/s]: what the unit checks judge."""
+    return (float(np.median(np.linalg.norm(acc, axis=1))),
+            float(np.percentile(np.linalg.norm(gyro, axis=1), 99)))
 
 
 def check_recording(flight: Flight, path: Path | str | None = None, limits: Limits = Limits()) -> None:
@@ -196,12 +204,11 @@ def _imu_findings(flight: Flight, lim: Limits) -> list[str]:
     if imu is None or len(imu) < lim.min_samples:
         return []
     out = []
-    acc = float(np.median(np.linalg.norm(imu.acc, axis=1)))
+    acc, rate = _imu_figures(imu.acc, imu.gyro)
     if not lim.min_acc_median <= acc <= lim.max_acc_median:
         cause = "looks like g (expected m/s^2)" if 0.3 <= acc <= 3.0 else "not m/s^2"
         out.append(f"median |acceleration| is {acc:.3g} m/s^2 (expected ~9.81, within {lim.min_acc_median:g}.."
                    f"{lim.max_acc_median:g}): {cause}")
-    rate = float(np.percentile(np.linalg.norm(imu.gyro, axis=1), 99))
     if rate > lim.max_gyro_p99:
         out.append(f"99th percentile |body rate| is {rate:.3g} rad/s (more than {lim.max_gyro_p99:g}): looks like "
                    "deg/s (expected rad/s)")

@@ -163,3 +163,18 @@ def test_truth_on_another_clock_is_refused_in_a_native_file(tmp_path: Path) -> N
     path = save_flight(late, tmp_path / "late.npz")
     with pytest.raises(ImplausibleRecording, match=r"poses cover 3\d % of the measurements' time span"):
         load_recording(path)
+
+
+def test_figures_carry_the_imu_units_the_checks_judge() -> None:
+    from dataclasses import replace
+
+    from harness.flight.plausibility import figures
+    from harness.flight.scenarios import scenario_flight
+    flight = scenario_flight("circle", mode="twr", duration_s=10.0, seed=1)
+    assert flight.imu is not None
+    fig = figures(flight)
+    assert 9.0 < fig["acc_median_mps2"] < 11.0 and 0.0 < fig["gyro_p99_rads"] < 2.0
+    in_g = replace(flight, imu=replace(flight.imu, acc=flight.imu.acc / 9.81))
+    assert abs(figures(in_g)["acc_median_mps2"] - fig["acc_median_mps2"] / 9.81) < 1e-9
+    assert any("looks like g" in f for f in findings(in_g))
+    assert "acc_median_mps2" not in figures(replace(flight, imu=None))
