@@ -32,6 +32,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from harness.bench.qemu_nn import NN_TOLERANCE, network_kernels
+from harness.errors import EXIT_INPUT, InputError
 from harness.paths import REPO_ROOT
 from protocol.messages import Status
 
@@ -258,6 +259,10 @@ def run_bench(duration_s: float, seed: int, nn_inputs: int, do_build: bool, log_
               build_probe: Path = BUILD_PROBE) -> dict[str, Any]:
     if do_build:
         build()
+    elfs = (build_m4 / "uwb-fw.elf", build_portable / "uwb-fw.elf", build_m4 / "uwb-nnbench.elf",
+            build_probe / "uwb-nnbench.elf")
+    if missing := [str(e) for e in elfs if not e.is_file()]:
+        raise InputError(f"bench.qemu: not built: {', '.join(missing)} (run without --no-build, or make bench)")
     out: dict[str, Any] = {"cycles_per_instruction_assumed": CYCLES_PER_INSTRUCTION, "sysclk_hz": SYSCLK_HZ}
     stages: list[StageRow] = []
     stack_used: dict[str, int] = {}
@@ -313,8 +318,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="where the probe-model uwb-nnbench.elf is")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    out = run_bench(args.duration, args.seed, args.nn_inputs, not args.no_build, args.log_dir,
-                    args.build_dir, args.portable_build_dir, args.probe_build_dir)
+    try:
+        out = run_bench(args.duration, args.seed, args.nn_inputs, not args.no_build, args.log_dir,
+                        args.build_dir, args.portable_build_dir, args.probe_build_dir)
+    except InputError as e:
+        print(e, file=sys.stderr)
+        return EXIT_INPUT
     if args.json:
         print(json.dumps(out, indent=2))
     else:

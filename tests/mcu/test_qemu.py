@@ -324,3 +324,13 @@ def test_serial_over_a_socket_starts_without_the_pty_settle(stm32_build: Path, t
     # --firmware selects the ELF through the session layer too
     with open_device(DeviceSpec(target="qemu", firmware=stm32_build / "uwb-fw.elf", log_dir=tmp_path)) as dev:
         assert dev.link.name.startswith("qemu-socket:")  # type: ignore[attr-defined]
+
+
+def test_bench_without_its_builds_says_what_is_missing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`python -m harness.bench.qemu --no-build` before anything is built: exit 2 naming the ELFs, no traceback."""
+    from harness.bench.qemu import main
+    empty = str(tmp_path)
+    rc = main(["--no-build", "--build-dir", empty, "--portable-build-dir", empty, "--probe-build-dir", empty])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "not built" in err and f"{empty}/uwb-fw.elf" in err and f"{empty}/uwb-nnbench.elf" in err
