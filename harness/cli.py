@@ -63,6 +63,14 @@ def device_line(device: dict[str, Any] | None, stages: Any) -> str:
             + f", build {d.get('build_id', '-')}, model {d.get('model_hash', '-')}, stages {stages}")
 
 
+def _speed(summary: dict[str, Any]) -> str:
+    """The replay's speed; a run resumed from its results file has no wall time of its own (NaN)."""
+    x = summary.get("realtime_factor")
+    if x is None or x != x:
+        return "(speed not measured: resumed from a results file)"
+    return f"at {x:.1f}x real time"
+
+
 def print_run(summary: dict[str, Any]) -> None:
     print(device_line(summary.get("device"), summary.get("config")))
     acc = summary["accuracy"]
@@ -70,8 +78,7 @@ def print_run(summary: dict[str, Any]) -> None:
     rtt = summary["round_trip_us"]
     unit = summary["compute_unit"]
     print(f"flight {summary['flight']}: {summary['measurements']} measurements, {summary['results']} results, "
-          f"{summary['refused']} refused, {summary['lost']} lost; {summary['pacing']} replay at "
-          f"{_fmt(summary['realtime_factor'], 1)}x real time")
+          f"{summary['refused']} refused, {summary['lost']} lost; {summary['pacing']} replay " + _speed(summary))
     if summary.get("auxiliary"):
         aux = summary["auxiliary"]
         print(f"  also fused: {aux['measurements']} {aux['kind']} measurements (not scored)")

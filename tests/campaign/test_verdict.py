@@ -136,6 +136,14 @@ def test_resumed_run_realtime_factor_is_not_infinite() -> None:
     assert strict_json(jsonsafe.dumps({"realtime_factor": run.realtime_factor})) == {"realtime_factor": None}
 
 
+def test_resumed_run_prints_no_speed() -> None:
+    """Regression: a resumed run's summary line read "replay at -x real time"."""
+    from harness.cli import _speed
+    assert _speed({"realtime_factor": float("nan")}) == "(speed not measured: resumed from a results file)"
+    assert _speed({"realtime_factor": None}).startswith("(speed not measured")
+    assert _speed({"realtime_factor": 123.45}) == "at 123.5x real time"
+
+
 # ------------------------------------------------------------------------------------ geometry
 def _flight(anchor_z: list[float], tag_z: float) -> Flight:
     xy = [(-3.0, -3.0), (3.0, -3.0), (3.0, 3.0), (-3.0, 3.0)] * (len(anchor_z) // 4)
