@@ -17,6 +17,8 @@ from __future__ import annotations
 import hashlib
 import json
 import struct
+import zipfile
+import zlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -300,13 +302,17 @@ class BiasModel:
     def load(cls, path: Path) -> "BiasModel":
         path = Path(path)
         if not path.is_file():
-            raise InputFileNotFound(f"bias model {path} does not exist")
+            raise InputFileNotFound(f"bias model {path} " + ("is a directory, not a .npz file" if path.is_dir()
+                                                             else "does not exist"))
+        if not zipfile.is_zipfile(path):      # np.load would try to unpickle it, or fail deep in zipfile
+            raise ModelFormatError(f"{path}: not a bias-model .npz (not a zip archive: truncated, or another "
+                                   "kind of file)")
         try:
             with np.load(path, allow_pickle=False) as data:
                 arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError, EOFError) as exc:
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
             raise ModelFormatError(f"{path}: not a bias-model .npz ({exc})") from None
-        version = int(arrays.get("format_version", -1))
+        version = _format_version(arrays, path)
         if version not in _READABLE_VERSIONS:
             raise ModelFormatError(f"{path}: format_version {version}, expected one of {_READABLE_VERSIONS}")
         nets = {kind: BiasNetwork.from_arrays(arrays, kind, str(path)) if f"{kind}_layout" in arrays else None
@@ -320,6 +326,14 @@ class BiasModel:
         if stored and stored != model.hash_hex:
             raise ModelFormatError(f"{path}: stored hash {stored} does not match its weights ({model.hash_hex})")
         return model
+
+
+def _format_version(arrays: dict[str, np.ndarray], path: Path) -> int:
+    raw = arrays.get("format_version", np.array(-1))
+    try:
+        return int(raw)
+    except (TypeError, ValueError):
+        raise ModelFormatError(f"{path}: format_version {raw!r} is not an integer") from None
 
 
 def init_network(layout: int, in_min: np.ndarray, in_max: np.ndarray, out_min: float, out_max: float,
