@@ -24,9 +24,10 @@ import fcntl
 import gzip
 import json
 import os
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, Iterable
+from typing import IO, Any, Iterable, Iterator
 
 import numpy as np
 
@@ -165,6 +166,24 @@ def _result_value(rec: dict[str, Any], key: str, where: str, error: type[Excepti
     return value
 
 
+def _lines(fh: IO[str], path: Path, error: type[Exception]) -> Iterator[tuple[int, str]]:
+    """The lines of a results file, numbered from 1; bounded (a file without newlines is not read whole); bytes
+    that are not UTF-8 text, or a damaged .gz, are an `error` naming the file and line."""
+    lineno = 0
+    while True:
+        try:
+            line = fh.readline(MAX_HEADER_CHARS + 1)
+        except (UnicodeDecodeError, OSError, EOFError, zlib.error) as exc:
+            why = "not UTF-8 text" if isinstance(exc, UnicodeDecodeError) else f"cannot be read ({exc})"
+            raise error(f"{path}: {why} (after line {lineno}): not a results file, or damaged") from None
+        if not line:
+            return
+        lineno += 1
+        if len(line) > MAX_HEADER_CHARS:
+            raise error(f"{path}:{lineno}: line longer than {MAX_HEADER_CHARS} characters (not a results file?)")
+        yield lineno, line
+
+
 def read_run(path: Path, error: type[Exception] = ResultsFileError, columns: Iterable[str] = COLUMNS,
              allow_partial: bool = False, header_keys: Iterable[str] = ()) -> RunRecords:
     """Parse a results file (.jsonl or .jsonl.gz). Every malformed line is an `error` naming the file, line
@@ -178,10 +197,8 @@ def read_run(path: Path, error: type[Exception] = ResultsFileError, columns: Ite
     header: dict[str, Any] | None = None
     run = RunRecords(path=path, header={}, columns={})
     with _open_text(path, error) as fh:
-        for lineno, line in enumerate(iter(lambda: fh.readline(MAX_HEADER_CHARS + 1), ""), start=1):
+        for lineno, line in _lines(fh, path, error):
             where = f"{path}:{lineno}"
-            if len(line) > MAX_HEADER_CHARS:          # bounded: a file without newlines is not read whole
-                raise error(f"{where}: line longer than {MAX_HEADER_CHARS} characters (not a results file?)")
             if not line.strip():
                 continue
             try:

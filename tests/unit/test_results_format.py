@@ -90,3 +90,22 @@ def test_malformed_lines_are_named(tmp_path: Path) -> None:
     path.write_text("\n".join([lines[1], lines[0]]) + "\n")
     with pytest.raises(ResultsFileError, match=r"r\.jsonl:1: the first line must be the run header"):
         read_run(path)
+
+
+def test_binary_or_damaged_gzip_results_are_named_input_errors(tmp_path: Path) -> None:
+    """`run --resume` on a binary file, or a cut / fake .jsonl.gz: the resume's own error (exit 2) naming the
+    file, never a UnicodeDecodeError or EOFError (exit 4)."""
+    binary = tmp_path / "r.jsonl"
+    binary.write_bytes(bytes(range(128, 256)) * 40)
+    with pytest.raises(ResumeError, match=r"r\.jsonl: not UTF-8 text"):
+        read_results(binary)
+    _write(tmp_path / "good.jsonl", _rows(400))
+    packed = gzip.compress((tmp_path / "good.jsonl").read_bytes())
+    cut = tmp_path / "cut.jsonl.gz"
+    cut.write_bytes(packed[:len(packed) // 2])
+    with pytest.raises(ResumeError, match=r"cut\.jsonl\.gz: cannot be read"):
+        read_results(cut)
+    fake = tmp_path / "fake.jsonl.gz"
+    fake.write_bytes(b"not gzip at all\n")
+    with pytest.raises(CampaignDataError, match=r"fake\.jsonl\.gz: cannot be read"):
+        load_results(fake)
