@@ -20,6 +20,8 @@ import gzip
 import json
 import os
 import shutil
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -213,7 +215,7 @@ def load_flight(path: Path) -> StoredFlight:
             if missing:
                 raise CampaignDataError(f"{path}: missing field(s) {missing}")
             d = {n: z[n] for n in names}
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:   # a cut or flipped .npz
         if isinstance(exc, CampaignDataError):
             raise
         raise CampaignDataError(f"{path}: not a readable flight file ({exc})") from None

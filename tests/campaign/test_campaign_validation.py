@@ -141,3 +141,22 @@ def test_recorded_data_asked_for_but_absent_is_an_error(tmp_path: Path, capsys: 
     from harness.campaign.cli import _recorded
     monkeypatch.setenv("UWB_HIL_NO_RECORDED", "1")
     assert _recorded(Namespace(recorded=None)) is False and _recorded(Namespace(recorded=True)) is True
+
+
+def test_a_cut_or_flipped_stored_flight_is_a_named_data_error(tmp_path: Path) -> None:
+    """`uwb-hil report` on a campaign whose flights/*.npz was cut or damaged: CampaignDataError (exit 2), never
+    zipfile's BadZipFile (exit 4)."""
+    import numpy as np
+    from harness.campaign.store import CampaignDataError, load_flight
+    good = tmp_path / "good.npz"
+    names = ("truth_t_us", "truth_pos", "uwb_kind", "uwb_t_us", "uwb_anchor_a", "uwb_anchor_b", "uwb_value",
+             "uwb_true_value", "anchor_ids", "anchor_pos")
+    np.savez(good, meta=np.array("{}"), **{n: np.arange(2000.0) for n in names})   # type: ignore[arg-type]
+    data = good.read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[:100])
+    flipped = bytearray(data)
+    flipped[len(data) // 3:len(data) // 3 + 64] = bytes(b ^ 0x55 for b in flipped[len(data) // 3:len(data) // 3 + 64])
+    (tmp_path / "flipped.npz").write_bytes(bytes(flipped))
+    for name in ("cut.npz", "flipped.npz"):
+        with pytest.raises(CampaignDataError, match=f"{name}: not a readable flight file"):
+            load_flight(tmp_path / name)
