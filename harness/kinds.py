@@ -18,7 +18,7 @@ import numpy as np
 
 from harness.errors import InputError
 from protocol import messages as m
-from protocol.messages import Layout, MeasKind, Status
+from protocol.messages import Layout, MeasKind, Stage, Status
 
 #: Below this distance [m] a direction (p - a)/|p - a| is undefined.
 MIN_DISTANCE = 1e-6
@@ -225,3 +225,16 @@ def kind_named(key: str) -> MeasurementKind:
         if k.key == key:
             return k
     raise UnknownKindError(f"unknown measurement kind {key!r} (known: {', '.join(k.key for k in KINDS.values())})")
+
+
+def check_network_present(network: str | None, stages: int, layouts: tuple[int, int], what: str) -> None:
+    """Refuse a bias-network stage on measurements the device has no network for (`network` = "twr" / "tdoa",
+    the kind's BiasModel attribute; `layouts` = the device's (TWR, TDoA) layouts from HELLO, 0 = none): the
+    firmware would skip the correction and the figures, labelled with the network's stage, would be those of
+    the stage without it."""
+    if not stages & Stage.BIAS_NN or not network:
+        return
+    if dict(zip(("twr", "tdoa"), layouts)).get(network, 0) == 0:
+        raise InputError(f"{what} corrects {network.upper()} measurements with the bias network, but the device "
+                         f"has no {network.upper()} network (a model without one: give --model with a "
+                         f"{network.upper()} network, or stages without nn)")

@@ -12,6 +12,7 @@ from harness.closedloop.metrics import aggregate, flight_metrics
 from harness.closedloop.mission import Mission, plan
 from harness.closedloop.sensors import SensorConfig
 from harness.closedloop.vehicle import VehicleParams
+from harness.kinds import check_network_present
 from harness.config import MODE_IMU, PAPER_PRESETS, PRESETS, EstimatorConfig
 from harness.flight.arena import NLOS_BOXES, Arena
 from harness.flight.measurement_errors import sim_config
@@ -82,6 +83,8 @@ def fly_on_device(device_spec: DeviceSpec, want_hash: int | None, spec: FlySpec,
     the result's `device` is its identity."""
     with open_device(device_spec, expected_model_hash=want_hash) as device:
         hello = device.identity.as_dict()
+        for mode, config in ((m, c) for m in spec.modes for c in spec.configs):
+            check_network_present(mode, PRESETS[config], device.identity.layouts, f"--config {config}")
         result = fly_cells(device, spec, progress)
     result["device"] = hello
     return result

@@ -13,6 +13,7 @@ from harness.flight.data import Flight
 from harness.report.summarize import summarize_run
 from harness.run.source import RunSource, long_simulation, make_flight, make_run_flight, source_config
 from harness.device.registry import DeviceSpec, open_device
+from harness import kinds
 from harness.biasnet.registry import check_network_inputs
 from harness.stream.streamer import Pacing, Streamer
 
@@ -70,6 +71,7 @@ def run_one(spec: DeviceSpec, want_hash: int | None, src: RunSource, pacing: Pac
 
         def checked_config(first: Flight) -> EstimatorConfig:
             cfg = source_config(src, first)
+            kinds.check_network_present(kinds.kind_of(first.uwb.kind).network, cfg.stages, layouts, f"--stages {src.stages}")
             if not src.force:
                 check_network_inputs(first, cfg, layouts)
             return cfg

@@ -1,7 +1,7 @@
 """Options and inputs the CLI used to accept silently or answer with a traceback: each is now refused with
 exit code 2 and one line naming the option (or ends quietly, for a closed stdout pipe); `demo` only offers
 what it uses; every option has a help text; a bias network that needs the attitude is not run (or
-evaluated) where there is none; eval-bias finds the training recordings a model names relative to the data
+evaluated) where there is none, nor a network stage on a kind the model has no network for; eval-bias finds the training recordings a model names relative to the data
 folder."""
 
 from __future__ import annotations
@@ -103,6 +103,20 @@ def _pos_model(trained_on: list[str]) -> BiasModel:
     rng = np.random.default_rng(4)
     net = init_network(LAYOUT_TDOA_POS, np.full(6, -6.0), np.full(6, 6.0), -0.3, 0.3, rng)
     return BiasModel(tdoa=net, name="pos", meta={"tdoa_trained_on": trained_on})
+
+
+@needs_fw
+def test_a_network_stage_on_a_kind_the_model_lacks_is_refused(tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """A TDoA-only model on TWR measurements with outlier+nn: the firmware would skip the correction and the
+    figures of 'outlier+nn' would be outlier's, exit 0. Refused (exit 2) by `run` and `fly`, naming the kind."""
+    model = _pos_model([]).save(tmp_path / "tdoa_only.npz")
+    assert cli.main(["run", "--mode", "twr", "--duration", "2", "--model", str(model)]) == 2
+    assert "has no TWR network" in capsys.readouterr().err
+    assert cli.main(["fly", "--mode", "twr", "--mission", "hover", "--hover-s", "1", "--seeds", "1", "--config",
+                     "outlier+nn", "--model", str(model), "--quiet"]) == 2
+    assert "--config outlier+nn corrects TWR measurements" in capsys.readouterr().err
+    assert cli.main(["run", "--mode", "tdoa", "--duration", "2", "--model", str(model)]) == 0
 
 
 def test_eval_bias_resolves_training_recordings_against_the_data_folder(
