@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from harness.errors import UsageError
+from harness.errors import EXIT_VERDICT, UsageError
 from harness.kinds import KIND_KEYS
 from harness.report import jsonsafe
 
@@ -62,15 +62,27 @@ def _print_headline(summary: dict[str, Any]) -> None:
         print(f"runs: {runs.get('failed')} failed, {runs.get('missing')} not run (see the report)")
 
 
+def report_exit_code(summary: dict[str, Any]) -> int:
+    """0 when every planned run completed and the verdict (if judged) passed; else 1 (EXIT_VERDICT) with one
+    line on stderr: a report of a half-run or failed campaign is written, but does not pass as a good one."""
+    runs = summary.get("runs") or {}
+    verdict = summary.get("verdict") or {}
+    reasons = [f"{runs[k]} run(s) {what}" for k, what in (("failed", "failed"), ("missing", "not run")) if runs.get(k)]
+    if verdict.get("passed") is False:
+        reasons.append(f"the verdict failed ({len(verdict.get('failed_runs') or [])} judged run(s))")
+    if not reasons:
+        return 0
+    print(f"uwb-hil report: the campaign did not pass: {'; '.join(reasons)} (the report names them)", file=sys.stderr)
+    return EXIT_VERDICT
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     dirs = [Path(d) for d in args.dir]
     if len(dirs) == 1 and not args.out:
-        write_report(dirs[0], as_json=args.json)
-        return 0
+        return report_exit_code(write_report(dirs[0], as_json=args.json))
     if not args.out:
         raise UsageError("several campaign directories are merged: give --out MERGED_DIR")
     from harness.campaign.merge import merge_shards
     root = merge_shards(dirs, Path(args.out))
     print(f"merged {len(dirs)} shard directories into {root}", file=sys.stderr)
-    write_report(root, as_json=args.json)
-    return 0
+    return report_exit_code(write_report(root, as_json=args.json))

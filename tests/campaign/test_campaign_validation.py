@@ -106,6 +106,7 @@ def test_campaign_verdict_judges_each_run_and_names_the_failing_one(tmp_path: Pa
     rmse = next(c for c in v["runs"][0]["checks"] if c["name"] == "rmse")
     assert 0 < rmse["value"] <= 5 and rmse["threshold"] == 5
     assert "Verdict: PASS" in (out / "report.md").read_text()
+    assert main(["report", str(out)]) == 0                 # `report` exits as the campaign it reports
     capsys.readouterr()
     # same command again: every run resumes, and its stored summary is judged under the new criterion
     assert main([*tiny, "--max-rmse", "0.001", "--judge", "none,outlier"]) == 1
@@ -116,6 +117,13 @@ def test_campaign_verdict_judges_each_run_and_names_the_failing_one(tmp_path: Pa
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"]["passed"] is False and len(report["verdict"]["failed_runs"]) == 2
     assert "Verdict: FAIL" in (out / "report.md").read_text()
+    capsys.readouterr()
+    assert main(["report", str(out)]) == 1
+    assert "the campaign did not pass: the verdict failed (2 judged run(s))" in capsys.readouterr().err
+    for f in (out / "runs").glob("*outlier*"):            # a half-copied campaign: a run is missing
+        f.unlink()
+    assert main(["report", str(out)]) == 1
+    assert "1 run(s) not run" in capsys.readouterr().err
 
 
 def test_a_campaign_with_no_runs_fails(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
