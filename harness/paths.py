@@ -43,3 +43,23 @@ def same_file_as_input(output: Path, inputs: "list[str | Path | None]") -> str |
         except OSError:
             continue
     return None
+
+
+def output_path(path: str | Path, option: str, directory: bool = False) -> Path:
+    """An output the user named (`--out FILE` or, with `directory`, `--out DIR`), checked before any work is
+    done (so a long training or grid search is not lost at the end): a file must not be a directory, a
+    directory not a file, and no folder above it may be a file. Missing folders are created."""
+    from harness.errors import UsageError
+    path = Path(path)
+    if directory and path.exists() and not path.is_dir():
+        raise UsageError(f"{option} {path} is a file, not a directory")
+    if not directory and path.is_dir():
+        raise UsageError(f"{option} {path} is a directory: give a file name, e.g. {path / 'out'}")
+    above = next((p for p in path.absolute().parents if p.exists()), None)
+    if above is not None and not above.is_dir():
+        raise UsageError(f"{option} {path}: {above} is a file, not a directory")
+    try:
+        path.absolute().parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{option} {path}: cannot create its folder ({exc.strerror})") from None
+    return path

@@ -21,7 +21,7 @@ from harness.errors import UsageError
 from harness.flight.formats.cf_usd_flight import UsdOptions
 from harness.optional import require_torch
 from harness.report import jsonsafe
-from harness.paths import shared_data_dir
+from harness.paths import output_path, shared_data_dir
 
 
 # ---------------------------------------------------------------------------------------------- progress
@@ -52,6 +52,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     require_torch("uwb-hil train")       # before loading any data: say at once what is missing
     if args.jitter and args.ensemble is None:
         raise UsageError("--jitter applies to the distilled student: it needs --ensemble K")
+    output_path(args.out, "--out")                   # before the training, not after it
+    if args.header:
+        output_path(args.header, "--header")
     recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
                        profile=args.profile)
     flights, kind, sources = flights_for(_paths(args.recording), Path(args.anchors) if args.anchors else None,
@@ -83,6 +86,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    output_path(args.out, "--out")
     model = BiasModel.load(Path(args.model))
     export_c(model, Path(args.out))
     print(f"wrote {args.out} (hash {model.hash_hex})")
@@ -122,6 +126,8 @@ def _print_compare(res: dict[str, Any]) -> None:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    if args.plot:
+        output_path(args.plot, "--plot")
     opts = EvalOptions(anchors=Path(args.anchors) if args.anchors else None, check=not args.force,
                        train=None if args.train is None else [Path(p) for p in args.train],
                        data_dir=Path(args.data_dir), xi=args.xi, half_window_s=args.window,
@@ -139,6 +145,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------------------------ std head
 def cmd_fit_std(args: argparse.Namespace) -> int:
     """Fit (or refit) the std head of one network of a model on flights its body never saw."""
+    output_path(args.out, "--out")
     model = BiasModel.load(Path(args.model))
     recipe = SimRecipe(mode=args.mode, flights=args.flights, duration_s=args.duration, seed0=args.seed0,
                        spins=STD_HEAD_RECIPE.spins)

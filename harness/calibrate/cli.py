@@ -18,7 +18,7 @@ from harness.calibrate.stats import STATS_KEYS
 from harness.errors import UsageError
 from harness.flight.data import FLIGHT_ABOVE_M
 from harness.report import jsonsafe
-from harness.paths import shared_data_dir
+from harness.paths import output_path, shared_data_dir
 
 
 def _f(x: float, d: int = 3) -> str:
@@ -69,6 +69,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     data = Path(args.data) if args.data else shared_data_dir()
     if args.trials < 1 or not args.duration > 20.0:
         raise UsageError("--trials must be >= 1 and --duration > 20 s (take-off and landing take 10 s)")
+    if args.out:
+        output_path(args.out, "--out", directory=True)
     res = calibrate(data, n_trials=args.trials, duration_s=args.duration, twr=not args.no_twr)
     links = res.pop("_links", None)
     if args.out:
@@ -115,6 +117,7 @@ def _saved_as_json(args: argparse.Namespace, cal: Any, save: Callable[[Any, Path
 def cmd_range_offset(args: argparse.Namespace) -> int:
     from harness.flight.range_offset import fit_range_offset, save_range_offset
     from harness.flight.loaders import recordings_from_args
+    output_path(args.out, "--out")
     flights = recordings_from_args(args)
     cal = fit_range_offset(flights, per_anchor=args.per_anchor)
     if _saved_as_json(args, cal, save_range_offset):
@@ -141,6 +144,7 @@ def add_lever_arm_parser(sub: Any) -> None:
 def cmd_lever_arm(args: argparse.Namespace) -> int:
     from harness.flight.lever_arm import fit_lever_arm, save_lever_arm
     from harness.flight.loaders import recordings_from_args
+    output_path(args.out, "--out")
     flights = recordings_from_args(args)
     fit = fit_lever_arm(flights, flight_above=args.flight_above)
     if _saved_as_json(args, fit, save_lever_arm):

@@ -12,6 +12,7 @@ from harness.calibrate.tune import GridAxis, grid_search, settings_toml, write_s
 from harness.config import PRESETS
 from harness.errors import InputError
 from harness.flight.data import FLIGHT_ABOVE_M
+from harness.paths import output_path
 
 
 def add_tune_parser(sub: Any) -> None:
@@ -52,6 +53,7 @@ def _model(args: argparse.Namespace) -> object | None:
 
 def cmd_tune(args: argparse.Namespace) -> int:
     axes = [GridAxis.parse(g) for g in args.grid]
+    output_path(args.out, "--out")                   # before the grid search, not after it
     model = _model(args)
     from harness.flight.formats.cf_usd_flight import TOF_DEFAULT
     from harness.flight.loaders import recordings_from_args

@@ -21,7 +21,7 @@ from harness.device.registry import TARGET_CHOICES
 from harness.device_args import add_labgrid_options
 from harness.errors import EXIT_DEVICE, EXIT_PASS, EXIT_VERDICT, UsageError
 from harness.options import DEFAULT_BAUD
-from harness.paths import DEFAULT_FIRMWARE, shared_data_dir
+from harness.paths import DEFAULT_FIRMWARE, output_path, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
 
@@ -145,6 +145,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                            recorded_models=args.recorded_models, radio=tuple(args.radio), settings=tuple(args.set))
     ex = ExecOptions(jobs=args.jobs, timeout_s=args.timeout, keep_jsonl=args.keep_jsonl)
     criteria = criteria_from(args)          # refused (exit 2) before any run starts
+    output_path(args.out, "--out", directory=True)
     judged = check_judged(args.judge, opts.configs) if args.judge is not None else default_judged(opts.configs)
     shard = parse_shard(args.shard) if args.shard else None
     try:

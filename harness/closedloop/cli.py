@@ -22,6 +22,7 @@ from harness.config import PRESETS, config_with
 from harness.device_args import add_device_options, model_device_spec
 from harness.errors import UsageError
 from harness.flight.measurement_errors import PROFILES
+from harness.paths import output_path
 from harness.report import jsonsafe
 from harness.report.verdict import FLY_CRITERIA, fly_verdict
 
@@ -127,6 +128,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         raise UsageError("--seeds must be >= 1")
     criteria = criteria_from(args, FLY_CRITERIA, "uwb-hil fly")    # refused (exit 2) before any flight
+    if args.out:
+        output_path(args.out, "--out")
     loop = LoopConfig(pacing=args.pacing, speed=args.speed, timeout_s=args.timeout, imu_every=args.imu_every)
     spec = FlySpec(modes=args.mode, missions=args.mission, configs=args.config,
                    seeds=tuple(range(args.seed0, args.seed0 + args.seeds)), laps=args.laps,

@@ -9,6 +9,7 @@ from typing import Any
 
 from harness.errors import EXIT_VERDICT, UsageError
 from harness.kinds import KIND_KEYS
+from harness.paths import output_path
 from harness.report import jsonsafe
 
 
@@ -83,6 +84,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     if not args.out:
         raise UsageError("several campaign directories are merged: give --out MERGED_DIR")
     from harness.campaign.merge import merge_shards
+    output_path(args.out, "--out", directory=True)
     root = merge_shards(dirs, Path(args.out))
     print(f"merged {len(dirs)} shard directories into {root}", file=sys.stderr)
     return report_exit_code(write_report(root, as_json=args.json))

@@ -184,3 +184,27 @@ def test_an_output_file_that_cannot_be_written_is_exit_2_not_a_traceback(
     assert code == 2
     err = capsys.readouterr().err
     assert err.startswith("uwb-hil: error: ") and "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv", [
+    ["export-c", str(ROOT / "firmware_sim" / "models" / "bias_model_default.npz"), "--out", "{out}"],
+    ["tune", "--recording", str(REDUCED), "--grid", "std_tdoa=0.1,0.2", "--out", "{out}"],
+    ["range-offset", "--recording", str(REDUCED), "--out", "{out}"],
+    ["lever-arm", "--recording", str(REDUCED), "--out", "{out}"],
+    ["fit-std", "--model", str(ROOT / "firmware_sim" / "models" / "bias_model_default.npz"), "--out", "{out}"],
+    ["eval-bias", "--recording", str(REDUCED), "--plot", "{out}"],
+    ["fly", "--mode", "twr", "--mission", "hover", "--hover-s", "1", "--seeds", "1", "--out", "{out}"],
+    ["campaign", "--no-recorded", "--seeds", "1", "--out", "{out}"],
+    ["calibrate", "--out", "{out}"],
+])
+def test_an_output_under_a_file_is_refused_before_any_work(argv: list[str], tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """`--out a_file/x` failed at the end (after the training, grid search or fit) with "[Errno 17] File exists"
+    naming the folder; a file where a directory is expected (campaign, calibrate) likewise. Now: exit 2 at
+    once, naming the option and the file in the way."""
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    out = str(blocker) if argv[0] in ("campaign", "calibrate") else str(blocker / "sub" / "x.out")
+    assert cli.main([a.replace("{out}", out) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("uwb-hil: error: --") and "a_file is a file, not a directory" in err, err
