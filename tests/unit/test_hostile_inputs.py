@@ -177,3 +177,23 @@ def test_a_results_header_source_is_checked_with_the_options_own_types() -> None
                                ("uwb_only", 1, "--uwb-only is a switch")):
         with pytest.raises(ResultsFileError, match=phrase):
             check_header_source({**good, key: value}, "f:1: header source")
+
+
+def test_a_damaged_model_file_is_exit_2_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A cut, zip-looking or bit-flipped .npz, a text format_version, a directory given as --model: a
+    ModelFormatError naming the file (exit 2), never zipfile's BadZipFile or int()'s ValueError (exit 4)."""
+    import numpy as np
+    from harness.biasnet.network import BiasModel, ModelFormatError
+    data = (ROOT / "firmware_sim" / "models" / "bias_model_default.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[:len(data) // 2])
+    (tmp_path / "pk.npz").write_bytes(b"PK\x03\x04garbage" * 10)
+    k = len(data) // 3
+    (tmp_path / "flipped.npz").write_bytes(data[:k] + bytes(b ^ 0x55 for b in data[k:k + 64]) + data[k + 64:])
+    np.savez(tmp_path / "version.npz", format_version=np.array("abc"))
+    for name in ("cut.npz", "pk.npz", "flipped.npz", "version.npz"):
+        with pytest.raises(ModelFormatError, match=name):
+            BiasModel.load(tmp_path / name)
+    with pytest.raises(FileNotFoundError, match="is a directory"):
+        BiasModel.load(tmp_path)
+    assert cli.main(["export-c", str(tmp_path / "cut.npz"), "--out", str(tmp_path / "m.h")]) == 2
+    assert "cut.npz: not a bias-model .npz (not a zip archive" in _one_error(capsys)
