@@ -147,6 +147,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return cmd_resume(args)
     criteria = cli_verdict.criteria_from(args)
     src = RunSource.from_mapping(vars(args))
+    src.check_options_apply()
     inputs = [src.recording, src.anchors, src.range_offset, src.model, getattr(args, "criteria", None),
               *(x for x in src.set if x.startswith("@"))]
     results = checked_results_path(args.results, args.overwrite, inputs)

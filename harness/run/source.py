@@ -54,6 +54,18 @@ class RunSource:
         given = {k: values[k] for k in cls.keys() if values.get(k) is not None}
         return cls(**given)
 
+    def check_options_apply(self) -> None:
+        """Refuse options the flight would silently ignore: those of a recording on a simulated flight (a
+        --lever-arm file that does not exist ran with exit 0), --radio-loss without --radio."""
+        if not self.recording:
+            unused = [f"--{k.replace('_', '-')}" for k in ("anchors", "constellation", "lever_arm", "tof")
+                      if getattr(self, k) is not None] + (["--ignore-crc"] if self.ignore_crc else [])
+            if unused:
+                raise UsageError(f"{', '.join(unused)} appl{'y' if len(unused) > 1 else 'ies'} to a recorded "
+                                 "flight (--recording): a simulated flight has its own anchors and tag")
+        if self.radio_loss and not self.radio:
+            raise UsageError("--radio-loss is the tag's packet loss at radio level: it needs --radio")
+
     def as_header(self) -> dict[str, Any]:
         """For the results header: file paths made absolute, so a resume works from any directory."""
         src = asdict(self)

@@ -49,6 +49,20 @@ def test_bad_options_are_refused_at_parse_time(capsys: pytest.CaptureFixture[str
     assert phrase in err and "Traceback" not in err, err
 
 
+@pytest.mark.parametrize("argv, phrase", [
+    (["--lever-arm", "/nonexistent/lever.json"], "--lever-arm applies to a recorded flight"),
+    (["--anchors", "anchors.csv", "--constellation", "2"], "--anchors, --constellation apply to a recorded flight"),
+    (["--ignore-crc"], "--ignore-crc applies to a recorded flight"),
+    (["--radio-loss", "0.5"], "--radio-loss is the tag's packet loss at radio level: it needs --radio"),
+])
+def test_options_a_simulated_run_would_ignore_are_refused(capsys: pytest.CaptureFixture[str], argv: list[str],
+                                                          phrase: str) -> None:
+    """They ran with exit 0 and no effect (a --lever-arm file that does not exist included)."""
+    assert cli.main(["run", "--duration", "1", *argv]) == 2
+    err = capsys.readouterr().err
+    assert phrase in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_set_out_of_float32_range_is_a_named_error(capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["run", "--set", "std_tdoa=1e39", "--duration", "2"]) == 2
     err = capsys.readouterr().err
