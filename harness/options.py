@@ -51,6 +51,9 @@ timeout_s = number(float, 0.0, 86_400.0, lo_open=True, unit=" s")
 sim_duration_s = number(float, 0.0, MAX_SIM_DURATION_S, lo_open=True, unit=" s")
 window = number(int, 1, 1024)
 speed = number(float, MIN_SPEED, MAX_SPEED)
+#: a threshold or bound in metres that must be positive (`--xi`), a height that may be negative (`--flight-above`)
+positive_m = number(float, 0.0, lo_open=True, unit=" m")
+height_m = number(float, -1000.0, 1000.0, unit=" m")
 
 #: largest |component| of a tag lever arm [m] (a Crazyflie-sized vehicle; a mistyped mm value is refused)
 MAX_LEVER_ARM_M = 1.0

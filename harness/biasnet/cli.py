@@ -187,9 +187,9 @@ def _add_train_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--epochs", type=int, default=60, help="at most this many epochs")
     g.add_argument("--patience", type=int, default=6, help="early stopping: epochs without improvement")
     g.add_argument("--val-fraction", type=float, default=0.15, help="share of FLIGHTS held out for validation")
-    g.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds of training")
+    g.add_argument("--time-budget", type=options.number(float, 0.0, lo_open=True, unit=" s"), default=None, help="stop after this many seconds of training")
     g.add_argument("--seed", type=int, default=0, help="seed of the weight initialisation and the batch order")
-    g.add_argument("--xi", type=float, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")
+    g.add_argument("--xi", type=options.positive_m, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")
 
 
 def _add_ensemble_options(p: argparse.ArgumentParser) -> None:
@@ -197,7 +197,7 @@ def _add_ensemble_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--ensemble", type=int, default=None, metavar="K",
                    help="train K networks, network k validated on flight group k mod G (UTIL trial, rcv_twr "
                         "sequence) and seeded apart, and distil their mean into one network of the same size")
-    g.add_argument("--jitter", type=float, default=0.0,
+    g.add_argument("--jitter", type=options.number(float, 0.0), default=0.0,
                    help="with --ensemble: also fit the student on a copy of the inputs jittered by this fraction "
                         "of each input's range")
 
@@ -220,7 +220,7 @@ def _add_train_parser(sub: Any) -> None:
                      help="use recordings that fail the plausibility checks (units, anchor geometry, gross errors)")
     src.add_argument("--mode", choices=("twr", "tdoa"), default="twr", help="simulated: measurement kind")
     src.add_argument("--flights", type=int, default=24, help="simulated: number of training flights")
-    src.add_argument("--duration", type=float, default=120.0, help="simulated: seconds per flight")
+    src.add_argument("--duration", type=options.sim_duration_s, default=120.0, help="simulated: seconds per flight")
     src.add_argument("--seed0", type=int, default=0, help="simulated: first flight seed (< 1000)")
     src.add_argument("--profile", default="los", help="simulated: error profile (los, nlos)")
     src.add_argument("--layout", choices=("pose", "pos"), help="features: pose (dp + roll/pitch/yaw) or pos "
@@ -257,7 +257,7 @@ def _add_eval_parser(sub: Any) -> None:
                     help="use recordings that fail the plausibility checks (units, anchor geometry, gross errors)")
     ev.add_argument("--train", nargs="*", default=None,
                     help="recordings to fit the baselines on (default: those the model was trained on)")
-    ev.add_argument("--xi", type=float, default=XI_DEFAULT, help="evaluate measurements with |error| < xi [m]")
+    ev.add_argument("--xi", type=options.positive_m, default=XI_DEFAULT, help="evaluate measurements with |error| < xi [m]")
     ev.add_argument("--window", type=float, default=HALF_WINDOW_S,
                     help=f"half width [s] of the per-pair moving average that defines the floor "
                          f"(default {HALF_WINDOW_S})")
@@ -275,14 +275,14 @@ def _add_fit_std_parser(sub: Any) -> None:
     options.add_recording_read_options(fs)
     fs.add_argument("--mode", choices=("twr", "tdoa"), default="tdoa", help="simulated: which network")
     fs.add_argument("--flights", type=int, default=STD_HEAD_RECIPE.flights, help="simulated flights")
-    fs.add_argument("--duration", type=float, default=STD_HEAD_RECIPE.duration_s,
+    fs.add_argument("--duration", type=options.sim_duration_s, default=STD_HEAD_RECIPE.duration_s,
                     help="simulated: seconds per flight")
     fs.add_argument("--seed0", type=int, default=STD_HEAD_RECIPE.seed0,
                     help=f"simulated: first seed (default {STD_HEAD_RECIPE.seed0}: neither the shipped training "
                          "seeds 0-23 nor the evaluation seeds >= 1000; what `make models` fits the default's head on)")
     fs.add_argument("--std-min", type=float, default=StdHeadConfig.std_min, help="lower bound of the std [m]")
     fs.add_argument("--std-max", type=float, default=StdHeadConfig.std_max, help="upper bound of the std [m]")
-    fs.add_argument("--xi", type=float, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")
+    fs.add_argument("--xi", type=options.positive_m, default=XI_DEFAULT, help="keep samples with |bias| < xi [m]")
     fs.add_argument("--constant", action="store_true",
                     help="one std for every input: the RMS of the corrected residual (a per-kind constant)")
     fs.add_argument("--inflate", type=float, default=1.0, help="multiply the fitted std by this factor")

@@ -58,7 +58,7 @@ def add_parser(sub: Any) -> None:
     p = sub.add_parser("calibrate", help="simulated vs real UWB error statistics (UTIL TDoA, rcv_twr TWR)")
     p.add_argument("--data", help="real data directory (default ../shared/data or $UWB_HIL_DATA)")
     p.add_argument("--trials", type=int, default=5, help="simulated trials per group")
-    p.add_argument("--duration", type=float, default=60.0, help="simulated trial length [s]")
+    p.add_argument("--duration", type=options.sim_duration_s, default=60.0, help="simulated trial length [s]")
     p.add_argument("--out", help="directory for the PNG plots")
     p.add_argument("--no-twr", action="store_true", help="skip the rcv_twr TWR comparison")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
@@ -136,7 +136,7 @@ def add_lever_arm_parser(sub: Any) -> None:
                                          "recordings with attitude, for `--lever-arm FILE`")
     _add_calibration_io(p, "a recording with ground-truth attitude (repeatable); to evaluate, leave the flight "
                            "you replay out")
-    p.add_argument("--flight-above", type=float, default=FLIGHT_ABOVE_M, metavar="Z",
+    p.add_argument("--flight-above", type=options.height_m, default=FLIGHT_ABOVE_M, metavar="Z",
                    help="use measurements with the truth above this height [m] (the ground phase is NLOS)")
     p.set_defaults(func=cmd_lever_arm)
 

@@ -32,7 +32,7 @@ def add_tune_parser(sub: Any) -> None:
     p.add_argument("--stages", default="outlier", choices=sorted(PRESETS), help="the estimator stages replayed")
     p.add_argument("--uwb-only", action="store_true", help="the constant-velocity model, without the IMU")
     p.add_argument("--model", help="bias model (.npz) for stages with the network")
-    p.add_argument("--flight-above", type=float, default=FLIGHT_ABOVE_M, metavar="Z",
+    p.add_argument("--flight-above", type=options.height_m, default=FLIGHT_ABOVE_M, metavar="Z",
                    help="score the flight phase only: truth above this height [m]")
     p.add_argument("--out", required=True, help="settings file to write (TOML)")
     p.add_argument("--force", action="store_true", help="use recordings that fail the plausibility checks")

@@ -37,6 +37,14 @@ needs_fw = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_F
     (["run", "--speed", "-2"], "argument --speed: must be >= 0.01"),
     (["run", "--speed", "1e-300"], "argument --speed: must be >= 0.01 and <= 1e+06, got 1e-300"),
     (["run", "--seed", "-1"], "argument --seed: must be >= 0"),
+    (["train", "--jitter", "nan"], "argument --jitter: expected a finite number"),       # trained, val nan, exit 0
+    (["train", "--time-budget", "-1"], "argument --time-budget: must be > 0 s"),
+    (["train", "--duration", "1e9"], "argument --duration: must be > 0 and <= 14400 s"),
+    (["eval-bias", "--xi", "-1"], "argument --xi: must be > 0 m"),                      # an empty table, exit 0
+    (["fit-std", "--xi", "nan"], "argument --xi: expected a finite number"),
+    (["tune", "--flight-above", "nan"], "argument --flight-above: expected a finite number"),
+    (["lever-arm", "--flight-above", "nan"], "argument --flight-above: expected a finite number"),
+    (["calibrate", "--duration", "1e9"], "argument --duration: must be > 0 and <= 14400 s"),
     (["demo", "--recording", "x.csv"], "unrecognized arguments: --recording x.csv"),
     (["demo", "--mode", "tdoa"], "unrecognized arguments: --mode tdoa"),
 ])
