@@ -23,6 +23,7 @@ import numpy as np
 from harness.errors import InputError
 from harness.flight.data import FLIGHT_ABOVE_M, Flight
 from harness.kinds import kind_of
+from harness.options import MAX_LEVER_ARM_M
 from harness.flight.formats.common import quat_to_rotmat
 
 XI_M = 0.7
@@ -111,4 +112,7 @@ def load_lever_arm(path: Path) -> tuple[float, float, float]:
                          f"{str(exc)[:100]}") from None
     if not all(np.isfinite([x, y, z])):
         raise InputError(f"{path}: lever_arm_m must be finite")
+    if max(abs(x), abs(y), abs(z)) > MAX_LEVER_ARM_M:      # as --lever-arm X,Y,Z: a value in mm is refused
+        raise InputError(f"{path}: lever_arm_m ({x:g}, {y:g}, {z:g}) has a component beyond +-{MAX_LEVER_ARM_M:g} m "
+                         "(millimetres instead of metres?)")
     return (x, y, z)

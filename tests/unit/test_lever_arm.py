@@ -70,6 +70,9 @@ def test_round_trip_and_bad_files(tmp_path: Path) -> None:
         load_lever_arm(tmp_path / "bad.json")
     with pytest.raises(InputError, match="not found"):
         load_lever_arm(tmp_path / "missing.json")
+    (tmp_path / "mm.json").write_text('{"lever_arm_m": [-12.45, 1.27, 90.8]}')     # millimetres: refused as
+    with pytest.raises(InputError, match=r"beyond \+-1 m \(millimetres"):           # --lever-arm X,Y,Z is
+        load_lever_arm(tmp_path / "mm.json")
 
 
 def test_refuses_mixed_or_missing_inputs() -> None:
