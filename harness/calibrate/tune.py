@@ -47,7 +47,12 @@ class GridAxis:
             except ValueError:
                 raise InputError(f"--grid {text!r}: {item!r} is not a number") from None
         for v in values:
-            config_with([f"{name.strip()}={v}"])    # unknown field or out of bounds -> InputError naming it
+            try:
+                config_with([f"{name.strip()}={v}"])    # unknown field or out of bounds -> InputError naming it
+            except InputError as exc:                  # named as the option the user typed, not --set
+                message = str(exc)
+                raise InputError(f"--grid {text!r}: " + (message.split(": ", 1)[-1] if message.startswith("--set")
+                                                          else message)) from None
         return cls(name.strip(), tuple(dict.fromkeys(values)))
 
 
@@ -105,6 +110,10 @@ def grid_search(flights: Sequence[Flight], axes: Sequence[GridAxis], preset: str
     names = [a.field for a in axes]
     if len(set(names)) != len(names):
         raise InputError(f"tune: a field is gridded twice ({', '.join(names)})")
+    both = sorted({item.partition("=")[0].strip() for item in base if not item.startswith("@")} & set(names))
+    if both:        # a settings file (@FILE) may be re-gridded on a field; a --set typed with it is overridden
+        raise InputError(f"tune: {', '.join(both)} given both by --set and --grid (the grid would override "
+                         "--set): drop one")
     trials = [run_trial(flights, preset, base, tuple(zip(names, values)), flight_above, uwb_only, model)
               for values in itertools.product(*(a.values for a in axes))]
     return sorted(trials, key=lambda t: (t.diverged, t.mean_rmse_m))

@@ -61,6 +61,15 @@ def test_bad_grids_are_refused_naming_the_problem(grid: str, needle: str) -> Non
         GridAxis.parse(grid)
 
 
+def test_a_field_both_set_and_gridded_is_refused(flights: list) -> None:
+    """`--set std_tdoa=0.3 --grid std_tdoa=0.1,0.2` silently tuned over the --set value; an unknown grid field
+    was reported as a --set."""
+    with pytest.raises(InputError, match="std_tdoa given both by --set and --grid"):
+        grid_search(flights, [GridAxis.parse("std_tdoa=0.1,0.2")], "outlier", ["std_tdoa=0.3"])
+    with pytest.raises(InputError, match=r"^--grid 'no_such_field=1': expected FIELD=VALUE"):
+        GridAxis.parse("no_such_field=1")
+
+
 def test_cli_writes_the_pick_and_exits_0(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     flight = scenario_flight("circle", mode="twr", duration_s=3.0, seed=3, noise="gaussian", noise_std=0.1)
     rec = save_flight(flight, tmp_path / "flight.npz")
