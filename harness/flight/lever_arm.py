@@ -76,7 +76,11 @@ def fit_lever_arm(flights: Sequence[Flight], flight_above: float = FLIGHT_ABOVE_
     """The lever arm that best explains the flights' measurement errors (all read with the same lever arm)."""
     if not flights:
         raise InputError("a lever-arm fit needs at least one recording")
-    assumed = {tuple(np.round(f.meta.get("tag_lever_arm_m", (np.nan,) * 3), 9)) for f in flights}
+    without = [f.name for f in flights if "tag_lever_arm_m" not in f.meta]
+    if without:     # rcv_twr: the motion capture tracks the tag itself, there is no lever arm to fit
+        raise InputError(f"{', '.join(without)}: no tag lever arm in this recording (its truth is not the vehicle "
+                         "body's pose): a lever-arm fit needs the body's pose and attitude, as in Crazyflie uSD logs")
+    assumed = {tuple(np.round(f.meta["tag_lever_arm_m"], 9)) for f in flights}
     if len(assumed) != 1 or any(v != v for v in next(iter(assumed))):
         raise InputError("the recordings were read with different (or no) lever arms: read them all with one "
                          f"--lever-arm (found {sorted(assumed)})")

@@ -81,6 +81,9 @@ def test_refuses_mixed_or_missing_inputs() -> None:
     f2.meta["tag_lever_arm_m"] = [0.0, 0.0, 0.1]
     with pytest.raises(InputError, match="different"):
         fit_lever_arm([f1, f2])
+    del f2.meta["tag_lever_arm_m"]        # rcv_twr: the truth is the tag's, said so (not "found [(nan, ...)]")
+    with pytest.raises(InputError, match="no tag lever arm in this recording"):
+        fit_lever_arm([f1, f2])
     with pytest.raises(InputError, match="at least one"):
         fit_lever_arm([])
 
