@@ -18,6 +18,7 @@ built (the pytest plugin imports this module in every pytest run).
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -141,6 +142,8 @@ def create_device(spec: DeviceSpec) -> Device:
         firmware = cached_host_firmware()
     if kind.firmware is not None and not firmware.is_file():
         raise InputFileNotFound(kind.missing_firmware.format(path=firmware))
+    if kind.name in ("host", "asan") and not os.access(firmware, os.X_OK):    # --firmware naming a data file
+        raise UsageError(f"firmware binary {firmware} is not executable (not a firmware build?)")
     return kind.build(spec, firmware)
 
 

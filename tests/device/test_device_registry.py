@@ -80,6 +80,10 @@ def test_bad_choices_are_input_errors_naming_the_fix(tmp_path: Path) -> None:
         create_device(DeviceSpec(target="serial"))
     with pytest.raises(FileNotFoundError, match=r"firmware binary .*nope not found: run `make firmware`"):
         create_device(DeviceSpec(firmware=tmp_path / "nope"))
+    data = tmp_path / "anchors.csv"                        # `--firmware` naming a data file: exit 2, not 3
+    data.write_text("constellation,anchor_id,x_m,y_m,z_m\n")
+    with pytest.raises(UsageError, match=r"firmware binary .*anchors.csv is not executable"):
+        create_device(DeviceSpec(firmware=data))
     with pytest.raises(FileNotFoundError, match="make stm32"):
         create_device(DeviceSpec(target="qemu", firmware=tmp_path / "nope.elf"))
     with pytest.raises(UsageError), open_device(DeviceSpec(target="jtag")):
