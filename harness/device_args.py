@@ -16,7 +16,7 @@ from typing import Any
 from harness import options
 from harness.device.registry import TARGET_CHOICES, DeviceSpec
 from harness.errors import UsageError
-from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF
+from harness.paths import DEFAULT_FIRMWARE, DEFAULT_STM32_ELF, output_path
 
 
 def add_device_options(p: argparse.ArgumentParser) -> None:
@@ -91,7 +91,8 @@ def device_spec(args: argparse.Namespace) -> DeviceSpec:
     target = args.target or ("serial" if port else "host")
     return DeviceSpec(target=target, port=port, baud=args.baud,
                       firmware=Path(args.firmware) if args.firmware else None,
-                      timeout_s=args.timeout, log_dir=Path(args.log_dir) if args.log_dir else None,
+                      timeout_s=args.timeout,
+                      log_dir=output_path(args.log_dir, "--log-dir", directory=True) if args.log_dir else None,
                       flash_cmd=getattr(args, "flash_cmd", None) or None,
                       qemu_link=getattr(args, "qemu_link", None) or "usart",
                       qemu_icount=getattr(args, "qemu_clock", "icount") != "host")
