@@ -37,6 +37,8 @@ class Limits:
     max_gross_share: float = 0.5           # |value - true value| >= gross_m
     gross_m: float = 1.0                   # the loaders' gross-error threshold (error_summary core_m)
     min_time_overlap: float = 0.8          # share of the UWB time span covered by the truth
+    max_gap_share: float = 0.5             # longest pause of the UWB stream / its span (rcv_twr: 14 s of 168)
+    min_gap_s: float = 60.0                # ... when longer than this (a realtime replay waits it out)
     min_samples: int = 20                  # rate / share checks need this many measurements
     min_acc_median: float = 3.0            # median |specific force| [m/s^2] of a flight is ~g (9.81)
     max_acc_median: float = 30.0
@@ -159,6 +161,10 @@ def _time_findings(flight: Flight, lim: Limits) -> list[str]:
         elif rate > lim.max_rate_hz:
             out.append(f"{len(u)} UWB measurements within {span_s * 1e6:.0f} us ({rate:.3g} Hz): the times look "
                        "like they are in a coarser unit than seconds (minutes? hours?)")
+        gap_s = float(np.diff(np.asarray(u.t_us, dtype=np.int64)).max()) * 1e-6
+        if gap_s > max(lim.min_gap_s, lim.max_gap_share * span_s):
+            out.append(f"the UWB stream pauses for {gap_s:.0f} s of its {span_s:.0f} s: two flights in one file, "
+                       "or a jump of the clock")
     dropped = flight.meta.get("dropped", {})
     outside = sum(int(v) for k, v in dropped.items() if k.endswith("_outside_truth_span")) \
         if isinstance(dropped, dict) else 0

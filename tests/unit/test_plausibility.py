@@ -39,7 +39,7 @@ def write_anchors(path: Path, anchors: dict[int, tuple[float, float, float]], sc
 
 
 def write_util(path: Path, *, seconds: float = 20.0, pose_scale: float = 1.0, time_scale: float = 1.0,
-               pose_shift_s: float = 0.0, gross_share: float = 0.0) -> Path:
+               pose_shift_s: float = 0.0, gross_share: float = 0.0, gap_s: float = 0.0) -> Path:
     """A reduced UTIL CSV (TDoA at 100 Hz round robin over the 8 anchors, poses at 100 Hz): exact values
     (the tag is the pose + the 0.0908 m lever arm the loader adds), then scaled / shifted / corrupted."""
     n = int(seconds * 100)
@@ -52,6 +52,7 @@ def write_util(path: Path, *, seconds: float = 20.0, pose_scale: float = 1.0, ti
     b = ids[(np.arange(n) + 1) % 8]
     tdoa = np.linalg.norm(pos[b] - tag, axis=1) - np.linalg.norm(pos[a] - tag, axis=1)
     bad = np.random.default_rng(0).random(n) < gross_share
+    t = t + np.where(np.arange(n) >= n // 2, gap_s, 0.0)      # the clock jumps half way (after the geometry)
     tdoa[bad] += 5.0
     lines = ["idA,idB,tdoa_meas,t_tdoa,pose_x,pose_y,pose_z,t_pose"]
     for k in range(n):
@@ -77,6 +78,8 @@ BROKEN = {
     "gross errors": ({"gross_share": 0.7}, {}, r"7\d % of the measurements differ from the ground truth"),
     "poses on another clock": ({"pose_shift_s": 15.0}, {}, "only 25 % of the measurements fall within the "
                                                          "ground-truth poses' time span"),
+    # a realtime replay waited the pause out, silent (issue: "never hangs")
+    "a jump of the clock": ({"gap_s": 100.0}, {}, "the UWB stream pauses for 100 s of its 120 s"),
 }
 
 
