@@ -147,6 +147,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     criteria = criteria_from(args)          # refused (exit 2) before any run starts
     output_path(args.out, "--out", directory=True)
     judged = check_judged(args.judge, opts.configs) if args.judge is not None else default_judged(opts.configs)
+    if not judged:          # the verdict would PASS on no run at all
+        raise UsageError(f"the verdict judges no configuration of --configs {','.join(opts.configs)} (the baseline "
+                         "none is not judged by default): add one, e.g. --configs none,outlier, or --judge none")
     shard = parse_shard(args.shard) if args.shard else None
     try:
         with _executor(args) as executor:

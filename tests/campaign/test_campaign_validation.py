@@ -20,6 +20,7 @@ from harness.cli import main
     (["--sim-model", "/nonexistent/m.npz"], r"--sim-model /nonexistent/m.npz: file not found"),
     (["--set", "proc_acc_xy=fast"], r"--set 'proc_acc_xy=fast': 'fast' is not a number"),
     (["--set", "stages=7"], r"--set 'stages=7': expected FIELD=VALUE"),
+    (["--configs", "none"], r"the verdict judges no configuration of --configs none"),   # was PASS on 0 runs
 ])
 def test_bad_campaign_options_are_refused_before_any_worker(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                            argv: list[str], match: str) -> None:
