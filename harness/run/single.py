@@ -9,6 +9,7 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from harness.config import EstimatorConfig
 from harness.errors import ResultsFileError
+from harness.paths import output_path
 from harness.flight.data import Flight
 from harness.report.summarize import summarize_run
 from harness.run.source import RunSource, long_simulation, make_flight, make_run_flight, source_config
@@ -45,6 +46,7 @@ def checked_results_path(results: str | None, overwrite: bool, inputs: Sequence[
     path = Path(results)
     if path.is_dir():
         raise ResultsFileError(f"results file {path} is a directory: give a file name, e.g. {path / 'run.jsonl'}")
+    output_path(path, "--results")             # not under a file ("File exists" named the folder)
     clash = same_file_as_input(path, list(inputs))
     if clash is not None:
         raise ResultsFileError(f"results file {path} is an input of this run ({clash[:100]}): it would be "

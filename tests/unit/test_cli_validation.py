@@ -219,6 +219,7 @@ def test_an_output_file_that_cannot_be_written_is_exit_2_not_a_traceback(
     ["campaign", "--no-recorded", "--seeds", "1", "--out", "{out}"],
     ["calibrate", "--out", "{out}"],
     ["run", "--duration", "1", "--log-dir", "{out}"],                  # was exit 3, "cannot start" the device
+    ["run", "--duration", "1", "--results", "{out}"],
 ])
 def test_an_output_under_a_file_is_refused_before_any_work(argv: list[str], tmp_path: Path,
                                                            capsys: pytest.CaptureFixture[str]) -> None:
