@@ -174,6 +174,9 @@ def _read_members(path: Path) -> dict[str, np.ndarray]:
     if HEADER_KEY not in data:
         raise RecordingError(f"not a native uwb-hil recording: no {HEADER_KEY} member (has {sorted(data)})",
                              path=path)
+    for name, arr in data.items():      # text where numbers belong failed deep in a float conversion (exit 4)
+        if name != HEADER_KEY and arr.dtype.kind not in "biuf":
+            raise RecordingError(f"expected numbers, got dtype {arr.dtype}", path=path, field=name)
     return data
 
 

@@ -107,6 +107,12 @@ def test_native_format_refuses_bad_files(tmp_path: Path) -> None:
     _write_zip(tmp_path / "v99.npz", bad)
     with pytest.raises(RecordingError, match="unsupported format version 99"):
         load_flight(tmp_path / "v99.npz")
+    texts = io.BytesIO()                                   # text where numbers belong: named (was exit 4)
+    newer.write_array(texts, np.array(["x"] * 3))
+    _write_zip(tmp_path / "text.npz", dict(members, **{"uwb_value.npy": texts.getvalue()}))
+    with pytest.raises(RecordingError, match="expected numbers, got dtype <U1") as info:
+        load_flight(tmp_path / "text.npz")
+    assert info.value.field == "uwb_value"
     with pytest.raises(RecordingError, match="meta cannot be stored"):
         save_flight(replace(_synthetic_flight(), meta={"x": object()}), tmp_path / "g.npz")
     assert not (tmp_path / "g.npz").exists() and not (tmp_path / "g.npz.tmp").exists()
