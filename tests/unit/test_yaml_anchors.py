@@ -76,6 +76,16 @@ def test_rcv_anchor_yaml_errors_name_the_line(tmp_path: Path, text: str, line: i
     assert str(p) in str(info.value)
 
 
+@pytest.mark.parametrize("text", ["anchor1: &a [*a]\n", "a: " + "[" * 5000 + "]" * 5000 + "\n"])
+def test_a_recursive_or_absurdly_deep_yaml_is_a_named_error(tmp_path: Path, text: str) -> None:
+    """A self-referencing alias or 5000 nested lists: a RecordingError naming the file (it was a RecursionError,
+    exit 4)."""
+    p = tmp_path / "anchor.yaml"
+    p.write_text(text)
+    with pytest.raises(RecordingError, match="recursive alias or nesting too deep"):
+        load_anchors(p)
+
+
 def test_constellation_yaml_in_block_style(tmp_path: Path) -> None:
     anchors = default_anchors()
     flow = tmp_path / "flow.yaml"

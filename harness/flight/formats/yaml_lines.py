@@ -85,5 +85,7 @@ def load_yaml_lines(path: Path) -> Any:
         raise YamlSyntaxError(f"not valid YAML: {what or exc}", mark.line + 1 if mark else None) from None
     except yaml.YAMLError as exc:
         raise YamlSyntaxError(f"not valid YAML: {exc}", None) from None
+    except RecursionError:      # an alias inside its own anchor (`a: &x [*x]`), or absurdly deep nesting
+        raise YamlSyntaxError("not a plain YAML document: a recursive alias or nesting too deep", None) from None
     finally:
         loader.dispose()
