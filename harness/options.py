@@ -46,7 +46,9 @@ def number(kind: type, lo: float | None = None, hi: float | None = None, lo_open
 
 
 non_negative_int = number(int, 0)
-baud = number(int, 1, 100_000_000, unit=" baud")
+#: highest serial line speed accepted (--baud, a board list's baud)
+MAX_BAUD = 100_000_000
+baud = number(int, 1, MAX_BAUD, unit=" baud")
 timeout_s = number(float, 0.0, 86_400.0, lo_open=True, unit=" s")
 sim_duration_s = number(float, 0.0, MAX_SIM_DURATION_S, lo_open=True, unit=" s")
 window = number(int, 1, 1024)

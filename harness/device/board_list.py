@@ -23,7 +23,7 @@ from typing import Any
 
 from harness.device.registry import TARGETS, DeviceSpec, canonical_target
 from harness.errors import InputError
-from harness.options import DEFAULT_BAUD, DEVICE_TIMEOUT_S
+from harness.options import DEFAULT_BAUD, DEVICE_TIMEOUT_S, MAX_BAUD
 
 FIELDS = ("name", "port", "serial_number", "target", "baud", "firmware")
 
@@ -101,6 +101,8 @@ def _entry(i: int, raw: Any, base: Path) -> BoardSpec:
         baud = int(raw.get("baud", DEFAULT_BAUD))
     except (TypeError, ValueError):
         raise InputError(f"{where}: baud must be an integer, got {raw.get('baud')!r}") from None
+    if not 1 <= baud <= MAX_BAUD:         # as --baud (it was exit 3: "could not open port ... at -5 baud")
+        raise InputError(f"{where}: baud must be >= 1 and <= {MAX_BAUD:g}, got {baud}")
     fw = raw.get("firmware")
     firmware = (base / str(fw)).resolve() if fw else None
     return BoardSpec(name=str(raw.get("name") or f"{target}-{i + 1}"), target=target, port=port,

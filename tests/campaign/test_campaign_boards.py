@@ -144,7 +144,8 @@ def test_board_lists_and_options(tmp_path: Path) -> None:
     assert [x.port for x in boards_from_options([], ["/dev/a", "/dev/b"])] == ["/dev/a", "/dev/b"]
     for bad, why in [("- {name: a, port: p, serial_number: s}\n", "not both"), ("- {tagret: host}\n", "unknown field"),
                      ("- {target: serial}\n", "needs a port"), ("- {name: a}\n- {name: a}\n", "unique"),
-                     ("[]\n", "non-empty"), ("- {baud: fast}\n", "baud")]:
+                     ("[]\n", "non-empty"), ("- {baud: fast}\n", "baud"),
+                     ("- {port: /dev/null, baud: -5}\n", "baud must be >= 1")]:     # was exit 3 at the start
         f.write_text(bad)
         with pytest.raises(InputError, match=why):
             load_board_list(f)
