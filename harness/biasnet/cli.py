@@ -133,6 +133,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
                        data_dir=Path(args.data_dir), xi=args.xi, half_window_s=args.window,
                        plot=Path(args.plot) if args.plot else None, usd=_usd(args))
     res = evaluate_model(BiasModel.load(Path(args.model)), args.model, [Path(p) for p in args.recording], opts)
+    if not res.get("n"):     # an empty table with exit 0 said nothing was wrong
+        raise UsageError(f"no measurement of {', '.join(args.recording)} has |error| < --xi {args.xi:g} m: nothing "
+                         "to evaluate")
     if args.json:
         print(jsonsafe.dumps(res))
     else:

@@ -179,7 +179,19 @@ def test_eval_bias_checks_recordings_and_force_overrides(tmp_path: Path, capsys:
     argv = ["eval-bias", "--model", str(model), "--recording", str(REDUCED), "--anchors", str(mm), "--train", "--json"]
     assert cli.main(argv) == 2
     assert "looks like millimetres" in capsys.readouterr().err
-    assert cli.main([*argv, "--force"]) == 0
+    # --force skips the check; in millimetres no error is below --xi: said so (it was an empty table, exit 0)
+    assert cli.main([*argv, "--force"]) == 2
+    err = capsys.readouterr().err
+    assert "millimetres" not in err and "nothing to evaluate" in err
+
+
+def test_eval_bias_with_nothing_to_evaluate_is_an_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`--xi` below every error left n = 0: an empty table, exit 0."""
+    model = _pos_model([]).save(tmp_path / "pos.npz")
+    argv = ["eval-bias", "--model", str(model), "--recording", str(REDUCED), "--anchors", str(FIX / "anchors.csv")]
+    assert cli.main([*argv, "--xi", "1e-12"]) == 2       # the fixture's errors are >= 1e-10 m
+    assert "has |error| < --xi 1e-12 m: nothing to evaluate" in capsys.readouterr().err
+    assert cli.main([*argv, "--json"]) == 0
 
 
 def test_the_python_m_tools_refuse_bad_options_with_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
