@@ -104,17 +104,18 @@ def config_with(settings: Sequence[str]) -> EstimatorConfig:
     (settings_file); later items win."""
     allowed = [k for k in vars(EstimatorConfig()) if k not in ("mode", "stages", "init_x", "init_y", "init_z")]
     overrides: dict[str, float] = {}
-    items: list[str] = []
+    items: list[tuple[str, str]] = []      # (FIELD=VALUE, where it was given: --set or the settings file)
     for item in settings:
-        items += settings_file(item[1:]) if item.startswith("@") else [item]
-    for item in items:
+        items += [(x, f"settings file {item[1:]}: ") for x in settings_file(item[1:])] if item.startswith("@") \
+            else [(item, "--set ")]
+    for item, where in items:
         name, sep, text = item.partition("=")
         if not sep or name.strip() not in allowed:
-            raise InputError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(allowed)}")
+            raise InputError(f"{where}{item!r}: expected FIELD=VALUE with FIELD one of {', '.join(allowed)}")
         try:
             overrides[name.strip()] = float(text)
         except ValueError:
-            raise InputError(f"--set {item!r}: {text!r} is not a number") from None
+            raise InputError(f"{where}{item!r}: {text!r} is not a number") from None
     cfg = replace(EstimatorConfig(), **overrides)
     cfg.validate()
     return cfg
