@@ -175,7 +175,8 @@ def _lines(fh: IO[str], path: Path, error: type[Exception]) -> Iterator[tuple[in
             line = fh.readline(MAX_HEADER_CHARS + 1)
         except (UnicodeDecodeError, OSError, EOFError, zlib.error) as exc:
             why = "not UTF-8 text" if isinstance(exc, UnicodeDecodeError) else f"cannot be read ({exc})"
-            raise error(f"{path}: {why} (after line {lineno}): not a results file, or damaged") from None
+            after = f" (after line {lineno})" if lineno else ""
+            raise error(f"{path}: {why}{after}: not a results file, or damaged") from None
         if not line:
             return
         lineno += 1
