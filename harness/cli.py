@@ -118,6 +118,14 @@ def _refuse_resume_conflicts(args: argparse.Namespace) -> None:
                          f"drop {flags} (or start a new run without --resume)")
 
 
+def _refuse_unused_pacing(args: argparse.Namespace) -> None:
+    """--window is windowed pacing's, --speed realtime pacing's: typed with another pacing they did nothing."""
+    typed = given_dests(subparser(build_parser(), args.command), getattr(args, "argv", ()))
+    for dest, mode in (("window", "windowed"), ("speed", "realtime")):
+        if dest in typed and args.pacing != mode:
+            raise UsageError(f"--{dest} applies to --pacing {mode}, not {args.pacing}: drop one of them")
+
+
 def cmd_resume(args: argparse.Namespace) -> int:
     """Continue an interrupted run from its results file (see harness/stream/resume.py)."""
     _refuse_resume_conflicts(args)
@@ -148,6 +156,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     criteria = cli_verdict.criteria_from(args)
     src = RunSource.from_mapping(vars(args))
     src.check_options_apply()
+    _refuse_unused_pacing(args)
     inputs = [src.recording, src.anchors, src.range_offset, src.model, getattr(args, "criteria", None),
               *(x for x in src.set if x.startswith("@"))]
     results = checked_results_path(args.results, args.overwrite, inputs)
@@ -175,6 +184,7 @@ def cmd_ports(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     criteria = cli_verdict.criteria_from(args)
+    _refuse_unused_pacing(args)
     device, rows = run_demo(device_spec(args), DemoFlights(args.scenario, args.duration, args.seed),
                             Pacing(mode=args.pacing, window=args.window, speed=args.speed), args.timeout)
     payload = {"device": device, "runs": rows}

@@ -86,6 +86,9 @@ def device_spec(args: argparse.Namespace) -> DeviceSpec:
         if port:
             raise UsageError("give --port or --port-serial, not both")
         port = port_for_serial(args.port_serial)
+    if port and args.target not in (None, "serial"):       # a board's port with a started target: one of them
+        raise UsageError(f"--target {args.target} starts its own device: --port / --port-serial name a board "
+                         "(--target serial); give one of them")
     if port is None and args.target in (None, "serial"):
         port = default_port()           # $UWB_HIL_PORT; an explicit --target host/qemu ignores it
     target = args.target or ("serial" if port else "host")

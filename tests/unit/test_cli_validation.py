@@ -62,10 +62,14 @@ def test_bad_options_are_refused_at_parse_time(capsys: pytest.CaptureFixture[str
     (["--anchors", "anchors.csv", "--constellation", "2"], "--anchors, --constellation apply to a recorded flight"),
     (["--ignore-crc"], "--ignore-crc applies to a recorded flight"),
     (["--radio-loss", "0.5"], "--radio-loss is the tag's packet loss at radio level: it needs --radio"),
+    (["--pacing", "lockstep", "--window", "5"], "--window applies to --pacing windowed, not lockstep"),
+    (["--speed", "5"], "--speed applies to --pacing realtime, not windowed"),
+    (["--target", "host", "--port", "/dev/ttyS0"], "--target host starts its own device"),   # ran as a board
 ])
 def test_options_a_simulated_run_would_ignore_are_refused(capsys: pytest.CaptureFixture[str], argv: list[str],
                                                           phrase: str) -> None:
-    """They ran with exit 0 and no effect (a --lever-arm file that does not exist included)."""
+    """They ran with exit 0 and no effect (a --lever-arm file that does not exist included), or, for --target
+    host with a --port, as a board."""
     assert cli.main(["run", "--duration", "1", *argv]) == 2
     err = capsys.readouterr().err
     assert phrase in err and len(err.strip().splitlines()) == 1, err
