@@ -116,6 +116,8 @@ def load_board_list(path: Path) -> list[BoardSpec]:
         data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
         raise InputError(f"board list {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"board list {path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     except yaml.YAMLError as exc:
         raise InputError(f"board list {path}: not valid YAML ({str(exc).splitlines()[0]})") from None
     if isinstance(data, dict) and "boards" in data:

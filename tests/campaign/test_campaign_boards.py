@@ -149,6 +149,9 @@ def test_board_lists_and_options(tmp_path: Path) -> None:
         f.write_text(bad)
         with pytest.raises(InputError, match=why):
             load_board_list(f)
+    f.write_bytes(b"\xff\xfe\x00garbage")                 # binary: named, not a UnicodeDecodeError (exit 4)
+    with pytest.raises(InputError, match="not a UTF-8 text file"):
+        load_board_list(f)
     with pytest.raises(InputError, match="needs --port"):
         boards_from_options(["serial"], [])
 

@@ -37,6 +37,14 @@ def test_bad_settings_files_are_refused_with_a_reason(tmp_path: Path, text: str,
         config_with([f"@{f}"])
 
 
+def test_binary_settings_file_is_refused(tmp_path: Path) -> None:
+    """A binary file as --set @FILE: a named input error (it was a UnicodeDecodeError, exit 4)."""
+    f = tmp_path / "bin.toml"
+    f.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(ValueError, match="settings file .*bin.toml: not a UTF-8 text file"):
+        config_with([f"@{f}"])
+
+
 def test_missing_settings_file_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="settings file"):
         config_with([f"@{tmp_path / 'nope.toml'}"])

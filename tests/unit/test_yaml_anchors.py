@@ -76,14 +76,19 @@ def test_rcv_anchor_yaml_errors_name_the_line(tmp_path: Path, text: str, line: i
     assert str(p) in str(info.value)
 
 
-@pytest.mark.parametrize("text", ["anchor1: &a [*a]\n", "a: " + "[" * 5000 + "]" * 5000 + "\n"])
-def test_a_recursive_or_absurdly_deep_yaml_is_a_named_error(tmp_path: Path, text: str) -> None:
-    """A self-referencing alias or 5000 nested lists: a RecordingError naming the file (it was a RecursionError,
-    exit 4)."""
+@pytest.mark.parametrize("data, match", [
+    (b"anchor1: &a [*a]\n", "recursive alias or nesting too deep"),
+    (b"a: " + b"[" * 5000 + b"]" * 5000 + b"\n", "recursive alias or nesting too deep"),
+    (b"\xff\xfe\x00garbage", "not a UTF-8 text file"),
+])
+def test_a_recursive_deep_or_binary_yaml_is_a_named_error(tmp_path: Path, data: bytes, match: str) -> None:
+    """A self-referencing alias, 5000 nested lists, a binary file: a RecordingError naming the file (they were a
+    RecursionError or UnicodeDecodeError, exit 4)."""
     p = tmp_path / "anchor.yaml"
-    p.write_text(text)
-    with pytest.raises(RecordingError, match="recursive alias or nesting too deep"):
+    p.write_bytes(data)
+    with pytest.raises(RecordingError, match=match) as info:
         load_anchors(p)
+    assert str(p) in str(info.value)
 
 
 def test_constellation_yaml_in_block_style(tmp_path: Path) -> None:

@@ -73,8 +73,11 @@ def _convert(node: Node, loader: yaml.SafeLoader) -> Any:
 
 def load_yaml_lines(path: Path) -> Any:
     """The document of `path` as LineMap / LineList / scalars. Raises YamlSyntaxError (with the line) for
-    invalid YAML or more than one document; OSError / UnicodeDecodeError propagate."""
-    text = Path(path).read_text(encoding="utf-8-sig")
+    invalid YAML, more than one document or bytes that are not UTF-8 text; OSError propagates."""
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:          # a binary file: the reader's error (exit 2), not a crash
+        raise YamlSyntaxError(f"not a UTF-8 text file ({exc.reason} at byte {exc.start})", None) from None
     loader = yaml.SafeLoader(text)
     try:
         node = loader.get_single_node()
