@@ -136,6 +136,8 @@ def read_json(path: Path) -> Any:
             return json.load(fh)
     except json.JSONDecodeError as exc:
         raise CampaignDataError(f"{path}: line {exc.lineno}: malformed JSON ({exc.msg})") from None
+    except UnicodeDecodeError as exc:      # a JSONDecodeError is a ValueError too: after it
+        raise CampaignDataError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     except OSError as exc:
         raise CampaignDataError(f"{path}: cannot read ({exc.strerror})") from None
 

@@ -169,3 +169,13 @@ def test_a_cut_or_flipped_stored_flight_is_a_named_data_error(tmp_path: Path) ->
     for name in ("cut.npz", "flipped.npz"):
         with pytest.raises(CampaignDataError, match=f"{name}: not a readable flight file"):
             load_flight(tmp_path / name)
+
+
+def test_a_binary_campaign_json_is_a_named_data_error(tmp_path: Path) -> None:
+    """campaign.json or runs/*.json overwritten with binary bytes: CampaignDataError (exit 2), not a
+    UnicodeDecodeError (exit 4)."""
+    from harness.campaign.store import CampaignDataError, read_json
+    f = tmp_path / "campaign.json"
+    f.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(CampaignDataError, match="campaign.json: not a UTF-8 text file"):
+        read_json(f)
