@@ -183,10 +183,10 @@ def campaign_summary(data: CampaignData) -> dict[str, Any]:
 
 
 def stored_verdict(data: CampaignData) -> dict[str, Any] | None:
-    """DIR/verdict.json of `uwb-hil campaign` (each judged run's checks), None if never judged."""
+    """DIR/verdict.json of `uwb-hil campaign` (each judged run's checks), None if never judged. A damaged
+    one is a CampaignDataError naming it: read as "never judged", a failed campaign's report passed."""
     path = CampaignDir(Path(data.root)).verdict
-    try:
-        v = read_json(path) if path.exists() else None
-    except CampaignDataError:
-        return None
-    return v if isinstance(v, dict) else None
+    v = read_json(path) if path.exists() else None
+    if v is not None and not isinstance(v, dict):
+        raise CampaignDataError(f"{path}: expected a JSON object (the campaign's verdict), got {type(v).__name__}")
+    return v

@@ -125,6 +125,9 @@ def test_campaign_verdict_judges_each_run_and_names_the_failing_one(tmp_path: Pa
         f.unlink()
     assert main(["report", str(out)]) == 1
     assert "1 run(s) not run" in capsys.readouterr().err
+    (out / "verdict.json").write_text("[]")                 # damaged: said, not read as "never judged" (PASS)
+    assert main(["report", str(out)]) == 2
+    assert "verdict.json: expected a JSON object" in capsys.readouterr().err
 
 
 def test_a_campaign_with_no_runs_fails(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
