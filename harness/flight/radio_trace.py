@@ -63,6 +63,8 @@ def _row(line: str, where: str) -> tuple[int, int, bytes]:
 def load_radio_trace(path: Path | str) -> RadioStream:
     """The trace as a radio stream (t_us from 0, rebased by attach_trace)."""
     path = Path(path)
+    if path.is_dir():
+        raise RadioTraceError(f"{path}: is a directory, not a radio trace file")
     if not path.is_file():
         raise RadioTraceError(f"{path}: no such file")
     if path.stat().st_size > MAX_TRACE_BYTES:

@@ -185,3 +185,11 @@ def test_malformed_radio_trace_exits_2_naming_the_line(tmp_path, line: str, reas
     trace.write_text("t_rx_ticks,sender,packet_hex\n100,1,30000000000000\n" + line + "\n")
     r = _cli("run", "--mode", "tdoa", "--duration", "4", "--radio-trace", str(trace))
     assert r.returncode == 2 and f"{trace}:3: " in r.stderr and reason in r.stderr, r.stderr
+
+
+def test_radio_trace_that_is_a_directory_or_missing_is_named_as_such(tmp_path) -> None:  # noqa: ANN001
+    from harness.flight.radio_trace import RadioTraceError, load_radio_trace
+    with pytest.raises(RadioTraceError, match="is a directory, not a radio trace file"):
+        load_radio_trace(tmp_path)
+    with pytest.raises(RadioTraceError, match="no such file"):
+        load_radio_trace(tmp_path / "absent.csv")
