@@ -92,6 +92,9 @@ def device_spec(args: argparse.Namespace) -> DeviceSpec:
     if port is None and args.target in (None, "serial"):
         port = default_port()           # $UWB_HIL_PORT; an explicit --target host/qemu ignores it
     target = args.target or ("serial" if port else "host")
+    if target == "serial" and args.firmware:      # a board runs what it was flashed with (flash it: --flash-cmd)
+        raise UsageError("--firmware names the image a started target runs (host, asan, qemu); a board on "
+                         "--port runs what it was flashed with (--flash-cmd flashes it first)")
     return DeviceSpec(target=target, port=port, baud=args.baud,
                       firmware=Path(args.firmware) if args.firmware else None,
                       timeout_s=args.timeout,

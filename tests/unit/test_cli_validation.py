@@ -65,6 +65,7 @@ def test_bad_options_are_refused_at_parse_time(capsys: pytest.CaptureFixture[str
     (["--pacing", "lockstep", "--window", "5"], "--window applies to --pacing windowed, not lockstep"),
     (["--speed", "5"], "--speed applies to --pacing realtime, not windowed"),
     (["--target", "host", "--port", "/dev/ttyS0"], "--target host starts its own device"),   # ran as a board
+    (["--port", "/dev/null", "--firmware", "uwb-fw"], "a board on --port runs what it was flashed with"),
 ])
 def test_options_a_simulated_run_would_ignore_are_refused(capsys: pytest.CaptureFixture[str], argv: list[str],
                                                           phrase: str) -> None:
