@@ -14,9 +14,10 @@ in-sample figure.
 from __future__ import annotations
 
 import itertools
+import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -101,8 +102,10 @@ def run_trial(flights: Sequence[Flight], preset: str, base: Sequence[str], combo
 
 
 def grid_search(flights: Sequence[Flight], axes: Sequence[GridAxis], preset: str, base: Sequence[str] = (),
-                flight_above: float = FLIGHT_ABOVE_M, uwb_only: bool = False, model: object | None = None) -> list[Trial]:
-    """Every combination of the axes, ranked: no resets first, then by mean RMSE."""
+                flight_above: float = FLIGHT_ABOVE_M, uwb_only: bool = False, model: object | None = None,
+                log: Callable[[str], None] | None = None) -> list[Trial]:
+    """Every combination of the axes, ranked: no resets first, then by mean RMSE. `log` gets one progress line
+    per combination (a grid of many combinations over long flights runs for minutes)."""
     if not flights:
         raise InputError("tune: no recordings")
     if preset not in PRESETS:
@@ -114,8 +117,15 @@ def grid_search(flights: Sequence[Flight], axes: Sequence[GridAxis], preset: str
     if both:        # a settings file (@FILE) may be re-gridded on a field; a --set typed with it is overridden
         raise InputError(f"tune: {', '.join(both)} given both by --set and --grid (the grid would override "
                          "--set): drop one")
-    trials = [run_trial(flights, preset, base, tuple(zip(names, values)), flight_above, uwb_only, model)
-              for values in itertools.product(*(a.values for a in axes))]
+    combos = [tuple(zip(names, values)) for values in itertools.product(*(a.values for a in axes))]
+    trials, t0 = [], time.monotonic()
+    for k, combo in enumerate(combos, start=1):
+        trials.append(run_trial(flights, preset, base, combo, flight_above, uwb_only, model))
+        if log is not None:
+            el = time.monotonic() - t0
+            log(f"[{k}/{len(combos)}, {el:.0f} s, ETA {el / k * (len(combos) - k):.0f} s] "
+                f"{', '.join(f'{n}={v:g}' for n, v in combo)}: mean RMSE {trials[-1].mean_rmse_m:.4f} m, "
+                f"{sum(trials[-1].resets)} resets")
     return sorted(trials, key=lambda t: (t.diverged, t.mean_rmse_m))
 
 

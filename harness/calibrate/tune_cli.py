@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +59,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from harness.flight.formats.cf_usd_flight import TOF_DEFAULT
     from harness.flight.loaders import recordings_from_args
     flights = recordings_from_args(args, tof=TOF_DEFAULT if args.tof is None else args.tof)
-    trials = grid_search(flights, axes, args.stages, args.set, args.flight_above, args.uwb_only, model)
+    trials = grid_search(flights, axes, args.stages, args.set, args.flight_above, args.uwb_only, model,
+                         log=lambda line: print(f"tune: {line}", file=sys.stderr))
     write_settings(Path(args.out), settings_toml(trials[0], args.recording, args.stages, args.set, len(trials)))
     if args.json:
         print(json.dumps([t.as_dict() for t in trials], indent=2))

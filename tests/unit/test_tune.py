@@ -25,7 +25,10 @@ def flights() -> list:
 
 def test_the_grid_is_ranked_by_mean_rmse_and_matches_single_trials(flights: list) -> None:
     axes = [GridAxis.parse("std_tdoa=0.02,0.1")]
-    trials = grid_search(flights, axes, "outlier", flight_above=-10.0, uwb_only=True)
+    lines: list[str] = []
+    trials = grid_search(flights, axes, "outlier", flight_above=-10.0, uwb_only=True, log=lines.append)
+    assert [ln.split("]")[0].split(",")[0] for ln in lines] == ["[1/2", "[2/2"]     # one progress line each
+    assert "std_tdoa=0.02: mean RMSE" in lines[0] and "std_tdoa=0.1: mean RMSE" in lines[1]
     assert [t.mean_rmse_m for t in trials] == sorted(t.mean_rmse_m for t in trials)
     assert {dict(t.settings)["std_tdoa"] for t in trials} == {0.02, 0.1}
     # the std of the noise beats one five times too small (it follows the noise)
