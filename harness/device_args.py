@@ -29,8 +29,8 @@ def add_device_options(p: argparse.ArgumentParser) -> None:
                                   "(default: $UWB_HIL_PORT; `uwb-hil ports` lists this machine's ports)")
     g.add_argument("--port-serial", metavar="SERIAL",
                    help="the board whose USB serial number is SERIAL (see `uwb-hil ports`), whatever its path")
-    g.add_argument("--baud", type=options.baud, default=options.DEFAULT_BAUD,
-                   help="serial line speed of a board on --port")
+    g.add_argument("--baud", type=options.baud, default=None,
+                   help=f"serial line speed of a board on --port (default {options.DEFAULT_BAUD})")
     g.add_argument("--firmware", default=None,
                    help=f"firmware to run: the host binary for host (default {DEFAULT_FIRMWARE}), "
                         f"the STM32F405 ELF for qemu (default {DEFAULT_STM32_ELF})")
@@ -92,10 +92,12 @@ def device_spec(args: argparse.Namespace) -> DeviceSpec:
     if port is None and args.target in (None, "serial"):
         port = default_port()           # $UWB_HIL_PORT; an explicit --target host/qemu ignores it
     target = args.target or ("serial" if port else "host")
+    if target != "serial" and getattr(args, "baud", None) is not None:
+        raise UsageError(f"--baud is the line speed of a board on --port; --target {target} starts its own device")
     if target == "serial" and args.firmware:      # a board runs what it was flashed with (flash it: --flash-cmd)
         raise UsageError("--firmware names the image a started target runs (host, asan, qemu); a board on "
                          "--port runs what it was flashed with (--flash-cmd flashes it first)")
-    return DeviceSpec(target=target, port=port, baud=args.baud,
+    return DeviceSpec(target=target, port=port, baud=args.baud or options.DEFAULT_BAUD,
                       firmware=Path(args.firmware) if args.firmware else None,
                       timeout_s=args.timeout,
                       log_dir=output_path(args.log_dir, "--log-dir", directory=True) if args.log_dir else None,

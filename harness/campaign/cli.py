@@ -20,7 +20,7 @@ from harness.device.board_list import boards_from_options, check_unique, load_bo
 from harness.device.registry import TARGET_CHOICES
 from harness.device_args import add_labgrid_options
 from harness.errors import EXIT_DEVICE, EXIT_PASS, EXIT_VERDICT, UsageError
-from harness.options import DEFAULT_BAUD
+from harness.options import DEFAULT_BAUD, baud
 from harness.paths import DEFAULT_FIRMWARE, output_path, shared_data_dir
 from harness.stream.streamer import PACING_MODES
 
@@ -112,7 +112,7 @@ def _add_board_options(p: argparse.ArgumentParser) -> None:
                         help="a board's serial port or pyserial URL (repeat for several boards)")
     boards.add_argument("--boards", metavar="FILE", default=None,
                         help="board list (YAML: name, port or serial_number, target, baud, firmware per board)")
-    boards.add_argument("--baud", type=int, default=DEFAULT_BAUD,
+    boards.add_argument("--baud", type=baud, default=DEFAULT_BAUD,
                         help="baud rate of --port boards (default %(default)s)")
     add_labgrid_options(boards)
 

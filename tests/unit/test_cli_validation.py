@@ -29,6 +29,7 @@ needs_fw = pytest.mark.skipif(not DEFAULT_FIRMWARE.exists(), reason=f"{DEFAULT_F
 
 @pytest.mark.parametrize("argv, phrase", [
     (["run", "--baud", "0"], "argument --baud: must be >= 1"),
+    (["campaign", "--out", "c", "--baud", "-5"], "argument --baud: must be >= 1"),
     (["run", "--timeout", "-1"], "argument --timeout: must be > 0"),
     (["run", "--timeout", "nan"], "argument --timeout: expected a finite number"),
     (["run", "--duration", "1e9"], "argument --duration: must be > 0 and <= 14400 s, got 1e9"),
@@ -66,6 +67,7 @@ def test_bad_options_are_refused_at_parse_time(capsys: pytest.CaptureFixture[str
     (["--speed", "5"], "--speed applies to --pacing realtime, not windowed"),
     (["--target", "host", "--port", "/dev/ttyS0"], "--target host starts its own device"),   # ran as a board
     (["--port", "/dev/null", "--firmware", "uwb-fw"], "a board on --port runs what it was flashed with"),
+    (["--target", "host", "--baud", "9600"], "--baud is the line speed of a board on --port"),
 ])
 def test_options_a_simulated_run_would_ignore_are_refused(capsys: pytest.CaptureFixture[str], argv: list[str],
                                                           phrase: str) -> None:
