@@ -178,6 +178,8 @@ def run_campaign(root: Path, runs: list[RunSpec], exec_opts: ExecOptions, option
     skipped = 0
     for group in costliest_first(group_by_flight(runs)):   # a long flight must not start last
         todo = [r for r in group if not cdir.is_complete(r.run_id, r.fingerprint(), fw_sha[r.firmware])]
+        if todo != group and not cdir.flight_file_ok(group[0].flight.flight_id):
+            todo = list(group)        # its stored flight is gone or damaged: fly it again (the report needs it)
         skipped += len(group) - len(todo)
         if todo:
             pending_groups.append(todo)

@@ -113,6 +113,16 @@ class CampaignDir:
                     and (firmware_sha256 is None or s.get("firmware_sha256") == firmware_sha256)
                     and (self.array_path(run_id).exists() or self.results_path(run_id).exists()))
 
+    def flight_file_ok(self, flight_id: str) -> bool:
+        """The stored flight (what the report reads) is there and its archive intact (every member's CRC): a
+        flight whose file was deleted or damaged is flown again on resume, which writes it anew."""
+        path = self.flight_path(flight_id)
+        try:
+            with zipfile.ZipFile(path) as zf:
+                return zf.testzip() is None
+        except (OSError, zipfile.BadZipFile, EOFError, ValueError, zlib.error):
+            return False
+
 
 def write_json_atomic(path: Path, obj: Any) -> None:
     """Write to a temporary file and rename it over the target: readers never see half a file."""

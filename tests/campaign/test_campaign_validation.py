@@ -182,3 +182,33 @@ def test_a_binary_campaign_json_is_a_named_data_error(tmp_path: Path) -> None:
     f.write_bytes(b"\xff\xfe\x00garbage")
     with pytest.raises(CampaignDataError, match="campaign.json: not a UTF-8 text file"):
         read_json(f)
+
+
+def test_a_deleted_or_damaged_flight_file_is_flown_again_on_resume(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """The report reads DIR/flights/<flight>.npz: with it deleted or bit-flipped, a resume whose runs were all
+    complete used to stop on it (exit 2, nothing to do but delete the runs too); now the flight runs again and
+    writes it anew."""
+    from harness.paths import DEFAULT_FIRMWARE
+    if not DEFAULT_FIRMWARE.exists():
+        pytest.skip("host firmware not built (make firmware)")
+    out = tmp_path / "c"
+    argv = ["campaign", "--out", str(out), "--seeds", "1", "--modes", "twr", "--trajectories", "circle",
+            "--configs", "outlier", "--duration", "11", "--no-recorded", "--no-latency-runs"]
+    assert main(argv) == 0
+    flight = out / "flights" / "sim-twr-circle-s1000.npz"
+    for damage in ("flip", "delete"):
+        if damage == "flip":
+            data = bytearray(flight.read_bytes())
+            data[len(data) // 2] ^= 0xFF
+            flight.write_bytes(bytes(data))
+        else:
+            flight.unlink()
+        capsys.readouterr()
+        assert main(argv) == 0, damage
+        err = capsys.readouterr().err
+        assert "0 already complete, 1 to run" in err, err
+        assert flight.is_file()
+    capsys.readouterr()
+    assert main(argv) == 0
+    assert "1 already complete, 0 to run" in capsys.readouterr().err
