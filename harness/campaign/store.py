@@ -114,14 +114,13 @@ class CampaignDir:
                     and (self.array_path(run_id).exists() or self.results_path(run_id).exists()))
 
     def flight_file_ok(self, flight_id: str) -> bool:
-        """The stored flight (what the report reads) is there and its archive intact (every member's CRC): a
-        flight whose file was deleted or damaged is flown again on resume, which writes it anew."""
-        path = self.flight_path(flight_id)
+        """The stored flight reads as the report reads it (load_flight): a flight whose file was deleted or
+        damaged is flown again on resume, which writes it anew."""
         try:
-            with zipfile.ZipFile(path) as zf:
-                return zf.testzip() is None
-        except (OSError, zipfile.BadZipFile, EOFError, ValueError, zlib.error):
+            load_flight(self.flight_path(flight_id))
+        except CampaignDataError:
             return False
+        return True
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:

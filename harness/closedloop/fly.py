@@ -83,8 +83,9 @@ def fly_on_device(device_spec: DeviceSpec, want_hash: int | None, spec: FlySpec,
     the result's `device` is its identity."""
     with open_device(device_spec, expected_model_hash=want_hash) as device:
         hello = device.identity.as_dict()
-        for mode, config in ((m, c) for m in spec.modes for c in spec.configs):
-            check_network_present(mode, PRESETS[config], device.identity.layouts, f"--config {config}")
+        for mode in spec.modes:
+            for config in spec.configs:
+                check_network_present(mode, PRESETS[config], device.identity.layouts, f"--config {config}")
         result = fly_cells(device, spec, progress)
     result["device"] = hello
     return result
